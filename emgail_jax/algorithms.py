@@ -1,0 +1,80 @@
+"""EM-GAIL and its two baselines, as the few choices in which they differ.
+
+Everything else (rollouts, the E-step's posterior training, the discriminator loss, GAE, TRPO, the
+value fit, the metrics) is shared code; an algorithm only says:
+
+========================  ==================  ==================  ===================
+                          EM-GAIL (Sol. 1)    Info/IntentionGAIL  GAIL
+========================  ==================  ==================  ===================
+policy                    pi(a | s, i)        pi(a | s, i)        pi(a | s)
+posterior P(i | s, a)     trained (E-step)    trained (eq. 21)    none
+discriminator             D(s, a, i)          D(s, a)             D(s, a)
+expert pairs in the loss  weighted by gamma   weight one          weight one
+reward of (s, a, i)       -log(1 - D(s,a,i))  -log(1 - D(s,a))    -log(1 - D(s,a))
+                                              + lambda log P(i|s,a)
+========================  ==================  ==================  ===================
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+
+from emgail_jax.discriminator import imitation_reward
+
+
+@dataclass(frozen=True)
+class Algorithm:
+    name: str
+    conditional_policy: bool
+    learns_posterior: bool
+    conditional_discriminator: bool
+    info_weight: float = 0.0  # lambda of eq. 23; only Info/IntentionGAIL uses it
+
+    def policy_condition(self, intentions: jax.Array, num_intentions: int) -> jax.Array:
+        """``[..., K]`` one-hot of ``intentions [...]``; ``[..., 0]`` if unconditioned."""
+        return _condition(intentions, num_intentions, self.conditional_policy)
+
+    def discriminator_condition(self, intentions: jax.Array, num_intentions: int) -> jax.Array:
+        return _condition(intentions, num_intentions, self.conditional_discriminator)
+
+    def discriminator_conditions(self, num_intentions: int) -> jax.Array:
+        """``[C, c]``: every condition an expert pair is scored under in the M-step."""
+        if self.conditional_discriminator:
+            return jnp.eye(num_intentions)
+        return jnp.zeros((1, 0))
+
+    def expert_weights(self, gamma: jax.Array) -> jax.Array:
+        """``[N, C]`` weights of the expert pairs: gamma (eq. 19) or one (eq. 22)."""
+        if self.conditional_discriminator:
+            return gamma
+        return jnp.ones((gamma.shape[0], 1))
+
+    def pseudo_reward(self, logit: jax.Array, posterior_log_prob: jax.Array) -> jax.Array:
+        """The B-step reward of a policy sample from its discriminator logit (under its own
+        condition) and log P(i | s, a) of the intention that generated it."""
+        reward = imitation_reward(logit)
+        if self.info_weight:
+            reward = reward + self.info_weight * posterior_log_prob
+        return reward
+
+
+def _condition(intentions: jax.Array, num_intentions: int, conditional: bool) -> jax.Array:
+    if conditional:
+        return jax.nn.one_hot(intentions, num_intentions)
+    return jnp.zeros((*jnp.shape(intentions), 0))
+
+
+NAMES = ("emgail", "infogail", "gail")
+
+
+def make_algorithm(name: str, info_weight: float = 1.0) -> Algorithm:
+    if name == "emgail":
+        return Algorithm("emgail", True, True, True)
+    if name == "infogail":
+        return Algorithm("infogail", True, True, False, info_weight=info_weight)
+    if name == "gail":
+        return Algorithm("gail", False, False, False)
+    raise ValueError(f"unknown algorithm '{name}': choose one of {', '.join(NAMES)}")

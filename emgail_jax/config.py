@@ -1,0 +1,64 @@
+"""Hyper-parameters of a run, with the paper's defaults (§5.3) and per-env rollout sizes."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+from emgail_jax.trpo import TRPOConfig
+
+
+@dataclass(frozen=True)
+class Config:
+    """Everything that shapes one training run. Frozen: it is static inside ``jit``."""
+
+    algo: str = "emgail"
+    iterations: int = 400
+    # Rollouts: `num_envs` envs per intention, `rollout_length` steps each per iteration.
+    # None takes the env's default (DRIVER_DEFAULTS / ROBOTICS_DEFAULTS below).
+    num_envs: int | None = None
+    rollout_length: int | None = None
+    eval_episodes: int = 5  # deterministic evaluation episodes per learned intention
+    hidden: tuple[int, ...] = (64, 64)
+    init_log_std: float = -0.5
+    obs_clip: float = 5.0
+    # B-step (TRPO on the pseudo-reward) and its value baseline.
+    gamma: float = 0.995
+    gae_lambda: float = 0.97
+    trpo: TRPOConfig = field(default_factory=TRPOConfig)
+    value_learning_rate: float = 1e-3
+    value_epochs: int = 5
+    value_minibatches: int = 4
+    # E-step and M-step: full-batch Adam steps per iteration (paper: Adam, lr 1e-3).
+    discriminator_learning_rate: float = 1e-3
+    discriminator_steps: int = 5
+    posterior_learning_rate: float = 1e-3
+    posterior_steps: int = 5
+    # Info/IntentionGAIL's lambda (eq. 23). 1.0 weighs log P(i|s,a) like the discriminator term:
+    # at a perfectly imitated pair shared by two intentions, the penalty lambda*log 2 then equals
+    # the discriminator reward log 2 itself, the regime Theorem 2 is about.
+    info_weight: float = 1.0
+    # Iterations compiled into one call; host work (logs, progress) happens between chunks.
+    chunk_size: int = 10
+
+    def replace(self, **changes) -> Config:
+        return dataclasses.replace(self, **changes)
+
+    def resolved(self, env) -> Config:
+        """Fills the env-dependent defaults from ``env``."""
+        defaults = rollout_defaults(env.name, env.episode_length)
+        return self.replace(
+            num_envs=self.num_envs or defaults["num_envs"],
+            rollout_length=self.rollout_length or defaults["rollout_length"],
+        )
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def rollout_defaults(env_name: str, episode_length: int) -> dict:
+    """Samples per intention per iteration: the paper's 5 trajectories of one episode each for
+    the driver and the 500-step robotics tasks; the 50-step reacher runs 50 episodes in parallel
+    so that it too collects 2500 pairs per intention."""
+    num_envs = 50 if env_name == "reacher" else 5
+    return {"num_envs": num_envs, "rollout_length": episode_length}

@@ -1,0 +1,103 @@
+"""Rollouts of every intention at once: training samples and evaluation returns.
+
+Env states are batched ``[K, B]``: B envs for each of the K intentions; row k is driven by the
+policy of intention k. A policy here is a function ``(obs [K, B, D], key) -> actions [K, B, A]``
+that already knows which intention each row belongs to.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+import envs
+
+Policy = Callable[[jax.Array, jax.Array], jax.Array]
+
+
+@struct.dataclass
+class Transitions:
+    """A rollout of T steps of ``[K, B]`` envs, time-major."""
+
+    obs: jax.Array  # [T, K, B, D] raw observation the action was taken in
+    action: jax.Array  # [T, K, B, A]
+    time: jax.Array  # [T, K, B] t / episode_length of `obs`
+    done: jax.Array  # [T, K, B] 1.0 where the episode ended with this transition
+    true_reward: jax.Array  # [T, K, B, K] true reward of every intention (evaluation only)
+
+
+def batch_reset(env: envs.Env, key: jax.Array, shape: tuple[int, ...]) -> envs.State:
+    """Independent resets of ``shape`` envs (e.g. ``(K, B)``)."""
+    keys = jax.random.split(key, shape)
+    reset = env.reset
+    for _ in shape:
+        reset = jax.vmap(reset)
+    return reset(keys)
+
+
+def _batch_step(env: envs.Env, ndim: int):
+    step = env.step
+    for _ in range(ndim):
+        step = jax.vmap(step)
+    return step
+
+
+def rollout(
+    env: envs.Env, policy: Policy, state: envs.State, key: jax.Array, length: int
+) -> tuple[envs.State, Transitions]:
+    """``length`` steps of the ``[K, B]`` envs in ``state`` (an auto-resetting env)."""
+    step = _batch_step(env, 2)
+
+    def body(state, step_key):
+        action = policy(state.obs, step_key)
+        next_state = step(state, action)
+        transition = Transitions(
+            obs=state.obs,
+            action=action,
+            time=state.info["steps"] / env.episode_length,
+            done=next_state.done,
+            true_reward=next_state.reward,
+        )
+        return next_state, transition
+
+    return jax.lax.scan(body, state, jax.random.split(key, length))
+
+
+def episode_returns(
+    env: envs.Env, policy: Policy, key: jax.Array, num_policies: int, episodes: int
+) -> jax.Array:
+    """Mean undiscounted true return of each of ``num_policies`` policy rows.
+
+    Runs ``episodes`` fresh episodes per row (``env`` with a time limit, no auto-reset; rewards
+    after a termination are not counted). Returns ``[num_policies, K]``: row j, column i is the
+    return of policy row j under true intention i.
+    """
+    key_reset, key_steps = jax.random.split(key)
+    state = batch_reset(env, key_reset, (num_policies, episodes))
+    step = _batch_step(env, 2)
+
+    def body(carry, step_key):
+        state, alive, total = carry
+        next_state = step(state, policy(state.obs, step_key))
+        total = total + alive[..., None] * next_state.reward
+        return (next_state, alive * (1.0 - next_state.done), total), None
+
+    alive = jnp.ones((num_policies, episodes))
+    total = jnp.zeros((num_policies, episodes, env.num_intentions))
+    (_, _, total), _ = jax.lax.scan(
+        body, (state, alive, total), jax.random.split(key_steps, env.episode_length)
+    )
+    return total.mean(1)
+
+
+def uniform_random_policy(env: envs.Env) -> Policy:
+    """Uniformly random actions in the action box (the ERD's reference point 1)."""
+
+    def policy(obs, key):
+        shape = (*obs.shape[:-1], env.action_size)
+        return jax.random.uniform(key, shape, minval=env.action_low, maxval=env.action_high)
+
+    return policy

@@ -1,0 +1,323 @@
+"""One training iteration of EM-GAIL, Info/IntentionGAIL or GAIL as a pure function.
+
+``make_train(config, env, expert)`` returns ``init(key) -> TrainState`` and
+``update(state) -> (state, metrics)``. One update is Algorithm 1 of the paper, for all K
+intentions at once:
+
+1. rollout: B envs per intention, T steps, with the current policy;
+2. E-step: the posterior learns P(i | s, a) on those samples; gamma = P on the expert pairs;
+3. M-step: the discriminator learns expert (weighted by gamma) against policy samples;
+4. B-step: the samples are relabelled with the pseudo-reward, GAE computes advantages, TRPO
+   updates the policy, and the value baseline is refitted;
+5. metrics: deterministic episodes of every learned intention give the true returns, the ERD
+   with the best intention matching, and the clustering accuracy of gamma.
+
+The caller ``jit``s ``vmap(update)`` over seeds (see :mod:`emgail_jax.runner`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax import struct
+
+import envs
+from emgail_jax import normalizer as obs_norm
+from emgail_jax.algorithms import Algorithm, make_algorithm
+from emgail_jax.config import Config
+from emgail_jax.demos import Demonstrations
+from emgail_jax.discriminator import discriminator_update
+from emgail_jax.gae import generalized_advantages
+from emgail_jax.metrics import cluster_accuracy, normalized_erd
+from emgail_jax.networks import (
+    Discriminator,
+    GaussianPolicy,
+    Posterior,
+    ValueNet,
+    action_distribution,
+)
+from emgail_jax.posterior import posterior_update, responsibilities
+from emgail_jax.rollout import batch_reset, episode_returns, rollout, uniform_random_policy
+from emgail_jax.trpo import trpo_step
+from emgail_jax.value import fit_value
+
+
+@struct.dataclass
+class TrainState:
+    """Everything one seed's training carries from one iteration to the next."""
+
+    policy: Any
+    value: Any
+    value_opt: Any
+    discriminator: Any
+    discriminator_opt: Any
+    posterior: Any  # None for GAIL
+    posterior_opt: Any
+    normalizer: obs_norm.RunningStats
+    env_state: envs.State  # [K, B] auto-resetting training envs
+    key: jax.Array
+    iteration: jax.Array
+
+
+@struct.dataclass
+class ExpertData:
+    """The demonstrations on the device, plus the references ERD is normalised with."""
+
+    observations: jax.Array  # [N, D] raw
+    actions: jax.Array  # [N, A]
+    labels: jax.Array  # [N] hidden intention labels, -1 when unknown
+    expert_returns: jax.Array  # [K] NaN when unknown
+    random_returns: jax.Array  # [K]
+
+    @classmethod
+    def create(cls, demos: Demonstrations, random_returns: np.ndarray, k: int) -> ExpertData:
+        n = len(demos)
+        labels = demos.intentions if demos.intentions is not None else np.full(n, -1)
+        returns = demos.expert_returns
+        returns = np.full(k, np.nan) if returns is None else returns
+        return cls(
+            observations=jnp.asarray(demos.observations, jnp.float32),
+            actions=jnp.asarray(demos.actions, jnp.float32),
+            labels=jnp.asarray(labels, jnp.int32),
+            expert_returns=jnp.asarray(returns, jnp.float32),
+            random_returns=jnp.asarray(random_returns, jnp.float32),
+        )
+
+
+@dataclass(frozen=True)
+class Networks:
+    policy: GaussianPolicy
+    value: ValueNet
+    discriminator: Discriminator
+    posterior: Posterior
+
+
+def make_networks(config: Config, env: envs.Env) -> Networks:
+    return Networks(
+        policy=GaussianPolicy(env.action_size, config.hidden, config.init_log_std),
+        value=ValueNet(config.hidden),
+        discriminator=Discriminator(config.hidden),
+        posterior=Posterior(env.num_intentions, config.hidden),
+    )
+
+
+def policy_function(networks: Networks, algorithm: Algorithm, config: Config, k: int):
+    """``(params, normalizer, deterministic) -> policy(obs [K, B, D], key)``: row k acts as
+    intention k (GAIL's single policy ignores the row)."""
+
+    def make(params, normalizer, deterministic: bool):
+        def policy(obs, key):
+            rows = jnp.broadcast_to(jnp.arange(k)[:, None], obs.shape[:2])
+            condition = algorithm.policy_condition(rows, k)
+            mean, log_std = networks.policy.apply(
+                params, obs_norm.normalize(normalizer, obs, config.obs_clip), condition
+            )
+            if deterministic:
+                return mean
+            return action_distribution(mean, log_std).sample(seed=key)
+
+        return policy
+
+    return make
+
+
+def make_train(config: Config, env: envs.Env, expert: ExpertData):
+    """Builds ``init(key) -> TrainState`` and ``update(state) -> (state, metrics)``."""
+    config = config.resolved(env)
+    algorithm = make_algorithm(config.algo, config.info_weight)
+    k, b, t = env.num_intentions, config.num_envs, config.rollout_length
+    train_env = envs.wrap_for_training(env)
+    eval_env = envs.EpisodeWrapper(env)
+    networks = make_networks(config, env)
+    make_policy = policy_function(networks, algorithm, config, k)
+    value_opt = optax.adam(config.value_learning_rate)
+    discriminator_opt = optax.adam(config.discriminator_learning_rate)
+    posterior_opt = optax.adam(config.posterior_learning_rate)
+    has_labels = bool(np.asarray(jax.device_get(expert.labels)).min() >= 0)
+
+    # Intention of every sample of a flattened [T, K, B] rollout.
+    sample_intention = jnp.broadcast_to(jnp.arange(k)[None, :, None], (t, k, b)).reshape(-1)
+    policy_condition = algorithm.policy_condition(sample_intention, k)  # [N, C]
+    discriminator_condition = algorithm.discriminator_condition(sample_intention, k)
+    last_condition = algorithm.policy_condition(
+        jnp.broadcast_to(jnp.arange(k)[:, None], (k, b)), k
+    )  # [K, B, C] for the bootstrap value
+
+    def init(key: jax.Array) -> TrainState:
+        keys = dict(
+            zip(
+                ("policy", "value", "disc", "post", "env", "next"),
+                jax.random.split(key, 6),
+                strict=True,
+            )
+        )
+        obs = jnp.zeros((1, env.observation_size))
+        action = jnp.zeros((1, env.action_size))
+        policy = networks.policy.init(keys["policy"], obs, policy_condition[:1])
+        value = networks.value.init(keys["value"], obs, policy_condition[:1], jnp.zeros(1))
+        discriminator = networks.discriminator.init(
+            keys["disc"], obs, action, discriminator_condition[:1]
+        )
+        posterior = (
+            networks.posterior.init(keys["post"], obs, action)
+            if algorithm.learns_posterior
+            else None
+        )
+        return TrainState(
+            policy=policy,
+            value=value,
+            value_opt=value_opt.init(value),
+            discriminator=discriminator,
+            discriminator_opt=discriminator_opt.init(discriminator),
+            posterior=posterior,
+            posterior_opt=posterior_opt.init(posterior) if posterior is not None else None,
+            normalizer=obs_norm.RunningStats.create(env.observation_size),
+            env_state=batch_reset(train_env, keys["env"], (k, b)),
+            key=keys["next"],
+            iteration=jnp.zeros((), jnp.int32),
+        )
+
+    def update(state: TrainState) -> tuple[TrainState, dict]:
+        key_next, key_rollout, key_value, key_eval = jax.random.split(state.key, 4)
+
+        # 1. Rollout of every intention with the current policy.
+        behaviour = make_policy(state.policy, state.normalizer, deterministic=False)
+        env_state, batch = rollout(train_env, behaviour, state.env_state, key_rollout, t)
+        normalizer = obs_norm.update(state.normalizer, batch.obs)
+        normalize = lambda x: obs_norm.normalize(normalizer, x, config.obs_clip)
+        obs = normalize(batch.obs).reshape(t * k * b, -1)  # [N, D]
+        actions = batch.action.reshape(t * k * b, -1)  # [N, A]
+        expert_obs = normalize(expert.observations)
+
+        # 2. E-step: posterior on the policy's labelled samples, gamma on the expert pairs.
+        if algorithm.learns_posterior:
+            posterior, posterior_opt_state, posterior_metrics = posterior_update(
+                networks.posterior.apply,
+                posterior_opt,
+                state.posterior,
+                state.posterior_opt,
+                obs,
+                actions,
+                sample_intention,
+                config.posterior_steps,
+            )
+            gamma = responsibilities(
+                networks.posterior.apply, posterior, expert_obs, expert.actions
+            )
+            log_posterior = jax.nn.log_softmax(networks.posterior.apply(posterior, obs, actions))
+            own_log_posterior = jnp.take_along_axis(log_posterior, sample_intention[:, None], -1)[
+                :, 0
+            ]
+        else:
+            posterior, posterior_opt_state, posterior_metrics = None, None, {}
+            gamma = jnp.full((expert_obs.shape[0], k), 1.0 / k)
+            own_log_posterior = jnp.zeros(obs.shape[0])
+
+        # 3. M-step: discriminator, expert pairs weighted over intentions by gamma.
+        discriminator, discriminator_opt_state, discriminator_metrics = discriminator_update(
+            networks.discriminator.apply,
+            discriminator_opt,
+            state.discriminator,
+            state.discriminator_opt,
+            config.discriminator_steps,
+            expert_obs=expert_obs,
+            expert_actions=expert.actions,
+            expert_weights=algorithm.expert_weights(gamma),
+            conditions=algorithm.discriminator_conditions(k),
+            policy_obs=obs,
+            policy_actions=actions,
+            policy_conditions=discriminator_condition,
+        )
+
+        # 4. B-step: relabel with the pseudo-reward, GAE, TRPO, value fit.
+        logits = networks.discriminator.apply(discriminator, obs, actions, discriminator_condition)
+        reward = algorithm.pseudo_reward(logits, own_log_posterior)
+        time = batch.time.reshape(-1)
+        values = networks.value.apply(state.value, obs, policy_condition, time)
+        bootstrap = networks.value.apply(
+            state.value,
+            normalize(env_state.obs),
+            last_condition,
+            env_state.info["steps"] / env.episode_length,
+        )
+        advantages, returns = generalized_advantages(
+            reward.reshape(t, k, b),
+            values.reshape(t, k, b),
+            batch.done,
+            bootstrap,
+            config.gamma,
+            config.gae_lambda,
+        )
+        # Each intention's advantages are standardised on their own, so that no intention's
+        # reward scale dominates the shared policy update.
+        mean = advantages.mean((0, 2), keepdims=True)
+        std = advantages.std((0, 2), keepdims=True)
+        advantages = ((advantages - mean) / (std + 1e-8)).reshape(-1)
+
+        def distribution(params):
+            return action_distribution(*networks.policy.apply(params, obs, policy_condition))
+
+        policy, policy_metrics = trpo_step(
+            distribution, state.policy, actions, advantages, config.trpo
+        )
+        value, value_opt_state, value_metrics = fit_value(
+            networks.value.apply,
+            value_opt,
+            state.value,
+            state.value_opt,
+            (obs, policy_condition, time),
+            returns.reshape(-1),
+            key_value,
+            config.value_epochs,
+            config.value_minibatches,
+        )
+
+        # 5. Metrics: deterministic episodes of every learned intention.
+        greedy = make_policy(policy, normalizer, deterministic=True)
+        eval_returns = episode_returns(eval_env, greedy, key_eval, k, config.eval_episodes)
+        erd, matching = normalized_erd(eval_returns, expert.expert_returns, expert.random_returns)
+        if algorithm.learns_posterior and has_labels:
+            accuracy = cluster_accuracy(jnp.argmax(gamma, -1), expert.labels, k)
+        else:
+            accuracy = jnp.nan
+        metrics = {
+            "eval/erd": erd,
+            "eval/cluster_accuracy": accuracy,
+            "eval/returns": eval_returns[matching, jnp.arange(k)],  # [K] per true intention
+            "eval/matching": matching,
+            "train/pseudo_reward": reward.mean(),
+            **posterior_metrics,
+            **discriminator_metrics,
+            **policy_metrics,
+            **value_metrics,
+        }
+        new_state = TrainState(
+            policy=policy,
+            value=value,
+            value_opt=value_opt_state,
+            discriminator=discriminator,
+            discriminator_opt=discriminator_opt_state,
+            posterior=posterior,
+            posterior_opt=posterior_opt_state,
+            normalizer=normalizer,
+            env_state=env_state,
+            key=key_next,
+            iteration=state.iteration + 1,
+        )
+        return new_state, metrics
+
+    return init, update
+
+
+def random_returns(env: envs.Env, key: jax.Array, episodes: int = 50) -> np.ndarray:
+    """``[K]`` mean true return of uniformly random actions under every intention."""
+    policy = uniform_random_policy(env)
+    returns = jax.jit(
+        lambda key: episode_returns(envs.EpisodeWrapper(env), policy, key, 1, episodes)
+    )(key)
+    return np.asarray(returns[0])
