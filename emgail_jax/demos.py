@@ -72,18 +72,30 @@ def load(path: str, env: envs.Env | None = None) -> Demonstrations:
     if os.path.getsize(path) == 0:
         raise DemonstrationError(f"demonstrations file '{path}' is empty")
     try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
-    except (zipfile.BadZipFile, ValueError, OSError) as error:
+        data = np.load(path, allow_pickle=False)
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as error:
         raise DemonstrationError(
             f"'{path}' is not a readable .npz file ({error}); write it with numpy.savez"
         ) from None
+    if not isinstance(data, np.lib.npyio.NpzFile):
+        raise DemonstrationError(
+            f"'{path}' is a single .npy array, not an .npz archive; write it with numpy.savez"
+        )
+    with data:
+        arrays = {k: data[k] for k in data.files}
     missing = [k for k in REQUIRED if k not in arrays]
     if missing:
         raise DemonstrationError(
             f"'{path}' lacks the key(s) {', '.join(missing)}; "
             f"a demonstrations file needs {', '.join(REQUIRED)}"
         )
+    for name in ("observations", "actions", "episode_starts", "intentions", "expert_returns"):
+        if name in arrays and not (
+            np.issubdtype(arrays[name].dtype, np.number) or arrays[name].dtype == bool
+        ):
+            raise DemonstrationError(
+                f"'{path}': {name} must be numeric; got dtype {arrays[name].dtype}"
+            )
     demos = Demonstrations(
         observations=arrays["observations"].astype(np.float32),
         actions=arrays["actions"].astype(np.float32),
@@ -107,8 +119,8 @@ def validate(demos: Demonstrations, env: envs.Env | None = None, source: str = "
         raise DemonstrationError(f"{source} holds no state-action pairs")
     if len(act) != n or demos.episode_starts.shape != (n,):
         raise DemonstrationError(
-            f"{source}: observations, actions and episode_starts must have the same length; "
-            f"got {n}, {len(act)} and {demos.episode_starts.shape[0]}"
+            f"{source}: observations [N, obs_dim], actions [N, act_dim] and episode_starts [N] "
+            f"must agree; got shapes {obs.shape}, {act.shape} and {demos.episode_starts.shape}"
         )
     for name, values in (("observations", obs), ("actions", act)):
         if not np.all(np.isfinite(values)):

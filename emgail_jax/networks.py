@@ -18,7 +18,11 @@ import jax.numpy as jnp
 
 
 class MLP(nn.Module):
-    """Tanh MLP whose last layer starts small, so initial outputs are close to zero."""
+    """Tanh MLP whose last layer starts ``final_scale`` times smaller than a LeCun-normal one.
+
+    Not the orthogonal initialiser common in RL code: its QR decomposition is a LAPACK call
+    that deadlocks XLA:CPU when seeds are sharded over several host devices.
+    """
 
     hidden: Sequence[int]
     out: int
@@ -27,8 +31,9 @@ class MLP(nn.Module):
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         for width in self.hidden:
-            x = nn.tanh(nn.Dense(width, kernel_init=nn.initializers.orthogonal(jnp.sqrt(2)))(x))
-        return nn.Dense(self.out, kernel_init=nn.initializers.orthogonal(self.final_scale))(x)
+            x = nn.tanh(nn.Dense(width)(x))
+        final_init = nn.initializers.variance_scaling(self.final_scale**2, "fan_in", "normal")
+        return nn.Dense(self.out, kernel_init=final_init)(x)
 
 
 class GaussianPolicy(nn.Module):

@@ -42,7 +42,7 @@ from emgail_jax.networks import (
     action_distribution,
 )
 from emgail_jax.posterior import posterior_update, responsibilities
-from emgail_jax.rollout import batch_reset, episode_returns, rollout, uniform_random_policy
+from emgail_jax.rollout import batch_reset, episode_returns, rollout
 from emgail_jax.trpo import trpo_step
 from emgail_jax.value import fit_value
 
@@ -66,7 +66,12 @@ class TrainState:
 
 @struct.dataclass
 class ExpertData:
-    """The demonstrations on the device, plus the references ERD is normalised with."""
+    """The demonstrations, plus the references ERD is normalised with.
+
+    Host (numpy) arrays on purpose: closed over by the update step, they compile in as
+    constants. Device arrays would be passed to every device from the one that holds them,
+    which deadlocks XLA:CPU when the seeds are sharded over several host devices.
+    """
 
     observations: jax.Array  # [N, D] raw
     actions: jax.Array  # [N, A]
@@ -81,11 +86,11 @@ class ExpertData:
         returns = demos.expert_returns
         returns = np.full(k, np.nan) if returns is None else returns
         return cls(
-            observations=jnp.asarray(demos.observations, jnp.float32),
-            actions=jnp.asarray(demos.actions, jnp.float32),
-            labels=jnp.asarray(labels, jnp.int32),
-            expert_returns=jnp.asarray(returns, jnp.float32),
-            random_returns=jnp.asarray(random_returns, jnp.float32),
+            observations=np.asarray(demos.observations, np.float32),
+            actions=np.asarray(demos.actions, np.float32),
+            labels=np.asarray(labels, np.int32),
+            expert_returns=np.asarray(returns, np.float32),
+            random_returns=np.asarray(random_returns, np.float32),
         )
 
 
@@ -138,17 +143,14 @@ def make_train(config: Config, env: envs.Env, expert: ExpertData):
     value_opt = optax.adam(config.value_learning_rate)
     discriminator_opt = optax.adam(config.discriminator_learning_rate)
     posterior_opt = optax.adam(config.posterior_learning_rate)
-    has_labels = bool(np.asarray(jax.device_get(expert.labels)).min() >= 0)
+    has_labels = bool(expert.labels.min() >= 0)
 
-    # Intention of every sample of a flattened [T, K, B] rollout.
-    sample_intention = jnp.broadcast_to(jnp.arange(k)[None, :, None], (t, k, b)).reshape(-1)
-    policy_condition = algorithm.policy_condition(sample_intention, k)  # [N, C]
-    discriminator_condition = algorithm.discriminator_condition(sample_intention, k)
-    last_condition = algorithm.policy_condition(
-        jnp.broadcast_to(jnp.arange(k)[:, None], (k, b)), k
-    )  # [K, B, C] for the bootstrap value
+    # Intention of every sample of a flattened [T, K, B] rollout (host constant, see ExpertData).
+    sample_intention = np.broadcast_to(np.arange(k)[None, :, None], (t, k, b)).reshape(-1)
 
     def init(key: jax.Array) -> TrainState:
+        policy_condition = algorithm.policy_condition(sample_intention[:1], k)
+        discriminator_condition = algorithm.discriminator_condition(sample_intention[:1], k)
         keys = dict(
             zip(
                 ("policy", "value", "disc", "post", "env", "next"),
@@ -158,10 +160,10 @@ def make_train(config: Config, env: envs.Env, expert: ExpertData):
         )
         obs = jnp.zeros((1, env.observation_size))
         action = jnp.zeros((1, env.action_size))
-        policy = networks.policy.init(keys["policy"], obs, policy_condition[:1])
-        value = networks.value.init(keys["value"], obs, policy_condition[:1], jnp.zeros(1))
+        policy = networks.policy.init(keys["policy"], obs, policy_condition)
+        value = networks.value.init(keys["value"], obs, policy_condition, jnp.zeros(1))
         discriminator = networks.discriminator.init(
-            keys["disc"], obs, action, discriminator_condition[:1]
+            keys["disc"], obs, action, discriminator_condition
         )
         posterior = (
             networks.posterior.init(keys["post"], obs, action)
@@ -184,6 +186,8 @@ def make_train(config: Config, env: envs.Env, expert: ExpertData):
 
     def update(state: TrainState) -> tuple[TrainState, dict]:
         key_next, key_rollout, key_value, key_eval = jax.random.split(state.key, 4)
+        policy_condition = algorithm.policy_condition(sample_intention, k)  # [N, C]
+        discriminator_condition = algorithm.discriminator_condition(sample_intention, k)
 
         # 1. Rollout of every intention with the current policy.
         behaviour = make_policy(state.policy, state.normalizer, deterministic=False)
@@ -242,7 +246,7 @@ def make_train(config: Config, env: envs.Env, expert: ExpertData):
         bootstrap = networks.value.apply(
             state.value,
             normalize(env_state.obs),
-            last_condition,
+            algorithm.policy_condition(np.arange(k)[:, None].repeat(b, 1), k),  # [K, B, C]
             env_state.info["steps"] / env.episode_length,
         )
         advantages, returns = generalized_advantages(
@@ -312,12 +316,3 @@ def make_train(config: Config, env: envs.Env, expert: ExpertData):
         return new_state, metrics
 
     return init, update
-
-
-def random_returns(env: envs.Env, key: jax.Array, episodes: int = 50) -> np.ndarray:
-    """``[K]`` mean true return of uniformly random actions under every intention."""
-    policy = uniform_random_policy(env)
-    returns = jax.jit(
-        lambda key: episode_returns(envs.EpisodeWrapper(env), policy, key, 1, episodes)
-    )(key)
-    return np.asarray(returns[0])

@@ -1,0 +1,103 @@
+"""What a run leaves on disk: ``metrics.csv``, TensorBoard events and ``summary.json``.
+
+Metrics arrive from the device as a dict of arrays ``[seeds, iterations, ...]``; a metric with
+a trailing ``[K]`` axis (returns per intention) becomes K columns ``name/0 .. name/K-1``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+from typing import Any
+
+import numpy as np
+
+
+def flatten_metrics(metrics: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """``{name: [S, L, ...]}`` -> ``{column: [S, L]}``."""
+    columns = {}
+    for name, values in sorted(metrics.items()):
+        values = np.asarray(values)
+        if values.ndim == 2:
+            columns[name] = values
+        else:
+            for index in range(values.shape[-1]):
+                columns[f"{name}/{index}"] = values[..., index]
+    return columns
+
+
+class MetricsLog:
+    """Appends one row per iteration and seed to ``metrics.csv`` and to TensorBoard."""
+
+    def __init__(self, out_dir: str, tensorboard: bool = True):
+        self.csv_path = os.path.join(out_dir, "metrics.csv")
+        self.tensorboard_dir = os.path.join(out_dir, "tensorboard")
+        self._columns: list[str] | None = None
+        self._writers = {}
+        self._tensorboard = tensorboard
+
+    def write(self, first_iteration: int, metrics: dict[str, np.ndarray]) -> None:
+        columns = flatten_metrics(metrics)
+        seeds, length = next(iter(columns.values())).shape
+        if self._columns is None:
+            self._columns = list(columns)
+            with open(self.csv_path, "w", newline="") as f:
+                csv.writer(f).writerow(["iteration", "seed", *self._columns])
+        with open(self.csv_path, "a", newline="") as f:
+            out = csv.writer(f)
+            for step in range(length):
+                for seed in range(seeds):
+                    row = [_cell(columns[c][seed, step]) for c in self._columns]
+                    out.writerow([first_iteration + step + 1, seed, *row])
+        if self._tensorboard:
+            self._write_tensorboard(first_iteration, columns, seeds, length)
+
+    def _write_tensorboard(self, first_iteration, columns, seeds, length):
+        from tensorboardX import SummaryWriter
+
+        for seed in range(seeds):
+            if seed not in self._writers:
+                path = os.path.join(self.tensorboard_dir, f"seed_{seed}")
+                self._writers[seed] = SummaryWriter(path)
+            writer = self._writers[seed]
+            for step in range(length):
+                for name, values in columns.items():
+                    value = float(values[seed, step])
+                    if math.isfinite(value):
+                        writer.add_scalar(name, value, first_iteration + step + 1)
+            writer.flush()
+
+    def close(self) -> None:
+        for writer in self._writers.values():
+            writer.close()
+
+
+def _cell(value) -> str:
+    value = float(value)
+    return "" if math.isnan(value) else f"{value:.6g}"
+
+
+def to_json_value(value: Any) -> Any:
+    """numpy scalars/arrays -> plain JSON values; NaN -> null."""
+    if isinstance(value, dict):
+        return {k: to_json_value(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [to_json_value(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return to_json_value(value.tolist())
+    if isinstance(value, (np.floating, float)):
+        return None if math.isnan(float(value)) else float(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+def write_json(path: str, data: dict) -> None:
+    """Writes ``data`` atomically: a reader never sees a half-written file."""
+    tmp = f"{path}.tmp"
+    with open(tmp, "w") as f:
+        json.dump(to_json_value(data), f, indent=2)
+        f.write("\n")
+    os.replace(tmp, path)

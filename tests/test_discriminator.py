@@ -1,0 +1,199 @@
+"""The M-step loss (eq. 19 / 22) and the imitation reward -log(1 - D) (eq. 20)."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import pytest
+
+from emgail_jax.discriminator import (
+    discriminator_loss,
+    discriminator_update,
+    expert_logits,
+    imitation_reward,
+)
+from emgail_jax.networks import Discriminator
+
+LN3 = math.log(3.0)
+
+
+def toy_apply(params, obs, actions, condition):
+    """f(s, a, c) = s_0 + a_0 + c . params: logits chosen by hand through the inputs."""
+    return obs[:, 0] + actions[:, 0] + condition @ params
+
+
+def log_sigmoid(x):
+    return -np.log1p(np.exp(-np.asarray(x, np.float64)))
+
+
+def test_loss_hand_computed_values():
+    params = jnp.array([0.0, LN3])  # condition 1 adds ln 3 to the logit
+    conditions = jnp.eye(2)
+    # Expert pair 0: f = (0, ln 3) -> D = (1/2, 3/4); gamma = (1/2, 1/2).
+    # Expert pair 1: f = (-ln 3, 0) -> D = (1/4, 1/2); gamma = (1, 0).
+    expert_obs = jnp.array([[0.0], [-LN3]])
+    expert_actions = jnp.zeros((2, 1))
+    gamma = jnp.array([[0.5, 0.5], [1.0, 0.0]])
+    # Policy sample 0 under condition 1: f = ln 3 -> -log(1 - 3/4) = log 4.
+    # Policy sample 1 under condition 0: f = -ln 3 -> -log(1 - 1/4) = log 4/3.
+    policy_obs = jnp.array([[0.0], [-LN3]])
+    policy_actions = jnp.zeros((2, 1))
+    policy_conditions = jnp.array([[0.0, 1.0], [1.0, 0.0]])
+    loss, metrics = discriminator_loss(
+        toy_apply,
+        params,
+        expert_obs,
+        expert_actions,
+        gamma,
+        conditions,
+        policy_obs,
+        policy_actions,
+        policy_conditions,
+    )
+    expert_term = ((0.5 * math.log(2) + 0.5 * math.log(4 / 3)) + math.log(4)) / 2
+    policy_term = (math.log(4) + math.log(4 / 3)) / 2
+    assert float(loss) == pytest.approx(expert_term + policy_term, rel=1e-6)
+    assert float(metrics["discriminator/loss"]) == pytest.approx(float(loss))
+    # E_gamma[D] on the expert pairs: (0.5 * 0.5 + 0.5 * 0.75, 0.25) -> mean 0.4375.
+    assert float(metrics["discriminator/expert_d"]) == pytest.approx(0.4375, rel=1e-6)
+    assert float(metrics["discriminator/policy_d"]) == pytest.approx(0.5, rel=1e-6)
+
+
+@pytest.fixture(scope="module")
+def network_batch():
+    """A real discriminator network and a random tiny batch with K = 3 intentions."""
+    k, n, m = 3, 6, 9
+    keys = jax.random.split(jax.random.PRNGKey(0), 6)
+    net = Discriminator(hidden=(8,))
+    batch = dict(
+        expert_obs=jax.random.normal(keys[0], (n, 4)),
+        expert_actions=jax.random.normal(keys[1], (n, 2)),
+        expert_weights=jax.nn.softmax(jax.random.normal(keys[2], (n, k))),
+        conditions=jnp.eye(k),
+        policy_obs=jax.random.normal(keys[3], (m, 4)),
+        policy_actions=jax.random.normal(keys[4], (m, 2)),
+        policy_conditions=jax.nn.one_hot(jnp.arange(m) % k, k),
+    )
+    params = net.init(
+        keys[5], batch["policy_obs"], batch["policy_actions"], batch["policy_conditions"]
+    )
+    return net, params, batch
+
+
+def test_expert_logits_score_every_pair_under_every_condition(network_batch):
+    net, params, batch = network_batch
+    logits = expert_logits(
+        net.apply, params, batch["expert_obs"], batch["expert_actions"], batch["conditions"]
+    )
+    n, k = batch["expert_weights"].shape
+    assert logits.shape == (n, k)
+    for c in range(k):
+        onehot = jnp.broadcast_to(jnp.eye(k)[c], (n, k))
+        direct = net.apply(params, batch["expert_obs"], batch["expert_actions"], onehot)
+        np.testing.assert_allclose(logits[:, c], direct, rtol=1e-5, atol=1e-6)
+
+
+def test_loss_equals_written_out_formula(network_batch):
+    net, params, batch = network_batch
+    n, k = batch["expert_weights"].shape
+    real = np.stack(
+        [
+            net.apply(
+                params,
+                batch["expert_obs"],
+                batch["expert_actions"],
+                jnp.broadcast_to(jnp.eye(k)[c], (n, k)),
+            )
+            for c in range(k)
+        ],
+        1,
+    )
+    fake = np.asarray(
+        net.apply(params, batch["policy_obs"], batch["policy_actions"], batch["policy_conditions"])
+    )
+    gamma = np.asarray(batch["expert_weights"], np.float64)
+    # -mean_n sum_k gamma_nk log sigma(f_nk) - mean_m log(1 - sigma(f_m))
+    expected = -np.mean(np.sum(gamma * log_sigmoid(real), 1)) - np.mean(log_sigmoid(-fake))
+    loss, _ = discriminator_loss(net.apply, params, **batch)
+    assert float(loss) == pytest.approx(expected, rel=1e-5)
+    jitted, _ = jax.jit(lambda p: discriminator_loss(net.apply, p, **batch))(params)
+    assert float(jitted) == pytest.approx(float(loss), rel=1e-6)
+
+
+def test_one_hot_gamma_reduces_to_per_intention_gail_losses(network_batch):
+    net, params, batch = network_batch
+    k = batch["conditions"].shape[0]
+    # Two expert pairs per intention, three policy samples per intention.
+    expert_labels = jnp.array([0, 1, 2, 2, 0, 1])
+    policy_labels = jnp.argmax(batch["policy_conditions"], -1)
+    one_hot = {**batch, "expert_weights": jax.nn.one_hot(expert_labels, k)}
+    em_loss, _ = discriminator_loss(net.apply, params, **one_hot)
+    gail_losses = []
+    for i in range(k):
+        e, p = np.flatnonzero(expert_labels == i), np.flatnonzero(policy_labels == i)
+        # GAIL on intention i alone: D(s, a) := D(s, a, i), every pair weighted one.
+        gail_loss, _ = discriminator_loss(
+            net.apply,
+            params,
+            expert_obs=batch["expert_obs"][e],
+            expert_actions=batch["expert_actions"][e],
+            expert_weights=jnp.ones((len(e), 1)),
+            conditions=jnp.eye(k)[i : i + 1],
+            policy_obs=batch["policy_obs"][p],
+            policy_actions=batch["policy_actions"][p],
+            policy_conditions=batch["policy_conditions"][p],
+        )
+        gail_losses.append(float(gail_loss))
+    # Equal counts per intention: the EM-GAIL loss is the mean of the K GAIL losses.
+    assert float(em_loss) == pytest.approx(np.mean(gail_losses), rel=1e-5)
+
+
+def test_imitation_reward_is_minus_log_one_minus_d():
+    logits = np.array([-3.0, -0.5, 0.0, 0.7, 4.0])
+    expected = -np.log(1.0 - 1.0 / (1.0 + np.exp(-logits)))
+    np.testing.assert_allclose(imitation_reward(jnp.asarray(logits)), expected, rtol=1e-5)
+    assert float(imitation_reward(jnp.array(0.0))) == pytest.approx(math.log(2.0))
+
+
+def test_imitation_reward_finite_at_extreme_logits():
+    reward = imitation_reward(jnp.array([-100.0, 100.0]))
+    grad = jax.vmap(jax.grad(imitation_reward))(jnp.array([-100.0, 100.0]))
+    assert np.all(np.isfinite(reward)) and np.all(np.isfinite(grad))
+    assert 0.0 <= float(reward[0]) < 1e-30  # D ~ 0: no reward
+    assert float(reward[1]) == pytest.approx(100.0)  # D ~ 1: -log(1 - D) ~ f
+    # The naive formula overflows in float32 where the softplus form does not.
+    with np.errstate(divide="ignore"):
+        naive = -np.log(1.0 - 1.0 / (1.0 + np.exp(np.float32(-100.0))))
+    assert not np.isfinite(naive)
+
+
+def test_loss_finite_at_extreme_logits():
+    params = jnp.array([0.0])
+    huge = jnp.array([[100.0], [-100.0]])
+    loss, _ = discriminator_loss(
+        toy_apply,
+        params,
+        huge,
+        jnp.zeros((2, 1)),
+        jnp.ones((2, 1)),
+        jnp.ones((1, 1)),
+        huge,
+        jnp.zeros((2, 1)),
+        jnp.ones((2, 1)),
+    )
+    # Expert: softplus(-100) + softplus(100) ~ 100, halved; policy: the same.
+    assert float(loss) == pytest.approx(100.0, rel=1e-4)
+
+
+def test_update_reduces_loss_and_reports_first_step_metrics(network_batch):
+    net, params, batch = network_batch
+    optimizer = optax.adam(1e-2)
+    update = jax.jit(lambda p, s: discriminator_update(net.apply, optimizer, p, s, 20, **batch))
+    new_params, _, metrics = update(params, optimizer.init(params))
+    before, _ = discriminator_loss(net.apply, params, **batch)
+    after, _ = discriminator_loss(net.apply, new_params, **batch)
+    # The metrics describe the parameters before the update.
+    assert float(metrics["discriminator/loss"]) == pytest.approx(float(before), rel=1e-5)
+    assert float(after) < float(before) - 0.05

@@ -1,0 +1,88 @@
+"""The E-step: the posterior's cross-entropy, its training and the responsibilities (eq. 18)."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import pytest
+
+from emgail_jax.networks import Posterior
+from emgail_jax.posterior import posterior_loss, posterior_update, responsibilities
+
+LN3 = math.log(3.0)
+
+
+def toy_apply(logits, obs, actions):
+    """Ignores the inputs: the logits of every row are given directly as the 'parameters'."""
+    del actions
+    return logits[: obs.shape[0]]
+
+
+def test_loss_hand_computed_cross_entropy():
+    # Row 0: logits (0, ln 3) -> P = (1/4, 3/4), label 1 -> -log 3/4, predicted 1 (right).
+    # Row 1: logits (ln 3, 0) -> P = (3/4, 1/4), label 1 -> -log 1/4, predicted 0 (wrong).
+    logits = jnp.array([[0.0, LN3], [LN3, 0.0]])
+    loss, metrics = posterior_loss(
+        toy_apply, logits, jnp.zeros((2, 1)), jnp.zeros((2, 1)), jnp.array([1, 1])
+    )
+    expected = (-math.log(0.75) - math.log(0.25)) / 2
+    assert float(loss) == pytest.approx(expected, rel=1e-6)
+    assert float(metrics["posterior/loss"]) == pytest.approx(expected, rel=1e-6)
+    assert float(metrics["posterior/policy_accuracy"]) == 0.5
+
+
+def test_loss_equals_cross_entropy_of_network():
+    k = 3
+    net = Posterior(num_intentions=k, hidden=(8,))
+    keys = jax.random.split(jax.random.PRNGKey(0), 4)
+    obs = jax.random.normal(keys[0], (7, 4))
+    actions = jax.random.normal(keys[1], (7, 2))
+    labels = jax.random.randint(keys[2], (7,), 0, k)
+    params = net.init(keys[3], obs, actions)
+    logits = np.asarray(net.apply(params, obs, actions), np.float64)
+    log_p = logits - np.log(np.exp(logits).sum(1, keepdims=True))
+    expected = -np.mean(log_p[np.arange(7), np.asarray(labels)])
+    loss, _ = posterior_loss(net.apply, params, obs, actions, labels)
+    assert float(loss) == pytest.approx(expected, rel=1e-5)
+
+
+def test_responsibilities_are_the_posterior_probabilities():
+    logits = jnp.array([[0.0, LN3], [LN3, 0.0], [0.0, 0.0]])
+    gamma = responsibilities(toy_apply, logits, jnp.zeros((3, 1)), jnp.zeros((3, 1)))
+    np.testing.assert_allclose(gamma, [[0.25, 0.75], [0.75, 0.25], [0.5, 0.5]], rtol=1e-6)
+
+
+@pytest.fixture(scope="module")
+def separable_problem():
+    """Three well separated clusters of (obs, action) pairs, one per intention."""
+    k, per = 3, 20
+    rng = np.random.default_rng(0)
+    centres = np.array([[3.0, 0.0, 0.0], [-3.0, 3.0, 0.0], [0.0, -3.0, 3.0]])
+    labels = np.repeat(np.arange(k), per)
+    pairs = centres[labels] + 0.5 * rng.normal(size=(k * per, 3))
+    obs = jnp.asarray(pairs[:, :2], jnp.float32)
+    actions = jnp.asarray(pairs[:, 2:], jnp.float32)
+    net = Posterior(num_intentions=k, hidden=(16,))
+    params = net.init(jax.random.PRNGKey(1), obs, actions)
+    return net, params, obs, actions, jnp.asarray(labels)
+
+
+def test_update_reduces_loss_on_separable_problem(separable_problem):
+    net, params, obs, actions, labels = separable_problem
+    optimizer = optax.adam(1e-2)
+    update = jax.jit(
+        lambda p, s: posterior_update(net.apply, optimizer, p, s, obs, actions, labels, 100)
+    )
+    new_params, _, metrics = update(params, optimizer.init(params))
+    before, _ = posterior_loss(net.apply, params, obs, actions, labels)
+    after, after_metrics = posterior_loss(net.apply, new_params, obs, actions, labels)
+    # Metrics come from the first step, i.e. describe the parameters before the update.
+    assert float(metrics["posterior/loss"]) == pytest.approx(float(before), rel=1e-5)
+    assert float(after) < 0.5 * float(before)
+    assert float(after_metrics["posterior/policy_accuracy"]) == 1.0
+    gamma = responsibilities(net.apply, new_params, obs, actions)
+    assert gamma.shape == (60, 3)
+    np.testing.assert_allclose(gamma.sum(-1), 1.0, rtol=1e-5)
+    np.testing.assert_array_equal(jnp.argmax(gamma, -1), labels)

@@ -1,0 +1,68 @@
+"""Fitting the value baseline V(s, i, t) to the GAE returns."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import pytest
+
+from emgail_jax.networks import ValueNet
+from emgail_jax.value import fit_value, value_loss
+
+
+def test_value_loss_hand_computed():
+    predict = lambda w, x: w * x
+    # Predictions 2 * (1, 2, 3) = (2, 4, 6) against (1, 4, 8): errors (1, 0, -2) -> MSE 5 / 3.
+    loss = value_loss(predict, 2.0, (jnp.array([1.0, 2.0, 3.0]),), jnp.array([1.0, 4.0, 8.0]))
+    assert float(loss) == pytest.approx(5.0 / 3.0)
+
+
+@pytest.fixture(scope="module")
+def regression():
+    """V(s, i, t) on a smooth toy target that depends on all three inputs."""
+    n, k = 64, 2
+    keys = jax.random.split(jax.random.PRNGKey(0), 4)
+    obs = jax.random.normal(keys[0], (n, 3))
+    condition = jax.nn.one_hot(jax.random.randint(keys[1], (n,), 0, k), k)
+    time = jax.random.uniform(keys[2], (n,))
+    targets = jnp.sin(obs[:, 0]) + 2.0 * condition[:, 1] - time + 1.0
+    net = ValueNet(hidden=(16,))
+    params = net.init(keys[3], obs, condition, time)
+    return net, params, (obs, condition, time), targets
+
+
+def test_fit_reduces_the_loss(regression):
+    net, params, inputs, targets = regression
+    optimizer = optax.adam(1e-2)
+    fit = jax.jit(
+        lambda p, s, key: fit_value(
+            net.apply, optimizer, p, s, inputs, targets, key, epochs=30, minibatches=4
+        )
+    )
+    new_params, opt_state, metrics = fit(params, optimizer.init(params), jax.random.PRNGKey(1))
+    before = float(value_loss(net.apply, params, inputs, targets))
+    after = float(value_loss(net.apply, new_params, inputs, targets))
+    assert float(metrics["value/loss_before"]) == pytest.approx(before, rel=1e-5)
+    assert float(metrics["value/loss"]) == pytest.approx(after, rel=1e-5)
+    assert after < 0.2 * before
+    # 30 epochs x 4 minibatches = 120 Adam steps.
+    assert int(opt_state[0].count) == 120
+
+
+def test_fit_uses_whole_minibatches_when_n_is_not_divisible(regression):
+    net, params, inputs, targets = regression
+    inputs = tuple(x[:10] for x in inputs)
+    optimizer = optax.sgd(1e-2)
+    new_params, _, metrics = fit_value(
+        net.apply,
+        optimizer,
+        params,
+        optimizer.init(params),
+        inputs,
+        targets[:10],
+        jax.random.PRNGKey(2),
+        epochs=2,
+        minibatches=3,
+    )
+    assert all(np.all(np.isfinite(x)) for x in jax.tree.leaves(new_params))
+    assert float(metrics["value/loss"]) < float(metrics["value/loss_before"])
