@@ -29,11 +29,14 @@ class Config:
     value_learning_rate: float = 1e-3
     value_epochs: int = 5
     value_minibatches: int = 4
-    # E-step and M-step: full-batch Adam steps per iteration (paper: Adam, lr 1e-3).
+    # E-step and M-step: full-batch Adam steps per iteration (paper: Adam, lr 1e-3). On the
+    # driver (4 seeds x 400 iterations), 5 posterior steps left a seed's clustering accuracy at
+    # 0.94 where 20 reached 0.97-0.98 on every seed; 10 discriminator steps instead of 5 cut the
+    # final ERD from 0.02-0.06 to 0.01-0.03 (see the closing note of issue 2).
     discriminator_learning_rate: float = 1e-3
-    discriminator_steps: int = 5
+    discriminator_steps: int = 10
     posterior_learning_rate: float = 1e-3
-    posterior_steps: int = 5
+    posterior_steps: int = 20
     # Info/IntentionGAIL's lambda (eq. 23). 1.0 weighs log P(i|s,a) like the discriminator term:
     # at a perfectly imitated pair shared by two intentions, the penalty lambda*log 2 then equals
     # the discriminator reward log 2 itself, the regime Theorem 2 is about.

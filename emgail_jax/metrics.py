@@ -85,7 +85,8 @@ def separability(
     """
     labels = np.asarray(labels)
     k = k or int(labels.max()) + 1
-    pairs = StandardScaler().fit_transform(np.concatenate([observations, actions], 1))
+    pairs = np.concatenate([observations, actions], 1).astype(np.float64)
+    pairs = StandardScaler().fit_transform(pairs)
     scores = []
     for seed in seeds:
         mixture = GaussianMixture(k, covariance_type="full", random_state=seed).fit(pairs)

@@ -23,7 +23,8 @@ def setup(host_devices: int | None = None, cache_dir: str | None = DEFAULT_CACHE
     _add_xla_flags(f"--xla_force_host_platform_device_count={devices}")
     import jax
 
-    if cache_dir:
+    # A cache chosen earlier (JAX_COMPILATION_CACHE_DIR, or a caller's config) wins.
+    if cache_dir and not jax.config.jax_compilation_cache_dir:
         jax.config.update("jax_compilation_cache_dir", cache_dir)
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
         jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
