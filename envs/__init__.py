@@ -46,9 +46,7 @@ def make(name: str, intentions: int | None = None, **options: Any) -> Env:
     """
     cls = env_class(name)
     accepted = [
-        p
-        for p in inspect.signature(cls.__init__).parameters
-        if p not in ("self", "intentions")
+        p for p in inspect.signature(cls.__init__).parameters if p not in ("self", "intentions")
     ]
     unknown = sorted(set(options) - set(accepted))
     if unknown:

@@ -107,4 +107,6 @@ class Env(abc.ABC):
 
     def __repr__(self) -> str:
         opts = ", ".join(f"{k}={v}" for k, v in self.options().items())
-        return f"{type(self).__name__}(intentions={self.num_intentions}{', ' if opts else ''}{opts})"
+        return (
+            f"{type(self).__name__}(intentions={self.num_intentions}{', ' if opts else ''}{opts})"
+        )
