@@ -155,12 +155,14 @@ class MjxEnv(Env):
       frame_skip: physics steps per env step; ``dt = frame_skip * opt.timestep``.
       default_solver: the env's :class:`Solver` (documented in its docstring).
       episode_steps: episode length T.
+      unroll_frame_skip: unroll the frame-skip loop (longer compile; faster for some envs).
     """
 
     xml: ClassVar[str]
     frame_skip: ClassVar[int]
     default_solver: ClassVar[Solver]
     episode_steps: ClassVar[int]
+    unroll_frame_skip: ClassVar[bool] = False
 
     def __init__(
         self,
@@ -224,6 +226,10 @@ class MjxEnv(Env):
         the state before the last integration; recompute them if an observation needs them.
         """
         data = data.replace(ctrl=ctrl)
+        if self.unroll_frame_skip:
+            for _ in range(self.frame_skip):
+                data = self._substep(data)
+            return data
         return jax.lax.fori_loop(0, self.frame_skip, lambda _, d: self._substep(d), data)
 
     def _substep(self, data: mjx.Data) -> mjx.Data:

@@ -51,6 +51,7 @@ class ReacherEnv(MjxEnv):
     intention_names = tuple(f"ball{k + 1}" for k in range(NUM_BALLS))
     xml = "reacher.xml"
     frame_skip = 2
+    unroll_frame_skip = True  # ~6% more env-steps/s under vmap on CPU (swimmer: no gain)
     episode_steps = 50
     default_solver = Solver(
         "newton", iterations=1, ls_iterations=4, disable=("contact",), jacobian="sparse"

@@ -8,8 +8,9 @@ actions (a sinusoid per actuator with a random phase per env), held for the env'
 
 The MJX number is full env steps (physics, observation, rewards); the native number is physics
 only (``mj_step`` x frame skip), and ``mujoco.rollout`` also writes the state after every
-physics step. Each number is the best of ``--repeats`` timed runs after a warm-up run (another
-process on the machine only ever slows a run down). Compile time is reported separately.
+physics step. Each number is the best of ``--repeats`` timed runs after a warm-up run, MJX and
+native runs alternating (another process on the machine only ever slows a run down, and then
+both sides alike). Compile time (reset and rollout) is reported separately.
 
     python experiments/bench_env_throughput.py [--envs swimmer hopper] [--batch 1024]
 """
@@ -41,13 +42,16 @@ BATCH = {"swimmer": 1024, "hopper": 1024, "halfcheetah": 512, "reacher": 1024}
 
 
 def open_loop_actions(phase: jax.Array, t: jax.Array, action_size: int) -> jax.Array:
-    """``[B, nu]`` actions at env step ``t``: ``sin(2π f_j t dt0 + phase)`` per actuator j."""
-    frequency = 0.05 * (1.0 + jnp.arange(action_size))  # cycles per env step
+    """``[B, nu]`` actions at env step ``t``: ``sin(2π f_j t + phase)``, ``f_j`` per env step."""
+    frequency = 0.05 * (1.0 + jnp.arange(action_size))
     return jnp.sin(2 * jnp.pi * frequency * t + phase[:, None])
 
 
-def bench_mjx(env: envs.Env, batch: int, steps: int, repeats: int, key: jax.Array):
-    """Returns (compile seconds, env-steps/s, initial states [B] on the host, phases [B])."""
+def make_mjx_run(env: envs.Env, batch: int, steps: int, key: jax.Array):
+    """Compiles the sharded MJX rollout; returns (run, compile seconds, initial states, phases).
+
+    ``run()`` steps ``batch`` envs ``steps`` times from fixed initial states and blocks.
+    """
     devices = jax.devices()
     if batch % len(devices):
         raise SystemExit(f"--batch {batch} must be a multiple of {len(devices)} devices")
@@ -57,7 +61,7 @@ def bench_mjx(env: envs.Env, batch: int, steps: int, repeats: int, key: jax.Arra
     def shard(fn):
         return jax.jit(jax.shard_map(fn, mesh=mesh, in_specs=spec, out_specs=spec, check_vma=False))
 
-    def run(state, phase):
+    def rollout_fn(state, phase):
         def body(state, t):
             return jax.vmap(env.step)(state, open_loop_actions(phase, t, env.action_size)), None
 
@@ -67,27 +71,18 @@ def bench_mjx(env: envs.Env, batch: int, steps: int, repeats: int, key: jax.Arra
     key_reset, key_phase = jax.random.split(key)
     keys = jax.random.split(key_reset, batch)
     phase = jax.random.uniform(key_phase, (batch,), maxval=2 * np.pi)
-    reset, run = shard(jax.vmap(env.reset)), shard(run)
-
     start = time.perf_counter()
-    state = jax.block_until_ready(reset(keys))
-    compiled = run.lower(state, phase).compile()
+    state = jax.block_until_ready(shard(jax.vmap(env.reset))(keys))
+    compiled = shard(rollout_fn).lower(state, phase).compile()
     compile_s = time.perf_counter() - start
-
-    initial = jax.device_get(state.physics)
-    jax.block_until_ready(compiled(state, phase))  # warm-up
-    best = np.inf
-    for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(compiled(state, phase))
-        best = min(best, time.perf_counter() - start)
-    return compile_s, batch * steps / best, initial, np.asarray(phase)
+    run = lambda: jax.block_until_ready(compiled(state, phase))
+    run()  # warm-up
+    return run, compile_s, jax.device_get(state.physics), np.asarray(phase)
 
 
-def bench_native(env, initial, phase: np.ndarray, batch: int, steps: int, repeats: int):
-    """Env-steps/s of ``mujoco.rollout`` with one thread per core, same model, states, actions."""
+def make_native_run(env, initial, phase: np.ndarray, batch: int, steps: int):
+    """``run()``: ``mujoco.rollout`` with one thread per core, same model, states and actions."""
     model = env.mj_model
-    frame_skip = env.frame_skip
     datas = [mujoco.MjData(model) for _ in range(_CORES)]
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     states = np.zeros((batch, mujoco.mj_stateSize(model, spec)))
@@ -103,18 +98,17 @@ def bench_native(env, initial, phase: np.ndarray, batch: int, steps: int, repeat
     actions = np.asarray(
         jax.vmap(lambda t: open_loop_actions(jnp.asarray(phase[:batch]), t, env.action_size))(t)
     )  # [T, B, nu]
-    control = np.repeat(actions.transpose(1, 0, 2), frame_skip, axis=1).astype(np.float64)
-    out = np.zeros((batch, steps * frame_skip, states.shape[1]))
-    run = lambda: rollout.rollout(
-        model, datas, states, control, state=out, persistent_pool=True, skip_checks=False
-    )
-    run()  # warm-up (and thread pool creation)
-    best = np.inf
-    for _ in range(repeats):
-        start = time.perf_counter()
-        run()
-        best = min(best, time.perf_counter() - start)
-    return batch * steps / best
+    control = np.repeat(actions.transpose(1, 0, 2), env.frame_skip, axis=1).astype(np.float64)
+    out = np.zeros((batch, steps * env.frame_skip, states.shape[1]))
+    run = lambda: rollout.rollout(model, datas, states, control, state=out, persistent_pool=True)
+    run()  # warm-up (and thread-pool creation)
+    return run
+
+
+def timed(run) -> float:
+    start = time.perf_counter()
+    run()
+    return time.perf_counter() - start
 
 
 def main() -> None:
@@ -123,41 +117,43 @@ def main() -> None:
     parser.add_argument("--batch", type=int, default=None, help="MJX batch (default: per env)")
     parser.add_argument("--native-batch", type=int, default=256)
     parser.add_argument("--steps", type=int, default=100, help="env steps per timed rollout")
-    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
 
     print(
         f"jax {jax.__version__} ({len(jax.devices())} {jax.default_backend()} devices), "
-        f"mujoco {mujoco.__version__}, {_CORES} cores"
+        f"mujoco {mujoco.__version__}, {_CORES} cores; best of {args.repeats} alternating runs"
     )
     rows = []
     for name in args.envs:
         env = envs.make(name)
         batch = args.batch or BATCH.get(name, 1024)
-        key = jax.random.PRNGKey(args.seed)
-        compile_s, mjx_rate, initial, phase = bench_mjx(env, batch, args.steps, args.repeats, key)
         native_batch = min(batch, args.native_batch)
-        native_rate = bench_native(env, initial, phase, native_batch, args.steps, args.repeats)
-        ratio = mjx_rate / native_rate
+        key = jax.random.PRNGKey(args.seed)
+        mjx_run, compile_s, initial, phase = make_mjx_run(env, batch, args.steps, key)
+        native_run = make_native_run(env, initial, phase, native_batch, args.steps)
+        # Alternate, so that both see the same load from anything else on the machine.
+        times = np.array([(timed(mjx_run), timed(native_run)) for _ in range(args.repeats)])
+        mjx_rate = batch * args.steps / times[:, 0].min()
+        native_rate = native_batch * args.steps / times[:, 1].min()
         s = env.solver
         off = "-".join(s.disable) or "none"
         solver = f"{s.solver} {s.iterations}/{s.ls_iterations} {s.jacobian} off:{off}"
-        rows.append(
-            (name, batch, mjx_rate, native_rate, ratio, TARGETS.get(name), compile_s, solver)
-        )
+        rows.append((name, batch, mjx_rate, native_rate, TARGETS.get(name), compile_s, solver))
         print(f"  {name}: MJX {mjx_rate:,.0f}/s, native {native_rate:,.0f}/s", flush=True)
 
     header = (
         f"{'env':12s} {'batch':>6s} {'MJX steps/s':>12s} {'native steps/s':>15s} "
-        f"{'MJX/native':>10s} {'target':>7s} {'compile s':>9s}  solver (iters/ls, jacobian, off)"
+        f"{'MJX/native':>10s} {'target':>6s} {'compile s':>9s}  solver (iters/ls, jacobian, off)"
     )
     print("\n" + header + "\n" + "-" * len(header))
-    for name, batch, mjx_rate, native_rate, ratio, target, compile_s, solver in rows:
-        ok = "" if target is None else ("ok" if ratio >= target else "MISS")
+    for name, batch, mjx_rate, native_rate, target, compile_s, solver in rows:
+        ratio = mjx_rate / native_rate
+        verdict = "" if target is None else ("ok" if ratio >= target else "miss")
         print(
             f"{name:12s} {batch:6d} {mjx_rate:12,.0f} {native_rate:15,.0f} {ratio:10.2f} "
-            f"{(target or 0):>5.1f}{ok:>3s} {compile_s:9.1f}  {solver}"
+            f"{(target or 0):>6.1f} {compile_s:9.1f}  {solver}  {verdict}"
         )
 
 
