@@ -19,6 +19,10 @@ from envs.wrappers import AutoResetWrapper, EpisodeWrapper, Wrapper, wrap_for_tr
 # name -> "module:Class"; imported lazily so that the driver never pays for importing MuJoCo.
 _REGISTRY: dict[str, str] = {
     "driver": "envs.driver:DriverEnv",
+    "swimmer": "envs.swimmer:SwimmerEnv",
+    "hopper": "envs.hopper:HopperEnv",
+    "halfcheetah": "envs.halfcheetah:HalfCheetahEnv",
+    "reacher": "envs.reacher:ReacherEnv",
 }
 
 

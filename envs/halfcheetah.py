@@ -1,0 +1,90 @@
+"""Multi-intention HalfCheetah (paper §5.1, Fig. 3c): run forward, run backward, or flip.
+
+Model: brax's ``half_cheetah.xml`` (``timestep`` 0.01, Euler; the head, thighs and feet collide
+with the floor), its ``settotalmass`` applied after compiling (see ``mjx_base.compile_spec``),
+stepped ``frame_skip`` = 5 times per env step as in gym, so ``dt`` = 0.05.
+
+Observation (17): ``qpos[1:]`` (torso height, torso pitch, six joint angles) and ``qvel`` (9);
+the torso's x position is left out, as in gym. One deliberate difference from gym: the torso
+pitch ``qpos[2]`` is wrapped to [-π, π). It is an unbounded hinge angle that grows by 2π with
+every flip, and a flipping policy should not see ever larger inputs; a running cheetah's pitch
+stays well inside (-π, π), where wrapping changes nothing.
+
+Rewards, with ``vx = Δx / dt`` the velocity of ``qpos[0]`` over the step, ``c = 0.1`` (gym's
+control cost) and ``ω = Δpitch / dt`` the torso's pitch rate over the step (the unwrapped
+``qpos[2]``; positive about the +y axis, which turns the nose down, i.e. a front flip, so that
+the "increasing body angle" of the paper is rewarded):
+
+- forward: ``vx - c ‖a‖²``
+- backward: ``-vx - c ‖a‖²``
+- flip: ``-|vx| + w ω - c ‖a‖²`` with ``w = 1``
+
+With ``w = 1`` every full turn earns ``2π / dt ≈ 126`` over the steps it takes, whatever its
+speed, while lying or standing still earns 0 and translating is penalised; a cheetah flipping
+once a second earns about as much per episode as one running forward at 6 m/s.
+
+No termination; 500-step episodes. Reset as gym: ``qpos0`` plus uniform noise in ±0.1, zero
+velocity plus normal noise of std 0.1.
+
+Solver (the XML has Newton, 4 iterations, 50 line-search iterations): Newton, 3 iterations,
+1 line-search iteration, sparse (tree) mass-matrix factorisation; the constraints are five
+capsules' contacts with the floor and six joint limits. Fewer iterations are faster but not the
+same physics: in ``experiments/check_mjx_dynamics.py`` (open-loop gaits, 8 starts, against
+native MuJoCo at its defaults, Newton 100/50) one iteration under-resolves the contacts and the
+cheetah bounces and turns over where it stays upright at the defaults (largest pitch 24.7 rad vs
+0.99, 3.6 vs 0.24, ...), which would make the flip intention artificially easy; with two it
+still turns over now and then. With 3/1: mean velocities 0.359 vs 0.362, -0.394 vs
+-0.342 ± 0.034, -0.147 vs -0.041 ± 0.062 m/s (± the reference's standard error over the
+chaotic runs), largest pitch 0.89 vs 0.99 rad, joint errors ~1e-3 over the first 10 steps.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+
+from envs.core import State
+from envs.mjx_base import MjxEnv, Solver
+
+
+class HalfCheetahEnv(MjxEnv):
+    name = "halfcheetah"
+    intention_names = ("forward", "backward", "flip")
+    xml = "half_cheetah.xml"
+    frame_skip = 5
+    episode_steps = 500
+    default_solver = Solver("newton", iterations=3, ls_iterations=1, jacobian="sparse")
+
+    ctrl_cost = 0.1
+    flip_weight = 1.0
+    reset_noise = 0.1
+
+    @property
+    def observation_size(self) -> int:
+        return 17
+
+    def reset(self, key: jax.Array) -> State:
+        qpos, qvel = self.reset_qpos_qvel(key, self.reset_noise, self.reset_noise, qvel_normal=True)
+        data = self.physics_reset(qpos, qvel)
+        return State(
+            physics=data,
+            obs=self._obs(data),
+            reward=jnp.zeros(self.num_intentions),
+            done=jnp.zeros(()),
+        )
+
+    def step(self, state: State, action: jax.Array) -> State:
+        action = self.clip_action(action)
+        data = self.physics_step(state.physics, action)
+        x_velocity = (data.qpos[0] - state.physics.qpos[0]) / self.dt
+        pitch_rate = (data.qpos[2] - state.physics.qpos[2]) / self.dt
+        flip = -jnp.abs(x_velocity) + self.flip_weight * pitch_rate
+        reward = jnp.stack([x_velocity, -x_velocity, flip])[: self.num_intentions]
+        reward = reward - self.ctrl_cost * jnp.sum(action**2)
+        return state.replace(physics=data, obs=self._obs(data), reward=reward, done=jnp.zeros(()))
+
+    def _obs(self, data) -> jax.Array:
+        pitch = jnp.mod(data.qpos[2] + math.pi, 2 * math.pi) - math.pi
+        return jnp.concatenate([data.qpos[1:2], pitch[None], data.qpos[3:], data.qvel])

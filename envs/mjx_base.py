@@ -1,0 +1,278 @@
+"""What the MJX envs share: their MuJoCo model, its solver settings and a frame-skipped step.
+
+Every MJX env starts from an MJCF file that ships inside the installed ``brax`` package
+(``brax/envs/assets/*.xml``), read at runtime, edited with :class:`mujoco.MjSpec` where the env
+needs it (:meth:`MjxEnv.edit_spec`), compiled to a native :class:`mujoco.MjModel` (kept as
+``env.mj_model`` for native comparisons and rendering) and put on the device as an
+:class:`mjx.Model`. ``State.physics`` is the env's :class:`mjx.Data`.
+
+Solver settings are chosen per env for speed on CPU (:class:`Solver`, documented in each env's
+docstring) and applied to the compiled model, so the native model and the MJX model always step
+with the same settings. ``experiments/check_mjx_dynamics.py`` compares the dynamics under them
+with native MuJoCo at MuJoCo's own default settings.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import importlib.util
+import io
+import math
+import pathlib
+import sys
+from typing import Any, ClassVar
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from envs.core import Env, EnvError
+
+# MJX tries to import its optional Warp backend on import and prints two harmless lines
+# ("Failed to import warp: ...") when it is not installed; drop just those lines.
+with contextlib.redirect_stdout(io.StringIO()) as _import_output:
+    from mujoco import mjx
+for _line in _import_output.getvalue().splitlines():
+    if not _line.startswith(("Failed to import warp", "Failed to import mujoco_warp")):
+        print(_line, file=sys.stdout)
+
+_SOLVERS = {"cg": mujoco.mjtSolver.mjSOL_CG, "newton": mujoco.mjtSolver.mjSOL_NEWTON}
+_JACOBIANS = {
+    "dense": mujoco.mjtJacobian.mjJAC_DENSE,
+    "sparse": mujoco.mjtJacobian.mjJAC_SPARSE,
+    "auto": mujoco.mjtJacobian.mjJAC_AUTO,
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class Solver:
+    """Constraint-solver settings written into ``MjModel.opt`` (the rest of ``opt`` is the XML's).
+
+    Attributes:
+      solver: ``'newton'`` or ``'cg'``.
+      iterations: maximum solver iterations per physics step.
+      ls_iterations: maximum line-search iterations per solver iteration.
+      disable: names of ``mjtDisableBit`` flags to set, e.g. ``('contact',)``.
+    """
+
+    solver: str = "newton"
+    iterations: int = 1
+    ls_iterations: int = 4
+    disable: tuple[str, ...] = ()
+    jacobian: str = "auto"
+
+    def apply(self, model: mujoco.MjModel) -> None:
+        if self.solver not in _SOLVERS:
+            raise EnvError(f"unknown solver '{self.solver}': choose one of {', '.join(_SOLVERS)}")
+        if self.iterations < 1 or self.ls_iterations < 1:
+            raise EnvError(
+                f"solver iterations and ls_iterations must be >= 1; got {self.iterations}, "
+                f"{self.ls_iterations}"
+            )
+        if self.jacobian not in _JACOBIANS:
+            raise EnvError(
+                f"unknown jacobian '{self.jacobian}': choose one of {', '.join(_JACOBIANS)}"
+            )
+        model.opt.solver = _SOLVERS[self.solver]
+        model.opt.jacobian = _JACOBIANS[self.jacobian]
+        model.opt.iterations = self.iterations
+        model.opt.ls_iterations = self.ls_iterations
+        for flag in self.disable:
+            bit = getattr(mujoco.mjtDisableBit, f"mjDSBL_{flag.upper()}", None)
+            if bit is None:
+                raise EnvError(f"unknown MuJoCo disable flag '{flag}'")
+            model.opt.disableflags |= int(bit)
+
+
+def mujoco_default_solver() -> Solver:
+    """MuJoCo's own defaults (Newton, 100 iterations, 50 line-search iterations): the reference."""
+    default = mujoco.MjOption()
+    return Solver("newton", int(default.iterations), int(default.ls_iterations))
+
+
+def native_rollout(
+    model: mujoco.MjModel,
+    frame_skip: int,
+    qpos: np.ndarray,
+    qvel: np.ndarray,
+    actions: np.ndarray,
+    mocap_pos: np.ndarray | None = None,
+) -> np.ndarray:
+    """Steps native MuJoCo from ``qpos``, ``qvel`` with ``actions [T, nu]``, each held for
+    ``frame_skip`` physics steps; returns ``qpos [T + 1, nq]`` after every env step."""
+    data = mujoco.MjData(model)
+    data.qpos[:], data.qvel[:] = qpos, qvel
+    if mocap_pos is not None:
+        data.mocap_pos[:] = mocap_pos
+    trajectory = [data.qpos.copy()]
+    for action in actions:
+        data.ctrl[:] = action
+        mujoco.mj_step(model, data, nstep=frame_skip)
+        trajectory.append(data.qpos.copy())
+    return np.stack(trajectory)
+
+
+def brax_asset(filename: str) -> pathlib.Path:
+    """Path of ``filename`` in the installed brax's ``envs/assets`` (without importing brax)."""
+    spec = importlib.util.find_spec("brax")
+    if spec is None or not spec.submodule_search_locations:
+        raise EnvError("the MJX envs read their models from the brax package: pip install brax")
+    path = pathlib.Path(spec.submodule_search_locations[0]) / "envs" / "assets" / filename
+    if not path.is_file():
+        raise EnvError(f"brax asset {filename} not found at {path}; is brax >= 0.14 installed?")
+    return path
+
+
+def compile_spec(spec: mujoco.MjSpec) -> mujoco.MjModel:
+    """Compiles ``spec``, replacing the deprecated ``compiler.settotalmass`` by scaled densities.
+
+    MuJoCo warns on every compile of a model with ``settotalmass``. Scaling the density of every
+    geom by ``settotalmass / total mass`` gives the same masses and inertias, and, unlike
+    ``mj_setTotalmass`` on the compiled model, the same derived statistics
+    (``stat.meaninertia``, which the solver uses). Valid for models whose inertias all come from
+    their geoms, as in brax's ``half_cheetah.xml``; checked below.
+    """
+    total_mass = spec.compiler.settotalmass
+    if total_mass <= 0:
+        return spec.compile()
+    spec.compiler.settotalmass = -1.0
+    factor = total_mass / float(spec.compile().body_mass.sum())
+    for geom in spec.geoms:
+        geom.density *= factor
+    model = spec.compile()
+    if not math.isclose(float(model.body_mass.sum()), total_mass, rel_tol=1e-6):
+        raise EnvError(f"could not scale the model's mass to settotalmass={total_mass}")
+    return model
+
+
+class MjxEnv(Env):
+    """An env stepping an MJX model; subclasses define the task (obs, rewards, termination).
+
+    Class attributes a subclass sets:
+      xml: file name in brax's ``envs/assets``.
+      frame_skip: physics steps per env step; ``dt = frame_skip * opt.timestep``.
+      default_solver: the env's :class:`Solver` (documented in its docstring).
+      episode_steps: episode length T.
+      unroll_frame_skip: unroll the frame-skip loop (longer compile; faster for some envs).
+    """
+
+    xml: ClassVar[str]
+    frame_skip: ClassVar[int]
+    default_solver: ClassVar[Solver]
+    episode_steps: ClassVar[int]
+    unroll_frame_skip: ClassVar[bool] = False
+
+    def __init__(
+        self,
+        intentions: int | None = None,
+        solver_iterations: int | None = None,
+        ls_iterations: int | None = None,
+    ):
+        super().__init__(intentions)
+        overrides = {"iterations": solver_iterations, "ls_iterations": ls_iterations}
+        self.solver = dataclasses.replace(
+            self.default_solver, **{k: int(v) for k, v in overrides.items() if v is not None}
+        )
+        self.mj_model = self.native_model(self.solver)
+        self.mjx_model = mjx.put_model(self.mj_model, impl="jax")
+        self._mjx_model_one_iteration = self.mjx_model.replace(
+            opt=self.mjx_model.opt.replace(iterations=1)
+        )
+        self.dt = float(self.mj_model.opt.timestep) * self.frame_skip
+
+    # ---- model ---------------------------------------------------------------------------
+
+    def edit_spec(self, spec: mujoco.MjSpec) -> None:
+        """Env-specific edits of the brax model before it is compiled (default: none)."""
+
+    def native_model(self, solver: Solver | None = None) -> mujoco.MjModel:
+        """The env's model compiled for native MuJoCo with ``solver`` (default: the env's own)."""
+        spec = mujoco.MjSpec.from_file(str(brax_asset(self.xml)))
+        self.edit_spec(spec)
+        model = compile_spec(spec)
+        (solver or self.solver).apply(model)
+        return model
+
+    # ---- interface -----------------------------------------------------------------------
+
+    @property
+    def action_size(self) -> int:
+        return int(self.mj_model.nu)
+
+    @property
+    def episode_length(self) -> int:
+        return self.episode_steps
+
+    def options(self) -> dict[str, Any]:
+        return {
+            "solver_iterations": self.solver.iterations,
+            "ls_iterations": self.solver.ls_iterations,
+        }
+
+    # ---- physics -------------------------------------------------------------------------
+
+    def physics_reset(self, qpos: jax.Array, qvel: jax.Array, **fields: jax.Array) -> mjx.Data:
+        """Fresh data at ``qpos [nq]``, ``qvel [nv]`` (and e.g. ``mocap_pos``), with positions,
+        velocities and forces computed (``mjx.forward``)."""
+        data = mjx.make_data(self.mjx_model).replace(qpos=qpos, qvel=qvel, **fields)
+        return mjx.forward(self.mjx_model, data)
+
+    def physics_step(self, data: mjx.Data, ctrl: jax.Array) -> mjx.Data:
+        """``frame_skip`` physics steps holding ``ctrl [nu]``.
+
+        As in ``mj_step``, position-dependent quantities (``xpos``, ...) of the result belong to
+        the state before the last integration; recompute them if an observation needs them.
+        """
+        data = data.replace(ctrl=ctrl)
+        if self.unroll_frame_skip:
+            for _ in range(self.frame_skip):
+                data = self._substep(data)
+            return data
+        return jax.lax.fori_loop(0, self.frame_skip, lambda _, d: self._substep(d), data)
+
+    def _substep(self, data: mjx.Data) -> mjx.Data:
+        """One ``mjx.step`` (Euler), with the solver's iterations unrolled.
+
+        ``mjx.solve`` runs more than one iteration in a ``while_loop``, which is slow under
+        ``vmap`` on CPU (measured here: the cheetah with 3 iterations runs ~15k env-steps/s with
+        the loop, ~22k unrolled). Newton's iterations are memoryless (each starts from the
+        current accelerations), so ``n`` one-iteration solves, each warm-started from the
+        previous result, are ``n`` Newton iterations without the loop; only the tolerance test,
+        which can merely end the loop early, is dropped. CG keeps the loop (its iterations
+        depend on the previous search direction).
+        """
+        m, m1 = self.mjx_model, self._mjx_model_one_iteration
+        if self.solver.iterations == 1 or m.opt.solver != mjx.SolverType.NEWTON:
+            return mjx.step(m, data)
+        d = mjx.fwd_position(m, data)
+        d = mjx.sensor_pos(m, d)
+        d = mjx.fwd_velocity(m, d)
+        d = mjx.sensor_vel(m, d)
+        d = mjx.fwd_actuation(m, d)
+        d = mjx.fwd_acceleration(m, d)
+        for i in range(self.solver.iterations):
+            d = mjx.solve(m1, d if i == 0 else d.replace(qacc_warmstart=d.qacc))
+        d = mjx.sensor_acc(m, d)
+        return mjx.euler(m, d)
+
+    def physics_kinematics(self, data: mjx.Data) -> mjx.Data:
+        """Recomputes the positions and orientations of bodies, geoms, ... from ``data.qpos``."""
+        return mjx.kinematics(self.mjx_model, data)
+
+    def reset_qpos_qvel(
+        self, key: jax.Array, qpos_scale: float, qvel_scale: float, qvel_normal: bool = False
+    ) -> tuple[jax.Array, jax.Array]:
+        """The model's ``qpos0`` plus uniform noise in ±``qpos_scale`` and zero velocity plus
+        uniform noise in ±``qvel_scale`` (or normal noise of std ``qvel_scale``), as gym does."""
+        key_qpos, key_qvel = jax.random.split(key)
+        nq, nv = self.mj_model.nq, self.mj_model.nv
+        qpos = jnp.asarray(self.mj_model.qpos0, jnp.float32) + jax.random.uniform(
+            key_qpos, (nq,), minval=-qpos_scale, maxval=qpos_scale
+        )
+        if qvel_normal:
+            qvel = qvel_scale * jax.random.normal(key_qvel, (nv,))
+        else:
+            qvel = jax.random.uniform(key_qvel, (nv,), minval=-qvel_scale, maxval=qvel_scale)
+        return qpos, qvel

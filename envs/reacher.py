@@ -1,0 +1,137 @@
+"""Multi-intention Reacher (paper §5.1, Fig. 3d): reach one of four balls.
+
+Model: brax's ``reacher.xml`` (two-link arm, ``timestep`` 0.01, no contacts) with its single
+target replaced by four balls ``ball1..ball4``, added with :class:`mujoco.MjSpec` as mocap
+bodies with a small non-colliding sphere each. ``frame_skip`` = 2 as in gym, so ``dt`` = 0.02.
+
+Why mocap bodies: the balls are part of the model, so a renderer of the env's ``mjx.Data``
+shows them, and their positions live in ``State.physics.mocap_pos [4, 3]`` and travel with the
+physics state through the wrappers; but they add no degrees of freedom, so they cost the
+dynamics nothing (slide joints would have grown the arm's 2 dofs to 10, and the mass matrix,
+the solver and ``qpos`` with them).
+
+Balls: at reset ball k is placed uniformly (by area) at random in quarter k of the disc of
+radius 0.2 around the arm's base (the disc gym's reacher draws its target from; the arm reaches
+0.21): ball 1 in the quarter of +x and +y, ball 2 in -x +y, ball 3 in -x -y, ball 4 in +x -y.
+
+Observation (26): ``cos q`` (2), ``sin q`` (2), ``q̇`` (2) of the two joints, the xy position of
+every ball (8), and ``fingertip - ball_k`` for every ball, 3-D (12).
+
+Rewards: intention k (reach ball k) is ``-‖fingertip - ball_k‖ - c ‖a‖²`` with ``c = 1`` (gym's
+control cost), the distance measured after the step (gym measures it before).
+
+No termination; 50-step episodes. Reset as gym: joint angles uniform in ±0.1, joint velocities
+uniform in ±0.005.
+
+Solver (the XML keeps MuJoCo's defaults, Newton 100/50): Newton, 1 iteration, 4 line-search
+iterations, sparse (tree) mass-matrix factorisation, contacts off (no geom pair of the model can
+collide, so that only skips the collision pass). The one constraint is the elbow's limit
+(±3 rad). In ``experiments/check_mjx_dynamics.py`` (gaits that drive the elbow into its limit,
+8 starts, 50 steps) the joint angles stay within 1e-3 rad of native MuJoCo at its defaults;
+with 1 or 2 line-search iterations the limit is resolved badly (errors up to 2.4 rad).
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import mujoco
+
+from envs.core import State
+from envs.mjx_base import MjxEnv, Solver
+
+NUM_BALLS = 4
+BALL_COLORS = ((0.9, 0.2, 0.2, 1), (0.2, 0.8, 0.2, 1), (0.2, 0.4, 0.9, 1), (0.9, 0.8, 0.1, 1))
+
+
+class ReacherEnv(MjxEnv):
+    name = "reacher"
+    intention_names = tuple(f"ball{k + 1}" for k in range(NUM_BALLS))
+    xml = "reacher.xml"
+    frame_skip = 2
+    unroll_frame_skip = True  # ~6% more env-steps/s under vmap on CPU (swimmer: no gain)
+    episode_steps = 50
+    default_solver = Solver(
+        "newton", iterations=1, ls_iterations=4, disable=("contact",), jacobian="sparse"
+    )
+
+    ctrl_cost = 1.0
+    ball_disc_radius = 0.2
+    ball_height = 0.01
+    ball_size = 0.009
+    reset_qpos_noise = 0.1
+    reset_qvel_noise = 0.005
+
+    def __init__(
+        self,
+        intentions: int | None = None,
+        solver_iterations: int | None = None,
+        ls_iterations: int | None = None,
+    ):
+        super().__init__(intentions, solver_iterations, ls_iterations)
+        self.fingertip_id = self.mj_model.body("fingertip").id
+
+    def edit_spec(self, spec: mujoco.MjSpec) -> None:
+        spec.delete(spec.body("target"))
+        for k in range(NUM_BALLS):
+            ball = spec.worldbody.add_body(
+                name=f"ball{k + 1}", mocap=True, pos=[0.0, 0.0, self.ball_height]
+            )
+            ball.add_geom(
+                type=mujoco.mjtGeom.mjGEOM_SPHERE,
+                size=[self.ball_size, 0, 0],
+                rgba=BALL_COLORS[k],
+                contype=0,
+                conaffinity=0,
+            )
+
+    @property
+    def observation_size(self) -> int:
+        return 6 + 2 * NUM_BALLS + 3 * NUM_BALLS
+
+    def sample_balls(self, key: jax.Array) -> jax.Array:
+        """``[4, 3]`` ball positions, ball k uniform in quarter k of the disc (module docstring)."""
+        key_radius, key_angle = jax.random.split(key)
+        radius = self.ball_disc_radius * jnp.sqrt(jax.random.uniform(key_radius, (NUM_BALLS,)))
+        quarter = jnp.arange(NUM_BALLS)
+        angle = 0.5 * math.pi * (quarter + jax.random.uniform(key_angle, (NUM_BALLS,)))
+        height = jnp.full((NUM_BALLS,), self.ball_height)
+        return jnp.stack([radius * jnp.cos(angle), radius * jnp.sin(angle), height], axis=1)
+
+    def reset(self, key: jax.Array) -> State:
+        key_arm, key_balls = jax.random.split(key)
+        qpos, qvel = self.reset_qpos_qvel(key_arm, self.reset_qpos_noise, self.reset_qvel_noise)
+        data = self.physics_reset(qpos, qvel, mocap_pos=self.sample_balls(key_balls))
+        return State(
+            physics=data,
+            obs=self._obs(data),
+            reward=jnp.zeros(self.num_intentions),
+            done=jnp.zeros(()),
+        )
+
+    def step(self, state: State, action: jax.Array) -> State:
+        action = self.clip_action(action)
+        data = self.physics_step(state.physics, action)
+        # mj_step leaves positions of the state before the last integration: recompute them.
+        data = self.physics_kinematics(data)
+        distance = jnp.linalg.norm(self._fingertip_to_balls(data), axis=-1)
+        reward = -distance[: self.num_intentions] - self.ctrl_cost * jnp.sum(action**2)
+        return state.replace(physics=data, obs=self._obs(data), reward=reward, done=jnp.zeros(()))
+
+    def _fingertip_to_balls(self, data) -> jax.Array:
+        """``[4, 3]`` fingertip minus every ball."""
+        return data.xpos[self.fingertip_id][None, :] - data.mocap_pos
+
+    def _obs(self, data) -> jax.Array:
+        q, qd = data.qpos, data.qvel
+        return jnp.concatenate(
+            [
+                jnp.cos(q),
+                jnp.sin(q),
+                qd,
+                data.mocap_pos[:, :2].reshape(-1),
+                self._fingertip_to_balls(data).reshape(-1),
+            ]
+        )
