@@ -48,8 +48,15 @@ def _batch_step(env: envs.Env, ndim: int):
 def rollout(
     env: envs.Env, policy: Policy, state: envs.State, key: jax.Array, length: int
 ) -> tuple[envs.State, Transitions]:
-    """``length`` steps of the ``[K, B]`` envs in ``state`` (an auto-resetting env)."""
+    """``length`` steps of the ``[K, B]`` envs in ``state`` (an auto-resetting env).
+
+    The initial states of the episodes that start during this rollout are drawn first (see
+    :class:`envs.AutoResetWrapper`).
+    """
     step = _batch_step(env, 2)
+    key_starts, key = jax.random.split(key)
+    starts = jax.random.split(key_starts, state.done.shape)
+    state = jax.vmap(jax.vmap(env.refresh))(state, starts)
 
     def body(state, step_key):
         action = policy(state.obs, step_key)

@@ -72,27 +72,34 @@ class EpisodeWrapper(Wrapper):
 
 
 class AutoResetWrapper(Wrapper):
-    """Starts a fresh episode, from a new random initial state, once the current one is done.
+    """Starts a new episode once the current one is done.
 
-    The returned state after the last step of an episode is the first state of the next one,
-    except for ``reward`` and ``done``, which still describe the transition just made. A key
-    kept in ``info['reset_key']`` is split on every reset so no two episodes share an initial
-    state.
+    The initial state of the next episode is drawn in advance and kept in
+    ``info['next_start']``: resetting on every step (to select the fresh state where an episode
+    ended) would cost a full physics forward pass per step with MJX. :meth:`refresh` draws a
+    new one; the rollout calls it once per rollout, so with rollouts of one episode every
+    episode starts from its own random state (an env that ends twice within one rollout starts
+    twice from the same state).
+
+    The state returned after the last step of an episode is the first state of the next one,
+    except for ``reward`` and ``done``, which still describe the transition just made.
     """
 
     def reset(self, key: jax.Array) -> State:
-        key_env, key_next = jax.random.split(key)
-        state = self.env.reset(key_env)
-        return state.replace(info={**state.info, "reset_key": key_next})
+        key_now, key_next = jax.random.split(key)
+        state = self.env.reset(key_now)
+        return self.refresh(state, key_next)
+
+    def refresh(self, state: State, key: jax.Array) -> State:
+        """Draws the initial state of the next episode."""
+        return state.replace(info={**state.info, "next_start": self.env.reset(key)})
 
     def step(self, state: State, action: jax.Array) -> State:
         next_state = self.env.step(state, action)
-        key_env, key_next = jax.random.split(state.info["reset_key"])
-        fresh = self.env.reset(key_env)
-        fresh = fresh.replace(info={**fresh.info, "reset_key": key_next})
+        start = next_state.info["next_start"]
+        start = start.replace(info={**start.info, "next_start": start})
         done = next_state.done.astype(bool)
-        # `info` of the fresh state must match the structure of the stepped one.
-        merged = jax.tree.map(lambda a, b: jnp.where(done, a, b), fresh, next_state)
+        merged = jax.tree.map(lambda a, b: jnp.where(done, a, b), start, next_state)
         return merged.replace(reward=next_state.reward, done=next_state.done)
 
 
