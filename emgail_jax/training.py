@@ -29,10 +29,10 @@ from flax import struct
 import envs
 from emgail_jax import normalizer as obs_norm
 from emgail_jax.algorithms import Algorithm, make_algorithm
+from emgail_jax.bstep import PolicySamples, b_step
 from emgail_jax.config import Config
 from emgail_jax.demos import Demonstrations
 from emgail_jax.discriminator import discriminator_update
-from emgail_jax.gae import generalized_advantages
 from emgail_jax.metrics import cluster_accuracy, normalized_erd
 from emgail_jax.networks import (
     Discriminator,
@@ -43,8 +43,6 @@ from emgail_jax.networks import (
 )
 from emgail_jax.posterior import posterior_update, responsibilities
 from emgail_jax.rollout import batch_reset, episode_returns, rollout
-from emgail_jax.trpo import trpo_step
-from emgail_jax.value import fit_value
 
 
 @struct.dataclass
@@ -238,47 +236,31 @@ def make_train(config: Config, env: envs.Env, expert: ExpertData):
             policy_conditions=discriminator_condition,
         )
 
-        # 4. B-step: relabel with the pseudo-reward, GAE, TRPO, value fit.
+        # 4. B-step: TRPO on the pseudo-reward of every sample under its own intention.
         logits = networks.discriminator.apply(discriminator, obs, actions, discriminator_condition)
         reward = algorithm.pseudo_reward(logits, own_log_posterior)
-        time = batch.time.reshape(-1)
-        values = networks.value.apply(state.value, obs, policy_condition, time)
-        bootstrap = networks.value.apply(
-            state.value,
-            normalize(env_state.obs),
-            algorithm.policy_condition(np.arange(k)[:, None].repeat(b, 1), k),  # [K, B, C]
-            env_state.info["steps"] / env.episode_length,
+        last_intention = np.broadcast_to(np.arange(k)[:, None], (k, b))
+        samples = PolicySamples(
+            obs=obs.reshape(t, k, b, -1),
+            action=batch.action,
+            condition=policy_condition.reshape(t, k, b, policy_condition.shape[-1]),
+            time=batch.time,
+            done=batch.done,
+            last_obs=normalize(env_state.obs),
+            last_condition=algorithm.policy_condition(last_intention, k),
+            last_time=env_state.info["steps"] / env.episode_length,
         )
-        advantages, returns = generalized_advantages(
-            reward.reshape(t, k, b),
-            values.reshape(t, k, b),
-            batch.done,
-            bootstrap,
-            config.gamma,
-            config.gae_lambda,
-        )
-        # Each intention's advantages are standardised on their own, so that no intention's
-        # reward scale dominates the shared policy update.
-        mean = advantages.mean((0, 2), keepdims=True)
-        std = advantages.std((0, 2), keepdims=True)
-        advantages = ((advantages - mean) / (std + 1e-8)).reshape(-1)
-
-        def distribution(params):
-            return action_distribution(*networks.policy.apply(params, obs, policy_condition))
-
-        policy, policy_metrics = trpo_step(
-            distribution, state.policy, actions, advantages, config.trpo
-        )
-        value, value_opt_state, value_metrics = fit_value(
+        policy, value, value_opt_state, b_metrics = b_step(
+            networks.policy.apply,
             networks.value.apply,
             value_opt,
+            config,
+            state.policy,
             state.value,
             state.value_opt,
-            (obs, policy_condition, time),
-            returns.reshape(-1),
+            samples,
+            reward.reshape(t, k, b),
             key_value,
-            config.value_epochs,
-            config.value_minibatches,
         )
 
         # 5. Metrics: deterministic episodes of every learned intention.
@@ -297,8 +279,7 @@ def make_train(config: Config, env: envs.Env, expert: ExpertData):
             "train/pseudo_reward": reward.mean(),
             **posterior_metrics,
             **discriminator_metrics,
-            **policy_metrics,
-            **value_metrics,
+            **b_metrics,
         }
         new_state = TrainState(
             policy=policy,

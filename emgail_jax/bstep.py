@@ -1,0 +1,85 @@
+"""The B-step (paper Alg. 1): improve the policy on a given reward with TRPO.
+
+Shared by the three IRL algorithms (reward: the pseudo-reward), the expert trainer (the true
+reward) and the re-optimisation check (a frozen learned reward): GAE on the rollout, advantages
+standardised per intention, one TRPO step of the policy on all samples, and a refit of the value
+baseline.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import jax
+import optax
+from flax import struct
+
+from emgail_jax.config import Config
+from emgail_jax.gae import generalized_advantages
+from emgail_jax.networks import action_distribution
+from emgail_jax.trpo import trpo_step
+from emgail_jax.value import fit_value
+
+
+@struct.dataclass
+class PolicySamples:
+    """A rollout as the policy and the value function see it (observations normalised)."""
+
+    obs: jax.Array  # [T, K, B, D]
+    action: jax.Array  # [T, K, B, A]
+    condition: jax.Array  # [T, K, B, C] the policy's intention input (C may be 0)
+    time: jax.Array  # [T, K, B] t / episode_length
+    done: jax.Array  # [T, K, B]
+    last_obs: jax.Array  # [K, B, D] the state after the rollout, for the bootstrap value
+    last_condition: jax.Array  # [K, B, C]
+    last_time: jax.Array  # [K, B]
+
+
+def b_step(
+    policy_apply: Callable,
+    value_apply: Callable,
+    value_optimizer: optax.GradientTransformation,
+    config: Config,
+    policy,
+    value,
+    value_opt_state,
+    samples: PolicySamples,
+    reward: jax.Array,
+    key: jax.Array,
+):
+    """One policy improvement on ``reward [T, K, B]``.
+
+    Returns ``(policy, value, value_opt_state, metrics)``.
+    """
+    n = reward.size
+    flat = lambda x: x.reshape(n, *x.shape[3:])  # explicit n: C may be 0
+    obs, action, condition, time = map(
+        flat, (samples.obs, samples.action, samples.condition, samples.time)
+    )
+    values = value_apply(value, obs, condition, time).reshape(reward.shape)
+    bootstrap = value_apply(value, samples.last_obs, samples.last_condition, samples.last_time)
+    advantages, returns = generalized_advantages(
+        reward, values, samples.done, bootstrap, config.gamma, config.gae_lambda
+    )
+    # Each intention's advantages are standardised on their own, so that no intention's reward
+    # scale dominates a shared policy update.
+    mean = advantages.mean((0, 2), keepdims=True)
+    std = advantages.std((0, 2), keepdims=True)
+    advantages = ((advantages - mean) / (std + 1e-8)).reshape(-1)
+
+    def distribution(params):
+        return action_distribution(*policy_apply(params, obs, condition))
+
+    policy, policy_metrics = trpo_step(distribution, policy, action, advantages, config.trpo)
+    value, value_opt_state, value_metrics = fit_value(
+        value_apply,
+        value_optimizer,
+        value,
+        value_opt_state,
+        (obs, condition, time),
+        returns.reshape(-1),
+        key,
+        config.value_epochs,
+        config.value_minibatches,
+    )
+    return policy, value, value_opt_state, {**policy_metrics, **value_metrics}

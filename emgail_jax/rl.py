@@ -1,0 +1,144 @@
+"""Reinforcement learning of one policy per intention on a given reward, with TRPO.
+
+Trains the experts (on the true reward of their intention, :mod:`emgail_jax.experts`) and
+re-optimises a learned reward to check it is a reward (the paper's ERD, §5.2). One trainer
+learns one unconditioned policy from B auto-resetting envs; callers ``vmap`` it over the
+intentions (and seeds):
+
+    trainer = make_rl_train(config, env, reward_fn)
+    states = jax.vmap(trainer.init)(keys)                              # [K] independent policies
+    states, metrics = jax.vmap(trainer.update)(states, jnp.arange(K))  # intention k trains k
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+import envs
+from emgail_jax import normalizer as obs_norm
+from emgail_jax.bstep import PolicySamples, b_step
+from emgail_jax.config import Config
+from emgail_jax.networks import GaussianPolicy, ValueNet, action_distribution
+from emgail_jax.rollout import batch_reset, episode_returns, rollout
+
+# (obs [T, 1, B, D] raw, action [T, 1, B, A], true_reward [T, 1, B, K], intention []) -> [T, 1, B]
+RewardFn = Callable[[jax.Array, jax.Array, jax.Array, jax.Array], jax.Array]
+
+
+def true_reward(obs, action, reward, intention):
+    """The env's own reward of the intention being trained (for the experts)."""
+    return jnp.take(reward, intention, axis=-1)
+
+
+@struct.dataclass
+class RLState:
+    policy: Any
+    value: Any
+    value_opt: Any
+    normalizer: obs_norm.RunningStats
+    env_state: envs.State  # [1, B]
+    key: jax.Array
+    iteration: jax.Array
+
+
+def make_rl_train(config: Config, env: envs.Env, reward_fn: RewardFn = true_reward):
+    """Builds ``init(key) -> RLState``, ``update(state, intention) -> (state, metrics)`` and
+    ``policy(state, deterministic) -> (obs, key) -> action``."""
+    config = config.resolved(env)
+    b, t = config.num_envs, config.rollout_length
+    train_env = envs.wrap_for_training(env)
+    eval_env = envs.EpisodeWrapper(env)
+    policy_net = GaussianPolicy(env.action_size, config.hidden, config.init_log_std)
+    value_net = ValueNet(config.hidden)
+    value_opt = optax.adam(config.value_learning_rate)
+    no_condition = lambda *shape: jnp.zeros((*shape, 0))
+
+    def act(params, normalizer, deterministic):
+        def policy(obs, key):
+            normalized = obs_norm.normalize(normalizer, obs, config.obs_clip)
+            mean, log_std = policy_net.apply(params, normalized, no_condition(*obs.shape[:-1]))
+            if deterministic:
+                return mean
+            return action_distribution(mean, log_std).sample(seed=key)
+
+        return policy
+
+    def init(key: jax.Array) -> RLState:
+        key_policy, key_value, key_env, key_next = jax.random.split(key, 4)
+        obs = jnp.zeros((1, env.observation_size))
+        value = value_net.init(key_value, obs, no_condition(1), jnp.zeros(1))
+        return RLState(
+            policy=policy_net.init(key_policy, obs, no_condition(1)),
+            value=value,
+            value_opt=value_opt.init(value),
+            normalizer=obs_norm.RunningStats.create(env.observation_size),
+            env_state=batch_reset(train_env, key_env, (1, b)),
+            key=key_next,
+            iteration=jnp.zeros((), jnp.int32),
+        )
+
+    def update(state: RLState, intention: jax.Array) -> tuple[RLState, dict]:
+        key_next, key_rollout, key_value, key_eval = jax.random.split(state.key, 4)
+        behaviour = act(state.policy, state.normalizer, deterministic=False)
+        env_state, batch = rollout(train_env, behaviour, state.env_state, key_rollout, t)
+        reward = reward_fn(batch.obs, batch.action, batch.true_reward, intention)
+        normalizer = obs_norm.update(state.normalizer, batch.obs)
+        normalize = lambda x: obs_norm.normalize(normalizer, x, config.obs_clip)
+        samples = PolicySamples(
+            obs=normalize(batch.obs),
+            action=batch.action,
+            condition=no_condition(t, 1, b),
+            time=batch.time,
+            done=batch.done,
+            last_obs=normalize(env_state.obs),
+            last_condition=no_condition(1, b),
+            last_time=env_state.info["steps"] / env.episode_length,
+        )
+        policy, value, value_opt_state, metrics = b_step(
+            policy_net.apply,
+            value_net.apply,
+            value_opt,
+            config,
+            state.policy,
+            state.value,
+            state.value_opt,
+            samples,
+            reward,
+            key_value,
+        )
+        greedy = act(policy, normalizer, deterministic=True)
+        returns = episode_returns(eval_env, greedy, key_eval, 1, config.eval_episodes)[0]
+        metrics = {
+            **metrics,
+            "eval/returns": returns,  # [K] under every true intention
+            "eval/own_return": jnp.take(returns, intention),
+            "train/reward": reward.mean(),
+        }
+        new_state = RLState(
+            policy=policy,
+            value=value,
+            value_opt=value_opt_state,
+            normalizer=normalizer,
+            env_state=env_state,
+            key=key_next,
+            iteration=state.iteration + 1,
+        )
+        return new_state, metrics
+
+    def policy(state: RLState, deterministic: bool = True):
+        """The trained policy as ``(obs [..., D], key) -> action``."""
+        return act(state.policy, state.normalizer, deterministic)
+
+    return RLTrainer(init, update, policy)
+
+
+class RLTrainer(NamedTuple):
+    init: Callable[[jax.Array], RLState]
+    update: Callable[[RLState, jax.Array], tuple[RLState, dict]]
+    policy: Callable[..., Callable]
