@@ -58,6 +58,14 @@ class Config:
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
 
+    @classmethod
+    def from_dict(cls, values: dict) -> Config:
+        """Inverse of :meth:`to_dict` (e.g. the ``config`` of a ``summary.json``)."""
+        values = dict(values)
+        values["hidden"] = tuple(values["hidden"])
+        values["trpo"] = TRPOConfig(**values["trpo"])
+        return cls(**values)
+
 
 def rollout_defaults(env_name: str, episode_length: int) -> dict:
     """Samples per intention per iteration: the paper's 5 trajectories of one episode each for

@@ -31,12 +31,26 @@ def flatten_metrics(metrics: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
 class MetricsLog:
     """Appends one row per iteration and seed to ``metrics.csv`` and to TensorBoard."""
 
-    def __init__(self, out_dir: str, tensorboard: bool = True):
+    def __init__(self, out_dir: str, tensorboard: bool = True, keep_until: int | None = None):
+        """``keep_until``: continue an existing log, first dropping its rows after that
+        iteration (written after the checkpoint a resumed run restarts from)."""
         self.csv_path = os.path.join(out_dir, "metrics.csv")
         self.tensorboard_dir = os.path.join(out_dir, "tensorboard")
         self._columns: list[str] | None = None
         self._writers = {}
         self._tensorboard = tensorboard
+        if keep_until is not None and os.path.exists(self.csv_path):
+            self._truncate(keep_until)
+
+    def _truncate(self, keep_until: int) -> None:
+        with open(self.csv_path, newline="") as f:
+            rows = list(csv.reader(f))
+        header, body = rows[0], [r for r in rows[1:] if int(r[0]) <= keep_until]
+        tmp = f"{self.csv_path}.tmp"
+        with open(tmp, "w", newline="") as f:
+            csv.writer(f).writerows([header, *body])
+        os.replace(tmp, self.csv_path)
+        self._columns = header[2:]
 
     def write(self, first_iteration: int, metrics: dict[str, np.ndarray]) -> None:
         columns = flatten_metrics(metrics)

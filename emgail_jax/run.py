@@ -1,16 +1,23 @@
 """Command line: train EM-GAIL, Info/IntentionGAIL or GAIL on one env for several seeds.
 
     python -m emgail_jax.run --env driver --algo emgail --seeds 4 --iterations 400 --out DIR
+    python -m emgail_jax.run --resume DIR [--iterations TOTAL]
 
-writes ``DIR/summary.json``, ``DIR/metrics.csv`` (one row per iteration and seed) and TensorBoard
-events under ``DIR/tensorboard`` (DESIGN §6).
+writes ``DIR/summary.json``, ``DIR/metrics.csv`` (one row per iteration and seed), TensorBoard
+events under ``DIR/tensorboard`` and orbax checkpoints under ``DIR/checkpoints`` (DESIGN §6).
+``--iterations`` is the run's total: a resumed run continues from its last checkpoint up to it.
+SIGINT or SIGTERM stops a run after the iteration chunk in progress, checkpoints it and marks
+``summary.json`` ``"status": "interrupted"``; ``--resume`` continues it exactly.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import json
 import os
 import shutil
+import signal
 import sys
 import time
 
@@ -18,11 +25,65 @@ import numpy as np
 
 from emgail_jax import runtime
 
-OUTPUTS = ("summary.json", "metrics.csv", "tensorboard")
+OUTPUTS = ("summary.json", "metrics.csv", "tensorboard", "checkpoints")
+DEFAULT_CHECKPOINT_EVERY = 50
 
 
 class RunError(ValueError):
     """A run that cannot start; the message says what to change."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RunSpec:
+    """Everything needed to rebuild a run (stored in its ``summary.json``)."""
+
+    env: str
+    intentions: int | None
+    env_options: dict
+    algo: str
+    seeds: int
+    first_seed: int
+    demos_path: str | None
+    demo_seed: int
+    config: object  # emgail_jax.config.Config
+
+    @classmethod
+    def from_summary(cls, summary: dict) -> RunSpec:
+        from emgail_jax.config import Config
+
+        try:
+            demos = summary["demonstrations"]
+            return cls(
+                env=summary["env"],
+                intentions=summary["intentions"],
+                env_options=summary["env_options"],
+                algo=summary["algo"],
+                seeds=summary["seeds"],
+                first_seed=summary["first_seed"],
+                demos_path=demos["path"],
+                demo_seed=demos["seed"],
+                config=Config.from_dict(summary["config"]),
+            )
+        except (KeyError, TypeError) as error:
+            raise RunError(f"summary.json does not describe a run (no {error})") from None
+
+    def problem(self):
+        from emgail_jax.problem import make_problem
+
+        return make_problem(
+            self.env, self.intentions, self.demos_path, self.env_options, self.demo_seed
+        )
+
+
+def read_summary(run_dir: str) -> dict:
+    path = os.path.join(run_dir, "summary.json")
+    if not os.path.exists(path):
+        raise RunError(f"'{run_dir}' is not a run directory: it has no summary.json")
+    try:
+        with open(path) as f:
+            return json.load(f)
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise RunError(f"'{path}' is not valid JSON ({error})") from None
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -31,31 +92,81 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="python -m emgail_jax.run", description=__doc__.split("\n")[0]
     )
-    parser.add_argument("--env", default="driver", help="env name (default: driver)")
+    parser.add_argument("--env", default=None, help="env name (default: driver)")
     parser.add_argument(
         "--intentions", type=int, default=None, help="K: use the first K intentions"
     )
-    parser.add_argument("--algo", default="emgail", choices=NAMES)
-    parser.add_argument("--seeds", type=int, default=4, help="seeds trained in parallel")
-    parser.add_argument("--iterations", type=int, default=400)
-    parser.add_argument("--out", required=True, help="output directory")
+    parser.add_argument("--algo", default=None, choices=NAMES, help="default: emgail")
+    parser.add_argument("--seeds", type=int, default=None, help="seeds in parallel (default 4)")
+    parser.add_argument("--iterations", type=int, default=None, help="total (default 400)")
+    parser.add_argument("--out", default=None, help="output directory")
+    parser.add_argument("--resume", default=None, metavar="DIR", help="continue the run in DIR")
     parser.add_argument("--demos", default=None, help="demonstrations .npz (DESIGN §5)")
     parser.add_argument("--radius", type=float, default=None, help="driver: radius of path 2")
-    parser.add_argument("--seed", type=int, default=0, help="first training seed")
-    parser.add_argument("--demo-seed", type=int, default=0, help="driver: demonstration seed")
+    parser.add_argument("--seed", type=int, default=None, help="first training seed")
+    parser.add_argument("--demo-seed", type=int, default=None, help="driver: demonstration seed")
     parser.add_argument("--info-weight", type=float, default=None, help="infogail: lambda")
     parser.add_argument("--num-envs", type=int, default=None, help="envs per intention")
     parser.add_argument("--rollout-length", type=int, default=None, help="steps per rollout")
     parser.add_argument("--eval-episodes", type=int, default=None)
     parser.add_argument("--chunk-size", type=int, default=None, help="iterations per call")
+    parser.add_argument(
+        "--checkpoint-every",
+        type=int,
+        default=DEFAULT_CHECKPOINT_EVERY,
+        help=f"iterations between checkpoints (default {DEFAULT_CHECKPOINT_EVERY})",
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace an earlier run")
     parser.add_argument("--quiet", action="store_true", help="no progress bar or table")
     return parser.parse_args(argv)
 
 
-def build_config(args: argparse.Namespace):
+# Options that define a run; a resumed run takes them from its summary.json.
+_RUN_OPTIONS = (
+    "env",
+    "intentions",
+    "algo",
+    "seeds",
+    "demos",
+    "radius",
+    "seed",
+    "demo_seed",
+    "info_weight",
+    "num_envs",
+    "rollout_length",
+    "eval_episodes",
+    "chunk_size",
+)
+
+
+def spec_from_args(args: argparse.Namespace) -> RunSpec:
     from emgail_jax.config import Config
 
+    if args.resume is not None:
+        given = [f"--{name.replace('_', '-')}" for name in _RUN_OPTIONS if getattr(args, name)]
+        if given or args.out or args.overwrite:
+            dropped = ", ".join(given) or "--out/--overwrite"
+            raise RunError(
+                f"--resume continues a run with its own settings; drop {dropped} "
+                "(only --iterations, the new total, may be given)"
+            )
+        spec = RunSpec.from_summary(read_summary(args.resume))
+        if args.iterations is not None:
+            spec = dataclasses.replace(spec, config=spec.config.replace(iterations=args.iterations))
+        return spec
+
+    if args.out is None:
+        raise RunError("--out DIR is required (or --resume DIR)")
+    env = args.env or "driver"
+    if (args.seeds is not None and args.seeds < 1) or (
+        args.iterations is not None and args.iterations < 1
+    ):
+        raise RunError("--seeds and --iterations must be at least 1")
+    env_options = {}
+    if args.radius is not None:
+        if env != "driver":
+            raise RunError("--radius applies to the driver env only")
+        env_options["radius"] = args.radius
     overrides = {
         "algo": args.algo,
         "iterations": args.iterations,
@@ -65,7 +176,18 @@ def build_config(args: argparse.Namespace):
         "eval_episodes": args.eval_episodes,
         "chunk_size": args.chunk_size,
     }
-    return Config().replace(**{k: v for k, v in overrides.items() if v is not None})
+    config = Config().replace(**{k: v for k, v in overrides.items() if v is not None})
+    return RunSpec(
+        env=env,
+        intentions=args.intentions,
+        env_options=env_options,
+        algo=config.algo,
+        seeds=args.seeds or 4,
+        first_seed=args.seed or 0,
+        demos_path=os.path.abspath(args.demos) if args.demos else None,
+        demo_seed=args.demo_seed or 0,
+        config=config,
+    )
 
 
 def prepare_output(out: str, overwrite: bool) -> None:
@@ -74,7 +196,7 @@ def prepare_output(out: str, overwrite: bool) -> None:
     if existing and not overwrite:
         raise RunError(
             f"'{out}' already holds a run ({', '.join(existing)}): "
-            "pass --overwrite to replace it or choose another --out"
+            "pass --resume to continue it, --overwrite to replace it, or choose another --out"
         )
     os.makedirs(out, exist_ok=True)
     for name in existing:
@@ -82,78 +204,155 @@ def prepare_output(out: str, overwrite: bool) -> None:
         shutil.rmtree(path) if os.path.isdir(path) else os.remove(path)
 
 
-def train(problem, config, seeds: int, out: str, seed: int = 0, progress: bool = True) -> dict:
-    """Trains ``seeds`` seeds on ``problem`` and writes the run's outputs to ``out``.
+class _StopRequest:
+    """Turns SIGINT/SIGTERM into a request to stop after the chunk in progress; a second
+    signal stops at once (the last complete checkpoint stays valid)."""
 
-    Returns the summary (as written to ``summary.json``).
+    def __init__(self):
+        self.signal = None
+        self._previous = {}
+
+    def __enter__(self):
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self._previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum, frame):
+        if self.signal is not None:
+            raise KeyboardInterrupt
+        self.signal = signum
+
+    def __exit__(self, *exc):
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+
+def train(
+    spec: RunSpec,
+    problem,
+    out: str,
+    resume: bool = False,
+    checkpoint_every: int = DEFAULT_CHECKPOINT_EVERY,
+    progress: bool = True,
+) -> dict:
+    """Trains (or, with ``resume``, continues) the run ``spec`` and writes its outputs to ``out``.
+
+    Returns the summary as written to ``summary.json``; its ``status`` is ``"completed"`` or
+    ``"interrupted"``.
     """
     import jax
 
-    from emgail_jax import records
+    from emgail_jax import checkpoints, records
     from emgail_jax.runner import Runner, chunk_length, concat_history, final_metrics
     from emgail_jax.training import ExpertData, make_train
 
     env = problem.env
-    config = config.resolved(env)
+    config = spec.config.resolved(env)
     expert = ExpertData.create(problem.demos, problem.random_returns, env.num_intentions)
     init, update = make_train(config, env, expert)
-    chunk = chunk_length(config.iterations, config.chunk_size)
-    runner = Runner(init, update, seeds, chunk)
-    log = records.MetricsLog(out)
-    summary = {
+    summary_path = os.path.join(out, "summary.json")
+    summary = _summary_header(spec, problem, config)
+    timings = {"compile_time_s": 0.0, "train_time_s": 0.0, "iterations": 0}
+    done = checkpoints.latest_iteration(out) if resume else 0
+    if resume:
+        timings = read_summary(out).get("timings", timings)
+
+    # Chunks only group iterations into compiled calls; they do not change the results.
+    remaining = max(config.iterations - done, 0)
+    runner = Runner(init, update, spec.seeds, chunk_length(remaining or 1, config.chunk_size))
+    summary["devices"] = [str(d) for d in runner.sharding.mesh.devices.flat]
+    key = jax.random.PRNGKey(spec.first_seed)
+    if resume:
+        state, history, done = checkpoints.restore(out, runner.abstract_state(key))
+    else:
+        state, history = runner.init(key), None
+    records.write_json(summary_path, {**summary, "status": "running", "timings": timings})
+
+    stop = _StopRequest()
+    iteration = last_saved = done
+    if remaining:
+        runner.compile(state)
+        log = records.MetricsLog(out, keep_until=done if resume else None)
+        bar = _Progress(config.iterations, done, enabled=progress)
+        try:
+            with stop:
+                while iteration < config.iterations and stop.signal is None:
+                    state, metrics = runner.step(state)
+                    log.write(iteration, metrics)
+                    history = concat_history(history, metrics)
+                    iteration += runner.chunk
+                    bar.update(runner.chunk, metrics)
+                    finished = iteration >= config.iterations or stop.signal is not None
+                    if finished or iteration - last_saved >= checkpoint_every:
+                        checkpoints.save(out, iteration, state, history)
+                        last_saved = iteration
+        finally:
+            bar.close()
+            log.close()
+        timings = {
+            "compile_time_s": timings["compile_time_s"] + runner.timings.compile_s,
+            "train_time_s": timings["train_time_s"] + runner.timings.train_s,
+            "iterations": timings["iterations"] + runner.timings.iterations,
+        }
+
+    summary["timings"] = timings
+    summary["iterations_done"] = iteration
+    if iteration < config.iterations:
+        summary["status"] = "interrupted"
+        summary["stopped_by"] = signal.Signals(stop.signal).name
+    else:
+        summary["status"] = "completed"
+    summary["final"] = _final_summary(problem, config, final_metrics(history), timings, spec)
+    records.write_json(summary_path, summary)
+    return records.to_json_value(summary)
+
+
+def _summary_header(spec: RunSpec, problem, config) -> dict:
+    env = problem.env
+    return {
         "env": env.name,
         "env_options": env.options(),
         "algo": config.algo,
         "intentions": env.num_intentions,
-        "seeds": seeds,
-        "first_seed": seed,
+        "seeds": spec.seeds,
+        "first_seed": spec.first_seed,
         "iterations": config.iterations,
-        "demonstrations": {"source": problem.demos_source, "pairs": len(problem.demos)},
-        "devices": [str(d) for d in runner.sharding.mesh.devices.flat],
+        "demonstrations": {
+            "source": problem.demos_source,
+            "path": spec.demos_path,
+            "seed": spec.demo_seed,
+            "pairs": len(problem.demos),
+            "labels": problem.demos.intentions is not None,
+            "expert_returns": problem.demos.expert_returns is not None,
+        },
         "config": config.to_dict(),
-        "status": "running",
     }
-    summary_path = os.path.join(out, "summary.json")
-    records.write_json(summary_path, summary)
 
-    state = runner.init(jax.random.PRNGKey(seed))
-    runner.compile(state)
-    history = None
-    bar = _Progress(config.iterations, enabled=progress)
-    try:
-        for first in range(0, config.iterations, chunk):
-            state, metrics = runner.step(state)
-            log.write(first, metrics)
-            history = concat_history(history, metrics)
-            bar.update(chunk, metrics)
-    finally:
-        bar.close()
-        log.close()
 
-    final = final_metrics(history)
-    timings = runner.timings
+def _final_summary(problem, config, final, timings, spec) -> dict:
+    env = problem.env
     k, b, t = env.num_intentions, config.num_envs, config.rollout_length
     steps_per_iteration = k * (b * t + config.eval_episodes * env.episode_length)
-    summary["status"] = "completed"
-    summary["final"] = {
-        "erd": final["eval/erd"],
-        "cluster_accuracy": None if config.algo == "gail" else final["eval/cluster_accuracy"],
+    no_accuracy = config.algo == "gail" or problem.demos.intentions is None
+    no_erd = problem.demos.expert_returns is None
+    iterations = max(timings["iterations"], 1)
+    return {
+        "erd": None if no_erd else final["eval/erd"],
+        "cluster_accuracy": None if no_accuracy else final["eval/cluster_accuracy"],
         "returns": final["eval/returns"],
         "expert_returns": problem.demos.expert_returns,
         "random_returns": problem.random_returns,
-        "compile_time_s": timings.compile_s,
-        "train_time_s": timings.train_s,
-        "iteration_time_s": timings.train_s / timings.iterations,
-        "env_steps": steps_per_iteration * timings.iterations * seeds,
+        "compile_time_s": timings["compile_time_s"],
+        "train_time_s": timings["train_time_s"],
+        "iteration_time_s": timings["train_time_s"] / iterations,
+        "env_steps": steps_per_iteration * timings["iterations"] * spec.seeds,
     }
-    records.write_json(summary_path, summary)
-    return records.to_json_value(summary)
 
 
 class _Progress:
     """A rich progress bar showing iteration, ERD, clustering accuracy, it/s and ETA."""
 
-    def __init__(self, total: int, enabled: bool):
+    def __init__(self, total: int, completed: int, enabled: bool):
         self.enabled = enabled
         if not enabled:
             return
@@ -176,7 +375,9 @@ class _Progress:
             TimeRemainingColumn(),
         )
         self.progress.start()
-        self.task = self.progress.add_task("train", total=total, erd="-", acc="-", speed="")
+        self.task = self.progress.add_task(
+            "train", total=total, completed=completed, erd="-", acc="-", speed=""
+        )
         self.start = time.perf_counter()
         self.done = 0
 
@@ -184,12 +385,13 @@ class _Progress:
         if not self.enabled:
             return
         self.done += advance
-        erd = np.nanmean(metrics["eval/erd"][:, -1])
+        erd = metrics["eval/erd"][:, -1]
         acc = metrics["eval/cluster_accuracy"][:, -1]
+        erd_text = "-" if np.all(np.isnan(erd)) else f"{np.nanmean(erd):.3f}"
         acc_text = "-" if np.all(np.isnan(acc)) else f"{np.nanmean(acc):.3f}"
         speed = self.done / (time.perf_counter() - self.start)
         self.progress.update(
-            self.task, advance=advance, erd=f"{erd:.3f}", acc=acc_text, speed=f"{speed:.1f} it/s"
+            self.task, advance=advance, erd=erd_text, acc=acc_text, speed=f"{speed:.1f} it/s"
         )
 
     def close(self) -> None:
@@ -202,21 +404,22 @@ def print_summary(summary: dict) -> None:
     from rich.table import Table
 
     final = summary["final"]
+    seeds = summary["seeds"]
     table = Table(
         title=f"{summary['algo']} on {summary['env']} (K={summary['intentions']}), "
-        f"mean of the last 10 of {summary['iterations']} iterations"
+        f"mean of the last 10 of {summary['iterations_done']} iterations ({summary['status']})"
     )
     table.add_column("seed", justify="right")
     table.add_column("norm. ERD", justify="right")
     table.add_column("cluster acc.", justify="right")
     table.add_column("true returns (learned / expert)")
-    accuracy = final["cluster_accuracy"] or [None] * len(final["erd"])
-    for seed, (erd, acc, returns) in enumerate(
-        zip(final["erd"], accuracy, final["returns"], strict=True)
-    ):
+    erds = final["erd"] or [None] * seeds
+    accuracy = final["cluster_accuracy"] or [None] * seeds
+    expert = final["expert_returns"] or [None] * summary["intentions"]
+    for seed, (erd, acc, returns) in enumerate(zip(erds, accuracy, final["returns"], strict=True)):
         pairs = ", ".join(
-            f"{r:.1f}/{e:.1f}" if e is not None else f"{r:.1f}"
-            for r, e in zip(returns, final["expert_returns"] or [None] * len(returns), strict=True)
+            f"{r:.1f}" if e is None else f"{r:.1f}/{e:.1f}"
+            for r, e in zip(returns, expert, strict=True)
         )
         table.add_row(
             str(summary["first_seed"] + seed),
@@ -237,34 +440,38 @@ def main(argv=None) -> int:
     runtime.setup()
 
     import envs
+    from emgail_jax.checkpoints import CheckpointError, latest_iteration
     from emgail_jax.demos import DemonstrationError
-    from emgail_jax.problem import make_problem
 
     try:
-        if args.seeds < 1 or args.iterations < 1:
-            raise RunError("--seeds and --iterations must be at least 1")
-        env_options = {}
-        if args.radius is not None:
-            if args.env != "driver":
-                raise RunError("--radius applies to the driver env only")
-            env_options["radius"] = args.radius
-        config = build_config(args)
-        problem = make_problem(
-            args.env, args.intentions, args.demos, env_options, demo_seed=args.demo_seed
+        spec = spec_from_args(args)
+        out = args.resume or args.out
+        if args.resume is not None and latest_iteration(out) is None:
+            raise CheckpointError(f"'{out}' holds no checkpoint to resume from")
+        problem = spec.problem()
+        if args.resume is None:
+            prepare_output(out, args.overwrite)
+        else:
+            print(f"resuming '{out}' from iteration {latest_iteration(out)}")
+        if problem.demos.expert_returns is None:
+            print("notice: the demonstrations carry no expert_returns, so ERD is reported as null")
+        if problem.demos.intentions is None:
+            print("notice: the demonstrations carry no intention labels, so accuracy is null")
+        summary = train(
+            spec,
+            problem,
+            out,
+            resume=args.resume is not None,
+            checkpoint_every=args.checkpoint_every,
+            progress=not args.quiet,
         )
-        prepare_output(args.out, args.overwrite)
-    except (envs.EnvError, DemonstrationError, RunError) as error:
+    except (envs.EnvError, DemonstrationError, RunError, CheckpointError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
-    if problem.demos.expert_returns is None:
-        print("notice: the demonstrations carry no expert_returns, so ERD is reported as null")
-    if problem.demos.intentions is None:
-        print("notice: the demonstrations carry no intention labels, so accuracy is null")
-    summary = train(problem, config, args.seeds, args.out, args.seed, progress=not args.quiet)
     if not args.quiet:
         print_summary(summary)
-    print(f"wrote {os.path.join(args.out, 'summary.json')}")
-    return 0
+    print(f"wrote {os.path.join(out, 'summary.json')} ({summary['status']})")
+    return 130 if summary["status"] == "interrupted" else 0
 
 
 if __name__ == "__main__":

@@ -73,6 +73,15 @@ class Runner:
         self.timings.compile_s += time.perf_counter() - start
         return state
 
+    def abstract_state(self, key: jax.Array):
+        """Shapes, dtypes and shardings of :meth:`init`'s state, without computing it (the
+        target a checkpoint is restored into)."""
+        keys = jax.random.split(key, self.seeds)
+        shapes = jax.eval_shape(self._init, keys)
+        return jax.tree.map(
+            lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=self.sharding), shapes
+        )
+
     def compile(self, state: TrainState) -> None:
         start = time.perf_counter()
         self._compiled = self._chunk.lower(state).compile()

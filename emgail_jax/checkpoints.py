@@ -1,0 +1,81 @@
+"""Checkpoints of a run: the whole train state of every seed, the metric history, and progress.
+
+Orbax writes each checkpoint to a temporary directory and renames it into place once complete,
+so an interrupted save never replaces the last complete checkpoint. A checkpoint holds:
+
+- ``state``: the ``TrainState`` pytree with the seeds as leading axis (sharded as in training);
+- ``history``: every metric so far, ``{name: [S, iterations, ...]}`` (exact, unlike the CSV);
+- ``meta``: ``{"iteration": n}``.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import orbax.checkpoint as ocp
+
+
+class CheckpointError(ValueError):
+    """No usable checkpoint; the message says what is wrong."""
+
+
+def directory(run_dir: str) -> str:
+    return os.path.join(os.path.abspath(run_dir), "checkpoints")
+
+
+def _manager(run_dir: str, keep: int = 2) -> ocp.CheckpointManager:
+    options = ocp.CheckpointManagerOptions(
+        max_to_keep=keep, enable_async_checkpointing=False, create=True
+    )
+    return ocp.CheckpointManager(directory(run_dir), options=options)
+
+
+def save(run_dir: str, iteration: int, state, history: dict[str, np.ndarray]) -> None:
+    """Writes the checkpoint of ``iteration`` (keeps the two newest)."""
+    with _manager(run_dir) as manager:
+        manager.save(
+            iteration,
+            args=ocp.args.Composite(
+                state=ocp.args.StandardSave(state),
+                history=ocp.args.StandardSave(history),
+                meta=ocp.args.JsonSave({"iteration": iteration}),
+            ),
+        )
+        manager.wait_until_finished()
+
+
+def latest_iteration(run_dir: str) -> int | None:
+    if not os.path.isdir(directory(run_dir)):
+        return None
+    with _manager(run_dir) as manager:
+        return manager.latest_step()
+
+
+def restore(run_dir: str, target_state, iteration: int | None = None):
+    """Restores ``(state, history, iteration)``; ``target_state`` gives structure and sharding.
+
+    Raises:
+      CheckpointError: no checkpoint, or one that cannot be read into ``target_state``.
+    """
+    iteration = latest_iteration(run_dir) if iteration is None else iteration
+    if iteration is None:
+        raise CheckpointError(f"'{run_dir}' holds no checkpoint to resume or evaluate")
+    try:
+        with _manager(run_dir) as manager:
+            restored = manager.restore(
+                iteration,
+                args=ocp.args.Composite(
+                    state=ocp.args.StandardRestore(target_state),
+                    history=ocp.args.StandardRestore(),
+                    meta=ocp.args.JsonRestore(),
+                ),
+            )
+    except Exception as error:  # orbax raises many types for damaged or foreign files
+        message = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        raise CheckpointError(
+            f"the checkpoint of iteration {iteration} in '{directory(run_dir)}' cannot be "
+            f"read ({message[:200]}); delete it to fall back to an older one"
+        ) from None
+    history = {name: np.asarray(values) for name, values in restored.history.items()}
+    return restored.state, history, int(restored.meta["iteration"])
