@@ -20,3 +20,13 @@ def _add_xla_flags(*flags: str) -> None:
 
 
 _add_xla_flags(*_XLA_WORKAROUNDS)
+
+
+def __getattr__(name: str):
+    # Imported on first use, so that `import emgail_jax` stays light and sets the XLA flags
+    # above before anything imports JAX.
+    if name in ("load_policy", "load_reward", "SavedRun"):
+        from emgail_jax import saved_run
+
+        return getattr(saved_run, name)
+    raise AttributeError(f"module 'emgail_jax' has no attribute {name!r}")

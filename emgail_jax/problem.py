@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 from importlib import resources
 
@@ -21,11 +22,24 @@ class Problem:
     env: envs.Env
     demos: demos_lib.Demonstrations
     demos_source: str
-    random_returns: np.ndarray  # [K]
+    random_seed: int = 1
+    random_episodes: int = 50
 
     @property
     def num_intentions(self) -> int:
         return self.env.num_intentions
+
+    @functools.cached_property
+    def random_returns(self) -> np.ndarray:
+        """``[K]`` mean true return of uniformly random actions (ERD's reference point 1);
+        computed on first use, as it costs a compile of the env's rollout."""
+        env = self.env
+        policy = uniform_random_policy(env)
+        episodes = self.random_episodes
+        returns = jax.jit(
+            lambda key: episode_returns(envs.EpisodeWrapper(env), policy, key, 1, episodes)
+        )(jax.random.PRNGKey(self.random_seed))
+        return np.asarray(returns[0])
 
 
 def shipped_demos_path(env_name: str) -> str:
@@ -72,11 +86,7 @@ def make_problem(
         env = envs.make(env_name, intentions=intentions, **env_options)
         demos, source = default_demos(env, demo_seed)
         demos = _first_intentions(demos, env)
-    policy = uniform_random_policy(env)
-    returns = jax.jit(
-        lambda key: episode_returns(envs.EpisodeWrapper(env), policy, key, 1, random_episodes)
-    )(jax.random.PRNGKey(demo_seed + 1))
-    return Problem(env, demos, source, np.asarray(returns[0]))
+    return Problem(env, demos, source, demo_seed + 1, random_episodes)
 
 
 def _first_intentions(demos: demos_lib.Demonstrations, env: envs.Env):

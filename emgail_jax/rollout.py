@@ -73,31 +73,52 @@ def rollout(
     return jax.lax.scan(body, state, jax.random.split(key, length))
 
 
-def episode_returns(
-    env: envs.Env, policy: Policy, key: jax.Array, num_policies: int, episodes: int
-) -> jax.Array:
-    """Mean undiscounted true return of each of ``num_policies`` policy rows.
+def episodes(
+    env: envs.Env,
+    act: Callable[[envs.State, jax.Array], jax.Array],
+    key: jax.Array,
+    num_policies: int,
+    episodes_per_policy: int,
+    traces: bool = False,
+):
+    """Fresh episodes of ``num_policies`` policy rows, ``episodes_per_policy`` each.
 
-    Runs ``episodes`` fresh episodes per row (``env`` with a time limit, no auto-reset; rewards
-    after a termination are not counted). Returns ``[num_policies, K]``: row j, column i is the
-    return of policy row j under true intention i.
+    ``act(state [P, E], key) -> action [P, E, A]`` sees whole env states (an analytic expert
+    needs more than the observation). ``env`` has a time limit and no auto-reset; rewards after
+    a termination are not counted.
+
+    Returns ``(returns [P, E, K], alive [T, P, E], trace {name: [T, P, E]})``: the true return of
+    every episode under every intention, whether each step was still in its episode, and, with
+    ``traces``, the env's :meth:`~envs.Env.trace` after every step (empty otherwise).
     """
     key_reset, key_steps = jax.random.split(key)
-    state = batch_reset(env, key_reset, (num_policies, episodes))
+    state = batch_reset(env, key_reset, (num_policies, episodes_per_policy))
     step = _batch_step(env, 2)
+    trace = jax.vmap(jax.vmap(env.trace)) if traces else (lambda state: {})
 
     def body(carry, step_key):
         state, alive, total = carry
-        next_state = step(state, policy(state.obs, step_key))
+        next_state = step(state, act(state, step_key))
         total = total + alive[..., None] * next_state.reward
-        return (next_state, alive * (1.0 - next_state.done), total), None
+        out = (alive, trace(next_state))
+        return (next_state, alive * (1.0 - next_state.done), total), out
 
-    alive = jnp.ones((num_policies, episodes))
-    total = jnp.zeros((num_policies, episodes, env.num_intentions))
-    (_, _, total), _ = jax.lax.scan(
+    alive = jnp.ones((num_policies, episodes_per_policy))
+    total = jnp.zeros((num_policies, episodes_per_policy, env.num_intentions))
+    (_, _, total), (alive, trace_values) = jax.lax.scan(
         body, (state, alive, total), jax.random.split(key_steps, env.episode_length)
     )
-    return total.mean(1)
+    return total, alive, trace_values
+
+
+def episode_returns(
+    env: envs.Env, policy: Policy, key: jax.Array, num_policies: int, episodes_per_policy: int
+) -> jax.Array:
+    """``[num_policies, K]`` mean true return of each policy row (``policy`` acts on
+    observations) under every intention, over fresh episodes (see :func:`episodes`)."""
+    act = lambda state, step_key: policy(state.obs, step_key)
+    returns, _, _ = episodes(env, act, key, num_policies, episodes_per_policy)
+    return returns.mean(1)
 
 
 def uniform_random_policy(env: envs.Env) -> Policy:

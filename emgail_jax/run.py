@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
 import shutil
 import signal
@@ -24,66 +23,10 @@ import time
 import numpy as np
 
 from emgail_jax import runtime
+from emgail_jax.runs import RunError, RunSpec, read_summary
 
 OUTPUTS = ("summary.json", "metrics.csv", "tensorboard", "checkpoints")
 DEFAULT_CHECKPOINT_EVERY = 50
-
-
-class RunError(ValueError):
-    """A run that cannot start; the message says what to change."""
-
-
-@dataclasses.dataclass(frozen=True)
-class RunSpec:
-    """Everything needed to rebuild a run (stored in its ``summary.json``)."""
-
-    env: str
-    intentions: int | None
-    env_options: dict
-    algo: str
-    seeds: int
-    first_seed: int
-    demos_path: str | None
-    demo_seed: int
-    config: object  # emgail_jax.config.Config
-
-    @classmethod
-    def from_summary(cls, summary: dict) -> RunSpec:
-        from emgail_jax.config import Config
-
-        try:
-            demos = summary["demonstrations"]
-            return cls(
-                env=summary["env"],
-                intentions=summary["intentions"],
-                env_options=summary["env_options"],
-                algo=summary["algo"],
-                seeds=summary["seeds"],
-                first_seed=summary["first_seed"],
-                demos_path=demos["path"],
-                demo_seed=demos["seed"],
-                config=Config.from_dict(summary["config"]),
-            )
-        except (KeyError, TypeError) as error:
-            raise RunError(f"summary.json does not describe a run (no {error})") from None
-
-    def problem(self):
-        from emgail_jax.problem import make_problem
-
-        return make_problem(
-            self.env, self.intentions, self.demos_path, self.env_options, self.demo_seed
-        )
-
-
-def read_summary(run_dir: str) -> dict:
-    path = os.path.join(run_dir, "summary.json")
-    if not os.path.exists(path):
-        raise RunError(f"'{run_dir}' is not a run directory: it has no summary.json")
-    try:
-        with open(path) as f:
-            return json.load(f)
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise RunError(f"'{path}' is not valid JSON ({error})") from None
 
 
 def parse_args(argv=None) -> argparse.Namespace:

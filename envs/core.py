@@ -97,6 +97,11 @@ class Env(abc.ABC):
     def clip_action(self, action: jax.Array) -> jax.Array:
         return jnp.clip(action, self.action_low, self.action_high)
 
+    def trace(self, state: State) -> dict[str, jax.Array]:
+        """Named scalars that show what the agent is doing (plotted by ``emgail_jax.evaluate``
+        against time, e.g. the position the observation leaves out); none by default."""
+        return {}
+
     def options(self) -> dict[str, Any]:
         """The options this instance was made with (stored in run summaries)."""
         return {}

@@ -119,6 +119,10 @@ class DriverEnv(Env):
             "expert_noise": self.expert_noise,
         }
 
+    def trace(self, state: State) -> dict[str, jax.Array]:
+        position = state.physics.history[-1]
+        return {"x": position[0], "y": position[1]}
+
     def reset(self, key: jax.Array) -> State:
         key_position, key_heading = jax.random.split(key)
         position = self.init_position_noise * jax.random.normal(key_position, (2,))

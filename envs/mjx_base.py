@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from envs.core import Env, EnvError
+from envs.core import Env, EnvError, State
 
 # MJX tries to import its optional Warp backend on import and prints two harmless lines
 # ("Failed to import warp: ...") when it is not installed; drop just those lines.
@@ -212,6 +212,10 @@ class MjxEnv(Env):
         }
 
     # ---- physics -------------------------------------------------------------------------
+
+    def trace(self, state: State) -> dict[str, jax.Array]:
+        """The root's horizontal position, which the observation leaves out."""
+        return {"x": state.physics.qpos[0]}
 
     def physics_reset(self, qpos: jax.Array, qvel: jax.Array, **fields: jax.Array) -> mjx.Data:
         """Fresh data at ``qpos [nq]``, ``qvel [nv]`` (and e.g. ``mocap_pos``), with positions,

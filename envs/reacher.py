@@ -120,6 +120,10 @@ class ReacherEnv(MjxEnv):
         reward = -distance[: self.num_intentions] - self.ctrl_cost * jnp.sum(action**2)
         return state.replace(physics=data, obs=self._obs(data), reward=reward, done=jnp.zeros(()))
 
+    def trace(self, state: State) -> dict[str, jax.Array]:
+        distance = jnp.linalg.norm(self._fingertip_to_balls(state.physics), axis=-1)
+        return {f"distance to ball {k + 1}": distance[k] for k in range(distance.shape[0])}
+
     def _fingertip_to_balls(self, data) -> jax.Array:
         """``[4, 3]`` fingertip minus every ball."""
         return data.xpos[self.fingertip_id][None, :] - data.mocap_pos

@@ -33,6 +33,9 @@ class Wrapper(Env):
     def options(self):
         return self.env.options()
 
+    def trace(self, state: State):
+        return self.env.trace(state)
+
     @property
     def unwrapped(self) -> Env:
         return self.env.unwrapped

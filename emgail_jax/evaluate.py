@@ -1,0 +1,256 @@
+"""Evaluate a run: roll out every learned intention, score it, and draw what it does.
+
+    python -m emgail_jax.evaluate RUN_DIR [--episodes 10] [--seed 0]
+
+Prints, per seed, the normalised ERD with the matching of true to learned intentions and the
+clustering accuracy of the posterior (Hungarian matching), and writes to ``RUN_DIR/figures``:
+
+- ``learning_curves.png``: ERD and clustering accuracy over iterations (from ``metrics.csv``);
+- driver: ``paths_seed{S}.png``, the XY paths of every learned intention over the experts' paths
+  and the demonstrations;
+- other envs: ``traces_seed{S}.png``, the env's trace over time (x-position; the reacher's
+  distance to each ball) per learned intention, against the experts' when they can be replayed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import sys
+
+import numpy as np
+
+from emgail_jax import runtime
+
+COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red")
+
+
+def rollouts(run, seed: int, episodes: int, key):
+    """Deterministic episodes of every learned intention: ``(returns [K, E, K], alive, trace)``."""
+    import jax
+    import jax.numpy as jnp
+
+    import envs
+    from emgail_jax.rollout import episodes as run_episodes
+
+    env = envs.EpisodeWrapper(run.problem.env)
+    k = run.num_intentions
+    policy = run.policy(seed)
+    rows = jnp.arange(k)[:, None]
+    act = lambda state, _: policy(state.obs, rows)
+    return jax.device_get(jax.jit(lambda key: run_episodes(env, act, key, k, episodes, True))(key))
+
+
+def expert_rollouts(run, episodes: int, key):
+    """The experts' episodes, when an expert can act in the env; else None."""
+    import jax
+    import jax.numpy as jnp
+
+    import envs
+    from emgail_jax.rollout import episodes as run_episodes
+
+    raw = run.problem.env
+    env = envs.EpisodeWrapper(raw)
+    k = raw.num_intentions
+    rows = jnp.broadcast_to(jnp.arange(k)[:, None], (k, episodes))
+    if hasattr(raw, "expert_action"):
+        act = lambda state, _: jax.vmap(jax.vmap(raw.expert_action))(state, rows)
+    else:
+        try:
+            from emgail_jax.experts import load_expert_policy
+        except ImportError:
+            return None
+        expert = load_expert_policy(raw)
+        if expert is None:
+            return None
+        act = lambda state, _: expert(state.obs, rows)
+    return jax.device_get(jax.jit(lambda key: run_episodes(env, act, key, k, episodes, True))(key))
+
+
+def score(run, seed: int, returns: np.ndarray) -> dict:
+    """ERD with the best matching, and clustering accuracy with the Hungarian mapping."""
+    from scipy.optimize import linear_sum_assignment
+
+    from emgail_jax.metrics import hungarian_accuracy, normalized_erd
+
+    demos = run.problem.demos
+    mean_returns = returns.mean(1)  # [K learned, K true]
+    result = {"returns": mean_returns, "erd": None, "matching": None, "accuracy": None}
+    if demos.expert_returns is not None:
+        erd, matching = normalized_erd(
+            mean_returns, demos.expert_returns, run.problem.random_returns
+        )
+        result["erd"], result["matching"] = float(erd), np.asarray(matching)
+    if run.algorithm.learns_posterior and demos.intentions is not None:
+        predicted = run.responsibilities(seed).argmax(-1)
+        result["accuracy"] = hungarian_accuracy(predicted, demos.intentions, run.num_intentions)
+        counts = np.zeros((run.num_intentions,) * 2)
+        np.add.at(counts, (demos.intentions, predicted), 1)
+        result["cluster_of_intention"] = linear_sum_assignment(-counts)[1]
+    return result
+
+
+def plot_learning_curves(run_dir: str, path: str) -> None:
+    import matplotlib.pyplot as plt
+
+    with open(os.path.join(run_dir, "metrics.csv")) as f:
+        rows = list(csv.DictReader(f))
+    seeds = sorted({int(r["seed"]) for r in rows})
+    panels = [("eval/erd", "normalised ERD"), ("eval/cluster_accuracy", "clustering accuracy")]
+    panels = [p for p in panels if any(r[p[0]] != "" for r in rows)]
+    fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 3.5), squeeze=False)
+    for ax, (column, label) in zip(axes[0], panels, strict=True):
+        for seed in seeds:
+            mine = [r for r in rows if int(r["seed"]) == seed and r[column] != ""]
+            ax.plot([int(r["iteration"]) for r in mine], [float(r[column]) for r in mine],
+                    label=f"seed {seed}", lw=1)  # fmt: skip
+        ax.set_xlabel("iteration")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[0][0].legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_driver_paths(run, trace, alive, matching, path: str) -> None:
+    import matplotlib.pyplot as plt
+
+    env = run.problem.env
+    demos = run.problem.demos
+    fig, ax = plt.subplots(figsize=(6, 5))
+    for i in range(env.num_intentions):
+        points = env.path_points(i)
+        ax.plot(points[:, 0], points[:, 1], "--", color=COLORS[i], lw=2.5, alpha=0.5,
+                label=f"expert path {i + 1}")  # fmt: skip
+        if demos.intentions is not None:
+            mine = demos.observations[demos.intentions == i]
+            ax.scatter(mine[:, -2], mine[:, -1], s=2, color=COLORS[i], alpha=0.15)
+    true_of_learned = np.argsort(matching) if matching is not None else np.arange(len(COLORS))
+    for j in range(env.num_intentions):
+        color = COLORS[true_of_learned[j]]
+        for e in range(trace["x"].shape[2]):
+            steps = alive[:, j, e] > 0
+            ax.plot(trace["x"][steps, j, e], trace["y"][steps, j, e], color=color, lw=1,
+                    label=f"learned intention {j}" if e == 0 else None)  # fmt: skip
+    ax.set_aspect("equal")
+    ax.set_xlabel("x")
+    ax.set_ylabel("y")
+    ax.legend(fontsize=8)
+    ax.set_title(f"driver, radius {env.radius:g}: learned intentions over the experts' paths")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_traces(run, trace, alive, expert, matching, path: str) -> None:
+    import matplotlib.pyplot as plt
+
+    names = list(trace)
+    k = run.num_intentions
+    fig, axes = plt.subplots(1, len(names), figsize=(5 * len(names), 3.5), squeeze=False)
+    true_of_learned = np.argsort(matching) if matching is not None else np.arange(k)
+    for ax, name in zip(axes[0], names, strict=True):
+        for j in range(k):
+            _band(ax, trace[name][:, j], alive[:, j], COLORS[true_of_learned[j] % 4],
+                  f"learned {j}", "-")  # fmt: skip
+        if expert is not None:
+            _, expert_alive, expert_trace = expert
+            for i in range(k):
+                _band(ax, expert_trace[name][:, i], expert_alive[:, i], COLORS[i % 4],
+                      f"expert {run.problem.env.intention_names[i]}", "--")  # fmt: skip
+        ax.set_xlabel("step")
+        ax.set_ylabel(name)
+        ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=8)
+    fig.suptitle(f"{run.problem.env.name}: learned intentions against the experts")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def _band(ax, values, alive, color, label, style):
+    """Mean over episodes (while alive) with a min-max band; ``values [T, E]``."""
+    masked = np.where(alive > 0, values, np.nan)
+    steps = np.arange(len(values))
+    with np.errstate(all="ignore"):
+        ax.plot(steps, np.nanmean(masked, 1), style, color=color, label=label, lw=1.2)
+        ax.fill_between(steps, np.nanmin(masked, 1), np.nanmax(masked, 1), color=color, alpha=0.15)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m emgail_jax.evaluate", description=__doc__.split("\n")[0]
+    )
+    parser.add_argument("run_dir")
+    parser.add_argument("--episodes", type=int, default=10, help="per learned intention")
+    parser.add_argument("--seed", type=int, default=0, help="the seed whose figures are drawn")
+    parser.add_argument("--out", default=None, help="figure directory (default RUN_DIR/figures)")
+    args = parser.parse_args(argv)
+    runtime.setup(host_devices=1)
+
+    import jax
+    import matplotlib
+
+    matplotlib.use("Agg")
+
+    import envs
+    from emgail_jax.checkpoints import CheckpointError
+    from emgail_jax.demos import DemonstrationError
+    from emgail_jax.runs import RunError
+    from emgail_jax.saved_run import SavedRun
+
+    try:
+        run = SavedRun.open(args.run_dir)
+        run.seed_state(args.seed)
+    except (RunError, CheckpointError, envs.EnvError, DemonstrationError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+
+    env = run.problem.env
+    names = env.intention_names[: run.num_intentions]
+    print(f"{run.config.algo} on {env.name} (K={run.num_intentions}), iteration {run.iteration}, "
+          f"{args.episodes} deterministic episodes per learned intention")  # fmt: skip
+    key = jax.random.PRNGKey(12345)
+    results = []
+    for seed in range(run.spec.seeds):
+        returns, alive, trace = rollouts(run, seed, args.episodes, key)
+        result = score(run, seed, returns)
+        results.append((returns, alive, trace, result))
+        parts = [f"seed {run.spec.first_seed + seed}:"]
+        if result["erd"] is not None:
+            matched = ", ".join(
+                f"{names[i]} -> learned {j} ({result['returns'][j, i]:.1f} vs expert "
+                f"{run.problem.demos.expert_returns[i]:.1f})"
+                for i, j in enumerate(result["matching"])
+            )
+            parts.append(f"ERD {result['erd']:.3f} [{matched}]")
+        if result["accuracy"] is not None:
+            clusters = ", ".join(
+                f"{names[i]} -> cluster {c}" for i, c in enumerate(result["cluster_of_intention"])
+            )
+            parts.append(f"accuracy {result['accuracy']:.3f} [{clusters}]")
+        print(" ".join(parts))
+
+    out = args.out or os.path.join(args.run_dir, "figures")
+    os.makedirs(out, exist_ok=True)
+    written = [os.path.join(out, "learning_curves.png")]
+    plot_learning_curves(args.run_dir, written[-1])
+    returns, alive, trace, result = results[args.seed]
+    if env.name == "driver":
+        written.append(os.path.join(out, f"paths_seed{args.seed}.png"))
+        plot_driver_paths(run, trace, alive, result["matching"], written[-1])
+    elif trace:
+        expert = expert_rollouts(run, args.episodes, key)
+        if expert is None:
+            print("notice: no expert to replay for this env; the traces show the learner only")
+        written.append(os.path.join(out, f"traces_seed{args.seed}.png"))
+        plot_traces(run, trace, alive, expert, result["matching"], written[-1])
+    for path in written:
+        print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,147 @@
+"""A finished (or interrupted) run, reopened from its directory: what was learned, reusable.
+
+>>> import emgail_jax
+>>> policy = emgail_jax.load_policy("runs/driver-emgail")   # pi(s, i), jittable
+>>> reward = emgail_jax.load_reward("runs/driver-emgail")   # R_i(s, a), jittable
+>>> action = policy(obs, 1)
+>>> r = reward(obs, action, 1)
+
+Intentions are the *learned* ones, numbered as the learner numbered them; ``evaluate`` prints
+which true intention each one matches.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from emgail_jax import checkpoints
+from emgail_jax import normalizer as obs_norm
+from emgail_jax.algorithms import Algorithm, make_algorithm
+from emgail_jax.config import Config
+from emgail_jax.problem import Problem
+from emgail_jax.runner import Runner
+from emgail_jax.runs import RunError, RunSpec, read_summary
+from emgail_jax.training import ExpertData, Networks, TrainState, make_networks, make_train
+
+
+@dataclasses.dataclass
+class SavedRun:
+    run_dir: str
+    summary: dict
+    spec: RunSpec
+    problem: Problem
+    config: Config  # resolved for the env
+    algorithm: Algorithm
+    networks: Networks
+    state: TrainState  # every seed, leading axis
+    history: dict[str, np.ndarray]
+    iteration: int
+
+    @classmethod
+    def open(cls, run_dir: str) -> SavedRun:
+        """Reads ``summary.json`` and the newest checkpoint.
+
+        Raises ``RunError``/``CheckpointError`` (and the env's and demonstrations' errors) with
+        one-line messages.
+        """
+        summary = read_summary(run_dir)
+        spec = RunSpec.from_summary(summary)
+        problem = spec.problem()
+        env = problem.env
+        config = spec.config.resolved(env)
+        # Only `init`'s shapes are needed; ERD's references do not enter them.
+        expert = ExpertData.create(
+            problem.demos, np.full(env.num_intentions, np.nan), env.num_intentions
+        )
+        init, update = make_train(config, env, expert)
+        runner = Runner(init, update, spec.seeds, 1)
+        target = runner.abstract_state(jax.random.PRNGKey(spec.first_seed))
+        state, history, iteration = checkpoints.restore(run_dir, target)
+        return cls(
+            run_dir=run_dir,
+            summary=summary,
+            spec=spec,
+            problem=problem,
+            config=config,
+            algorithm=make_algorithm(config.algo, config.info_weight),
+            networks=make_networks(config, env),
+            state=state,
+            history=history,
+            iteration=iteration,
+        )
+
+    @property
+    def num_intentions(self) -> int:
+        return self.problem.env.num_intentions
+
+    def seed_state(self, seed: int = 0) -> TrainState:
+        """The train state of the run's ``seed``-th seed (0 .. seeds-1)."""
+        if not 0 <= seed < self.spec.seeds:
+            raise RunError(f"the run has seeds 0..{self.spec.seeds - 1}; got seed {seed}")
+        return jax.tree.map(lambda x: x[seed], self.state)
+
+    def policy(self, seed: int = 0) -> Callable[[jax.Array, jax.Array], jax.Array]:
+        """Deterministic ``pi(obs [..., D], intention [...]) -> action [..., A]`` (raw obs)."""
+        state = self.seed_state(seed)
+        env, k = self.problem.env, self.num_intentions
+        apply, algorithm, clip = self.networks.policy.apply, self.algorithm, self.config.obs_clip
+
+        def policy(obs, intention):
+            obs = jnp.asarray(obs, jnp.float32)
+            intention = jnp.broadcast_to(jnp.asarray(intention, jnp.int32), obs.shape[:-1])
+            normalized = obs_norm.normalize(state.normalizer, obs, clip)
+            mean, _ = apply(state.policy, normalized, algorithm.policy_condition(intention, k))
+            return jnp.clip(mean, env.action_low, env.action_high)
+
+        return policy
+
+    def reward(self, seed: int = 0) -> Callable[[jax.Array, jax.Array, jax.Array], jax.Array]:
+        """The learned pseudo-reward ``R_i(obs [..., D], action [..., A], i [...]) -> [...]``:
+        -log(1 - D(s, a, i)) for EM-GAIL (eq. 20), plus lambda log P(i | s, a) for
+        Info/IntentionGAIL (eq. 23), -log(1 - D(s, a)) for GAIL."""
+        state = self.seed_state(seed)
+        k, algorithm, clip = self.num_intentions, self.algorithm, self.config.obs_clip
+        networks = self.networks
+
+        def reward(obs, action, intention):
+            obs = jnp.asarray(obs, jnp.float32)
+            action = jnp.asarray(action, jnp.float32)
+            intention = jnp.broadcast_to(jnp.asarray(intention, jnp.int32), obs.shape[:-1])
+            normalized = obs_norm.normalize(state.normalizer, obs, clip)
+            condition = algorithm.discriminator_condition(intention, k)
+            logit = networks.discriminator.apply(state.discriminator, normalized, action, condition)
+            if algorithm.learns_posterior:
+                log_p = jax.nn.log_softmax(
+                    networks.posterior.apply(state.posterior, normalized, action)
+                )
+                own = jnp.take_along_axis(log_p, intention[..., None], -1)[..., 0]
+            else:
+                own = jnp.zeros_like(logit)
+            return algorithm.pseudo_reward(logit, own)
+
+        return reward
+
+    def responsibilities(self, seed: int = 0) -> np.ndarray:
+        """``[N, K]`` gamma(i | s, a) of the posterior on the run's demonstrations."""
+        if not self.algorithm.learns_posterior:
+            raise RunError(f"{self.config.algo} learns no posterior")
+        state = self.seed_state(seed)
+        demos = self.problem.demos
+        normalized = obs_norm.normalize(state.normalizer, demos.observations, self.config.obs_clip)
+        logits = self.networks.posterior.apply(state.posterior, normalized, demos.actions)
+        return np.asarray(jax.nn.softmax(logits, -1))
+
+
+def load_policy(run_dir: str, seed: int = 0):
+    """The learned policy of a run: jittable ``pi(obs, intention) -> action``."""
+    return SavedRun.open(run_dir).policy(seed)
+
+
+def load_reward(run_dir: str, seed: int = 0):
+    """The learned reward of a run: jittable ``R(obs, action, intention) -> reward``."""
+    return SavedRun.open(run_dir).reward(seed)

@@ -1,0 +1,101 @@
+"""Run hyper-parameters: paper defaults, env-dependent rollout sizes, and serialisation."""
+
+import dataclasses
+import json
+import types
+
+import pytest
+
+import envs
+from emgail_jax.config import Config, rollout_defaults
+from emgail_jax.trpo import TRPOConfig
+
+
+def _fake_env(name, episode_length):
+    """``resolved`` reads only the env's name and episode length."""
+    return types.SimpleNamespace(name=name, episode_length=episode_length)
+
+
+def test_paper_defaults():
+    config = Config()
+    assert config.algo == "emgail" and config.iterations == 400
+    assert config.gamma == 0.995 and 0.97 <= config.gae_lambda <= 0.98
+    assert config.trpo == TRPOConfig()
+    assert config.trpo.max_kl == 0.01 and config.trpo.cg_iterations == 10
+    assert config.discriminator_learning_rate == config.posterior_learning_rate == 1e-3
+    assert config.hidden == (64, 64) and config.obs_clip == 5.0
+    assert config.eval_episodes >= 5  # DESIGN §6: ERD from at least 5 episodes
+    assert config.num_envs is None and config.rollout_length is None
+
+
+def test_resolved_fills_the_driver_defaults():
+    resolved = Config().resolved(envs.make("driver", intentions=2))
+    assert (resolved.num_envs, resolved.rollout_length) == (5, 100)
+    # Everything else is unchanged.
+    assert resolved.replace(num_envs=None, rollout_length=None) == Config()
+
+
+def test_resolved_follows_the_env_episode_length_and_wrappers():
+    driver = envs.make("driver", intentions=2, episode_length=30)
+    assert Config().resolved(driver).rollout_length == 30
+    wrapped = envs.wrap_for_training(driver)
+    assert Config().resolved(wrapped).rollout_length == 30
+
+
+@pytest.mark.parametrize(
+    ("name", "length", "expected"),
+    [
+        ("reacher", 50, (50, 50)),
+        ("hopper", 500, (5, 500)),
+        ("swimmer", 500, (5, 500)),
+        ("driver", 100, (5, 100)),
+    ],
+)
+def test_rollout_defaults_collect_the_paper_sample_counts(name, length, expected):
+    defaults = rollout_defaults(name, length)
+    assert (defaults["num_envs"], defaults["rollout_length"]) == expected
+    resolved = Config().resolved(_fake_env(name, length))
+    assert (resolved.num_envs, resolved.rollout_length) == expected
+    # 2500 pairs per intention per iteration on the robotics tasks (5 x 500 or 50 x 50).
+    if name != "driver":
+        assert expected[0] * expected[1] == 2500
+
+
+def test_explicit_sizes_win_over_the_env_defaults():
+    config = Config(num_envs=2, rollout_length=20)
+    resolved = config.resolved(_fake_env("reacher", 50))
+    assert (resolved.num_envs, resolved.rollout_length) == (2, 20)
+    partial = Config(num_envs=3).resolved(_fake_env("reacher", 50))
+    assert (partial.num_envs, partial.rollout_length) == (3, 50)
+    assert resolved.resolved(_fake_env("driver", 100)) == resolved  # idempotent once filled
+
+
+def test_replace_returns_a_new_config_and_the_original_is_frozen():
+    config = Config()
+    changed = config.replace(algo="gail", iterations=3, trpo=TRPOConfig(max_kl=0.05))
+    assert (changed.algo, changed.iterations, changed.trpo.max_kl) == ("gail", 3, 0.05)
+    assert (config.algo, config.iterations, config.trpo.max_kl) == ("emgail", 400, 0.01)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        config.algo = "gail"
+    with pytest.raises(TypeError):
+        config.replace(no_such_field=1)
+
+
+def test_config_is_hashable_for_use_as_a_static_argument():
+    assert hash(Config()) == hash(Config())
+    assert Config(hidden=(8,)) != Config()
+    assert len({Config(), Config(), Config(algo="gail")}) == 2
+
+
+def test_to_dict_is_json_serialisable_and_complete():
+    config = Config(num_envs=2, hidden=(8, 8)).resolved(_fake_env("driver", 100))
+    data = json.loads(json.dumps(config.to_dict()))
+    assert set(data) == {f.name for f in dataclasses.fields(Config)}
+    assert data["num_envs"] == 2 and data["rollout_length"] == 100
+    assert data["hidden"] == [8, 8]
+    assert data["trpo"] == dataclasses.asdict(TRPOConfig())
+    # The dict rebuilds an equal config.
+    rebuilt = Config(
+        **{**data, "hidden": tuple(data["hidden"]), "trpo": TRPOConfig(**data["trpo"])}
+    )
+    assert rebuilt == config

@@ -1,0 +1,214 @@
+"""The four networks: shapes with and without an intention condition, initialisation, and the
+policy's action distribution against the diagonal-Gaussian formula."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from emgail_jax.networks import (
+    MLP,
+    Discriminator,
+    GaussianPolicy,
+    Posterior,
+    ValueNet,
+    action_distribution,
+)
+
+N, OBS, ACT, K = 7, 5, 3, 2
+HIDDEN = (8,)
+
+
+@pytest.fixture(scope="module")
+def inputs():
+    keys = jax.random.split(jax.random.PRNGKey(0), 4)
+    obs = jax.random.normal(keys[0], (N, OBS))
+    action = jax.random.uniform(keys[1], (N, ACT), minval=-1.0, maxval=1.0)
+    one_hot = jax.nn.one_hot(jax.random.randint(keys[2], (N,), 0, K), K)
+    time = jax.random.uniform(keys[3], (N,))
+    return obs, action, one_hot, time
+
+
+def _first_kernel(params):
+    return params["params"]["MLP_0"]["Dense_0"]["kernel"]
+
+
+@pytest.mark.parametrize("conditioned", [True, False], ids=["one-hot", "empty"])
+def test_output_shapes_with_and_without_a_condition(inputs, conditioned):
+    obs, action, one_hot, time = inputs
+    condition = one_hot if conditioned else jnp.zeros((N, 0))
+    width = K if conditioned else 0
+    key = jax.random.PRNGKey(1)
+
+    policy = GaussianPolicy(ACT, HIDDEN, init_log_std=-0.5)
+    params = policy.init(key, obs, condition)
+    mean, log_std = policy.apply(params, obs, condition)
+    assert mean.shape == log_std.shape == (N, ACT)
+    assert _first_kernel(params).shape == (OBS + width, HIDDEN[0])
+
+    value = ValueNet(HIDDEN)
+    params = value.init(key, obs, condition, time)
+    assert value.apply(params, obs, condition, time).shape == (N,)
+    # The normalised time is one more input.
+    assert _first_kernel(params).shape == (OBS + width + 1, HIDDEN[0])
+
+    discriminator = Discriminator(HIDDEN)
+    params = discriminator.init(key, obs, action, condition)
+    assert discriminator.apply(params, obs, action, condition).shape == (N,)
+    assert _first_kernel(params).shape == (OBS + ACT + width, HIDDEN[0])
+
+
+def test_posterior_gives_k_logits(inputs):
+    obs, action, _, _ = inputs
+    posterior = Posterior(num_intentions=3, hidden=HIDDEN)
+    params = posterior.init(jax.random.PRNGKey(2), obs, action)
+    logits = posterior.apply(params, obs, action)
+    assert logits.shape == (N, 3)
+    assert np.all(np.isfinite(logits))
+    # Not a constant: different pairs get different posteriors.
+    assert np.ptp(np.asarray(logits[:, 0])) > 0
+
+
+def test_networks_accept_extra_leading_batch_axes(inputs):
+    obs, _, one_hot, time = inputs
+    policy = GaussianPolicy(ACT, HIDDEN)
+    params = policy.init(jax.random.PRNGKey(3), obs, one_hot)
+    # A rollout's [T, K, B, D] observations.
+    obs4 = jnp.broadcast_to(obs[:4], (2, 3, 4, OBS))
+    cond4 = jnp.broadcast_to(one_hot[:4], (2, 3, 4, K))
+    mean, log_std = policy.apply(params, obs4, cond4)
+    assert mean.shape == log_std.shape == (2, 3, 4, ACT)
+    np.testing.assert_allclose(mean[1, 2], policy.apply(params, obs[:4], one_hot[:4])[0])
+    value = ValueNet(HIDDEN)
+    vparams = value.init(jax.random.PRNGKey(4), obs, one_hot, time)
+    assert value.apply(vparams, obs4, cond4, jnp.zeros((2, 3, 4))).shape == (2, 3, 4)
+
+
+@pytest.mark.parametrize("init_log_std", [0.0, -0.5, 0.7])
+def test_initial_log_std_is_init_log_std_everywhere(inputs, init_log_std):
+    obs, _, one_hot, _ = inputs
+    policy = GaussianPolicy(ACT, HIDDEN, init_log_std=init_log_std)
+    params = policy.init(jax.random.PRNGKey(5), obs, one_hot)
+    np.testing.assert_allclose(params["params"]["log_std"], np.full(ACT, init_log_std), rtol=1e-6)
+    _, log_std = policy.apply(params, obs, one_hot)
+    np.testing.assert_allclose(log_std, np.full((N, ACT), init_log_std))
+
+
+def test_log_std_is_state_independent_and_trainable(inputs):
+    obs, _, one_hot, _ = inputs
+    policy = GaussianPolicy(ACT, HIDDEN)
+    params = policy.init(jax.random.PRNGKey(6), obs, one_hot)
+    params["params"]["log_std"] = jnp.array([-1.0, 0.0, 2.0])
+    _, log_std = policy.apply(params, obs, one_hot)
+    np.testing.assert_array_equal(log_std, np.tile([-1.0, 0.0, 2.0], (N, 1)))
+
+
+def test_final_layer_is_final_scale_times_a_lecun_normal_layer(inputs):
+    """Same key: the hidden layers are identical and the last kernel is exactly ``final_scale``
+    times the LeCun-normal one (zero bias), so the outputs scale by the same factor."""
+    obs, _, _, _ = inputs
+    key = jax.random.PRNGKey(7)
+    small, normal = MLP(HIDDEN, 4, final_scale=0.01), MLP(HIDDEN, 4, final_scale=1.0)
+    p_small, p_normal = small.init(key, obs), normal.init(key, obs)
+    np.testing.assert_array_equal(
+        p_small["params"]["Dense_0"]["kernel"], p_normal["params"]["Dense_0"]["kernel"]
+    )
+    np.testing.assert_allclose(
+        p_small["params"]["Dense_1"]["kernel"],
+        0.01 * p_normal["params"]["Dense_1"]["kernel"],
+        rtol=1e-5,
+    )
+    np.testing.assert_array_equal(p_small["params"]["Dense_1"]["bias"], np.zeros(4))
+    np.testing.assert_allclose(
+        small.apply(p_small, obs), 0.01 * normal.apply(p_normal, obs), rtol=1e-4, atol=1e-8
+    )
+
+
+def test_final_layer_standard_deviation_is_final_scale_over_sqrt_fan_in():
+    fan_in, out = 256, 64
+    x = jnp.zeros((1, 3))
+    for scale in (0.01, 1.0):
+        params = MLP((fan_in,), out, final_scale=scale).init(jax.random.PRNGKey(8), x)
+        kernel = np.asarray(params["params"]["Dense_1"]["kernel"])
+        assert kernel.shape == (fan_in, out)
+        # 16384 draws: the sample std is within a few percent of the target.
+        assert kernel.std() == pytest.approx(scale / math.sqrt(fan_in), rel=0.05)
+        assert abs(kernel.mean()) < 0.05 * scale / math.sqrt(fan_in)
+
+
+def test_initial_policy_means_are_near_zero_but_not_the_other_heads(inputs):
+    """The policy's last layer starts small (means ~ 0: the first actions are the log-std's
+    exploration noise around zero); value, discriminator and posterior start normal-sized."""
+    obs, action, one_hot, time = inputs
+    obs = 3.0 * obs
+    key = jax.random.PRNGKey(9)
+    policy = GaussianPolicy(ACT, (64, 64))
+    mean, _ = policy.apply(policy.init(key, obs, one_hot), obs, one_hot)
+    assert np.max(np.abs(mean)) < 0.05
+    assert np.max(np.abs(mean)) > 0  # not zero either: the means depend on the input
+    posterior = Posterior(K, (64, 64))
+    logits = posterior.apply(posterior.init(key, obs, action), obs, action)
+    assert np.max(np.abs(logits)) > 0.1
+    value = ValueNet((64, 64))
+    values = value.apply(value.init(key, obs, one_hot, time), obs, one_hot, time)
+    assert np.max(np.abs(values)) > 0.1
+
+
+def test_the_condition_and_the_time_change_the_outputs(inputs):
+    obs, action, _, time = inputs
+    first = jax.nn.one_hot(jnp.zeros(N, jnp.int32), K)
+    second = jax.nn.one_hot(jnp.ones(N, jnp.int32), K)
+    key = jax.random.PRNGKey(10)
+    policy = GaussianPolicy(ACT, HIDDEN)
+    params = policy.init(key, obs, first)
+    assert not np.allclose(
+        policy.apply(params, obs, first)[0], policy.apply(params, obs, second)[0]
+    )
+    value = ValueNet(HIDDEN)
+    params = value.init(key, obs, first, time)
+    assert not np.allclose(
+        value.apply(params, obs, first, time), value.apply(params, obs, first, 0 * time)
+    )
+    discriminator = Discriminator(HIDDEN)
+    params = discriminator.init(key, obs, action, first)
+    assert not np.allclose(
+        discriminator.apply(params, obs, action, first),
+        discriminator.apply(params, obs, action, second),
+    )
+
+
+def _gaussian_log_prob(x, mean, log_std):
+    """log N(x; mean, diag(exp(log_std)^2)), written out."""
+    z = (x - mean) / np.exp(log_std)
+    d = x.shape[-1]
+    return -0.5 * np.sum(z**2, -1) - np.sum(log_std, -1) - 0.5 * d * np.log(2 * np.pi)
+
+
+def test_action_distribution_log_prob_is_the_diagonal_gaussian_formula():
+    rng = np.random.default_rng(0)
+    mean = rng.normal(size=(N, ACT)).astype(np.float32)
+    log_std = rng.normal(scale=0.5, size=(N, ACT)).astype(np.float32)
+    x = rng.normal(size=(N, ACT)).astype(np.float32)
+    dist = action_distribution(jnp.asarray(mean), jnp.asarray(log_std))
+    log_prob = np.asarray(dist.log_prob(jnp.asarray(x)))
+    assert log_prob.shape == (N,)
+    np.testing.assert_allclose(log_prob, _gaussian_log_prob(x, mean, log_std), rtol=1e-5)
+    # At the mean with unit std in one dimension: log N(0; 0, 1) = -log(2 pi) / 2.
+    unit = action_distribution(jnp.zeros((1, 1)), jnp.zeros((1, 1)))
+    assert float(unit.log_prob(jnp.zeros((1, 1)))[0]) == pytest.approx(-0.5 * math.log(2 * math.pi))
+    # Entropy of a diagonal Gaussian: sum(log_std) + d/2 (1 + log 2 pi).
+    entropy = log_std.sum(-1) + 0.5 * ACT * (1 + np.log(2 * np.pi))
+    np.testing.assert_allclose(dist.entropy(), entropy, rtol=1e-5)
+
+
+def test_action_distribution_samples_have_the_given_mean_and_std():
+    mean = jnp.array([0.5, -2.0])
+    log_std = jnp.log(jnp.array([0.1, 2.0]))
+    samples = action_distribution(mean, log_std).sample(
+        seed=jax.random.PRNGKey(11), sample_shape=(20000,)
+    )
+    assert samples.shape == (20000, 2)
+    np.testing.assert_allclose(samples.mean(0), [0.5, -2.0], atol=0.05)
+    np.testing.assert_allclose(samples.std(0), [0.1, 2.0], rtol=0.03)
