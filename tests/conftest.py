@@ -3,8 +3,24 @@ compilation cache, both before JAX creates its backend."""
 
 import pathlib
 
+import pytest
+
 from emgail_jax import runtime
 
 _REPO = pathlib.Path(__file__).resolve().parents[1]
 
 runtime.setup(host_devices=2, cache_dir=str(_REPO / ".cache" / "jax"))
+
+
+@pytest.fixture(scope="session")
+def tiny_run(tmp_path_factory):
+    """A finished tiny EM-GAIL driver run (2 seeds, 4 iterations) with its checkpoint."""
+    from emgail_jax import run
+
+    out = tmp_path_factory.mktemp("tiny") / "emgail"
+    args = [
+        *("--env", "driver", "--seeds", "2", "--iterations", "4", "--num-envs", "2"),
+        *("--rollout-length", "20", "--eval-episodes", "1", "--quiet", "--out", str(out)),
+    ]
+    assert run.main(args) == 0
+    return out

@@ -23,7 +23,7 @@ def test_sgd_on_a_quadratic_contracts_by_one_minus_the_learning_rate():
     lr, steps = 0.25, 6
     optimizer = optax.sgd(lr)
     params = {"x": jnp.zeros(3)}
-    new, _, metrics = minimize(quadratic, optimizer, params, optimizer.init(params), steps)
+    new, _, _ = minimize(quadratic, optimizer, params, optimizer.init(params), steps)
     expected = TARGET + (1 - lr) ** steps * (0.0 - TARGET)
     np.testing.assert_allclose(new["x"], expected, rtol=1e-6)
 
