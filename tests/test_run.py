@@ -128,3 +128,24 @@ def test_existing_run_is_kept_unless_overwrite(runs, capsys):
     assert code == 2
     assert "--overwrite" in _error(capsys)
     assert (runs["gail"] / "summary.json").read_text() == before
+
+
+def test_demonstrations_without_labels_or_returns(tmp_path, capsys):
+    from emgail_jax.problem import make_problem
+
+    demos = make_problem("driver", 2).demos
+    path = tmp_path / "unlabelled.npz"
+    np.savez(
+        path,
+        observations=demos.observations,
+        actions=demos.actions,
+        episode_starts=demos.episode_starts,
+    )
+    code, out = _run(tmp_path, "unlabelled", "--demos", str(path))
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "no expert_returns, so ERD is reported as null" in printed
+    assert "no intention labels, so accuracy is null" in printed
+    final = json.loads((out / "summary.json").read_text())["final"]
+    assert final["erd"] is None and final["cluster_accuracy"] is None
+    assert np.asarray(final["returns"]).shape == (SEEDS, 2)
