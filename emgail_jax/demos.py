@@ -210,7 +210,7 @@ def generate(env: envs.Env, expert: Expert, episodes: int, key: jax.Array) -> De
     starts[..., 0] = True
     labels = np.broadcast_to(np.arange(k)[:, None, None], keep.shape)
     own_reward = np.take_along_axis(rewards, labels[..., None], -1)[..., 0]
-    expert_returns = (own_reward * alive).sum(-1).mean(-1)
+    expert_returns = np.where(keep, own_reward, 0.0).sum(-1).mean(-1)
     return Demonstrations(
         observations=obs[keep].astype(np.float32),
         actions=actions[keep].astype(np.float32),

@@ -78,7 +78,7 @@ def make_problem(
     if demos_path is not None:
         probe = envs.make(env_name, **env_options)
         demos = demos_lib.load(demos_path, probe)
-        intentions = intentions or demos.num_intentions
+        intentions = demos.num_intentions if intentions is None else intentions
         source = demos_path
         env = envs.make(env_name, intentions=intentions, **env_options)
         demos = _first_intentions(demos, env)

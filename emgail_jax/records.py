@@ -105,6 +105,8 @@ def to_json_value(value: Any) -> Any:
         return None if math.isnan(float(value)) else float(value)
     if isinstance(value, np.integer):
         return int(value)
+    if isinstance(value, np.bool_):
+        return bool(value)
     return value
 
 

@@ -99,7 +99,8 @@ def episodes(
     def body(carry, step_key):
         state, alive, total = carry
         next_state = step(state, act(state, step_key))
-        total = total + alive[..., None] * next_state.reward
+        # `where`, not a product: a diverged state after the end may reward NaN.
+        total = total + jnp.where(alive[..., None] > 0, next_state.reward, 0.0)
         out = (alive, trace(next_state))
         return (next_state, alive * (1.0 - next_state.done), total), out
 

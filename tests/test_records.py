@@ -131,10 +131,6 @@ def test_to_json_value_maps_nan_to_null_and_numpy_to_plain_types():
     json.dumps(value, allow_nan=False)
 
 
-@pytest.mark.xfail(
-    reason="records.to_json_value leaves numpy booleans unconverted; json.dump rejects them",
-    strict=True,
-)
 def test_to_json_value_converts_numpy_booleans():
     value = records.to_json_value({"flag": np.bool_(True), "flags": np.array([True, False])})
     assert value == {"flag": True, "flags": [True, False]}

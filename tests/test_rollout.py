@@ -167,11 +167,6 @@ def test_episode_returns_ignore_rewards_after_a_termination():
     np.testing.assert_allclose(returns, [[3, 6], [6, 12]])
 
 
-@pytest.mark.xfail(
-    reason="rollout.episodes masks post-termination rewards by multiplying with `alive`: a "
-    "NaN/inf reward after the end (a diverged physics state) still gives 0 * NaN = NaN",
-    strict=True,
-)
 def test_episode_returns_ignore_non_finite_rewards_after_a_termination():
     env = envs.EpisodeWrapper(_Counter(length=10, stop=3, after_stop=jnp.nan))
     returns = _returns(env, row_policy, 2, 2)

@@ -1,0 +1,178 @@
+"""The multi-seed runner: chunk sizes, seed sharding over host devices, chunked scans of the
+update, and the host-side history helpers. Uses a toy update so that it compiles in moments."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.sharding import PartitionSpec
+
+from emgail_jax import runner as runner_lib
+from emgail_jax.runner import Runner, chunk_length, concat_history, final_metrics, seed_sharding
+
+CHUNK = 3
+
+
+def toy_init(key):
+    """A seed's state: its own key, a random vector and an iteration counter."""
+    key_x, key_next = jax.random.split(key)
+    return {
+        "key": key_next,
+        "x": jax.random.normal(key_x, (3,)),
+        "iteration": jnp.zeros((), jnp.int32),
+    }
+
+
+def toy_update(state):
+    """x <- x / 2 + noise, with a fresh key per iteration; metrics: a scalar, a [3] vector and
+    the iteration."""
+    key_next, key_noise = jax.random.split(state["key"])
+    x = 0.5 * state["x"] + jax.random.normal(key_noise, (3,))
+    iteration = state["iteration"] + 1
+    metrics = {"x/sum": x.sum(), "x": x, "iteration": iteration}
+    return {"key": key_next, "x": x, "iteration": iteration}, metrics
+
+
+def reference(seed_key, iterations):
+    """One seed, no vmap, no sharding: ``{name: [iterations, ...]}``."""
+    state = jax.jit(toy_init)(seed_key)
+    update = jax.jit(toy_update)
+    out = []
+    for _ in range(iterations):
+        state, metrics = update(state)
+        out.append(jax.device_get(metrics))
+    return {k: np.stack([m[k] for m in out]) for k in out[0]}
+
+
+def run(seeds, chunks, key=0):
+    runner = Runner(toy_init, toy_update, seeds, CHUNK)
+    state = runner.init(jax.random.PRNGKey(key))
+    history = None
+    for _ in range(chunks):
+        state, metrics = runner.step(state)
+        history = concat_history(history, metrics)
+    return runner, state, history
+
+
+@pytest.fixture(scope="module")
+def four_seeds():
+    return run(4, 2)
+
+
+@pytest.fixture(scope="module")
+def three_seeds():
+    return run(3, 2)
+
+
+@pytest.mark.parametrize(
+    ("iterations", "chunk_size", "expected"),
+    [(400, 10, 10), (5, 10, 5), (7, 10, 7), (13, 10, 1), (12, 5, 4), (1, 10, 1), (9, 4, 3)],
+)
+def test_chunk_length_is_the_largest_divisor_up_to_chunk_size(iterations, chunk_size, expected):
+    assert chunk_length(iterations, chunk_size) == expected
+
+
+def test_seed_sharding_uses_as_many_devices_as_divide_the_seeds():
+    assert len(jax.devices()) == 2  # tests/conftest.py
+    for seeds, devices in ((4, 2), (3, 1), (2, 2), (1, 1), (6, 2), (5, 1)):
+        sharding = seed_sharding(seeds)
+        assert sharding.mesh.devices.size == devices, seeds
+        assert sharding.mesh.axis_names == ("seed",)
+        assert sharding.spec == PartitionSpec("seed")
+
+
+def test_state_has_a_leading_seed_axis_sharded_over_the_devices(four_seeds, three_seeds):
+    _, state, _ = four_seeds
+    assert state["x"].shape == (4, 3) and state["iteration"].shape == (4,)
+    assert len(state["x"].sharding.device_set) == 2
+    np.testing.assert_array_equal(state["iteration"], np.full(4, 2 * CHUNK))
+    _, state3, _ = three_seeds
+    assert len(state3["x"].sharding.device_set) == 1
+
+
+def test_step_returns_host_metrics_seed_by_iteration(four_seeds):
+    runner, _, history = four_seeds
+    assert all(isinstance(v, np.ndarray) for v in history.values())
+    assert history["x/sum"].shape == (4, 2 * CHUNK)
+    assert history["x"].shape == (4, 2 * CHUNK, 3)
+    # Chunks follow each other: iterations 1..6 for every seed.
+    np.testing.assert_array_equal(history["iteration"], np.tile(np.arange(1, 7), (4, 1)))
+    np.testing.assert_allclose(history["x/sum"], history["x"].sum(-1), rtol=1e-5, atol=1e-6)
+    assert runner.timings.iterations == 2 * CHUNK
+
+
+def test_each_seed_equals_a_single_seed_run_without_vmap_or_sharding(four_seeds):
+    _, _, history = four_seeds
+    keys = jax.random.split(jax.random.PRNGKey(0), 4)
+    for seed in range(4):
+        expected = reference(keys[seed], 2 * CHUNK)
+        np.testing.assert_allclose(history["x"][seed], expected["x"], rtol=1e-6, atol=1e-6)
+    # Seeds differ from each other.
+    assert not np.allclose(history["x"][0], history["x"][1])
+
+
+def test_adding_seeds_leaves_the_first_seeds_unchanged(three_seeds, four_seeds):
+    """Seed keys are split from one key; with JAX's partitionable threefry the first S keys of
+    a split into S + 1 are those of a split into S, so seeds 0..2 of a 4-seed run (two
+    devices) are seeds 0..2 of a 3-seed run (one device)."""
+    _, _, three = three_seeds
+    _, _, four = four_seeds
+    for name in three:
+        np.testing.assert_allclose(four[name][:3], three[name], rtol=1e-6, atol=1e-6)
+
+
+def test_results_do_not_depend_on_the_number_of_devices(four_seeds, monkeypatch):
+    one_device = jax.devices()[:1]
+    with monkeypatch.context() as patch:
+        patch.setattr(runner_lib.jax, "devices", lambda *args: one_device)
+        runner = Runner(toy_init, toy_update, 4, CHUNK)
+    assert runner.sharding.mesh.devices.size == 1
+    state = runner.init(jax.random.PRNGKey(0))
+    history = None
+    for _ in range(2):
+        state, metrics = runner.step(state)
+        history = concat_history(history, metrics)
+    _, _, two_devices = four_seeds
+    for name in history:
+        np.testing.assert_allclose(history[name], two_devices[name], rtol=1e-6, atol=1e-6)
+
+
+def test_explicit_compile_then_step():
+    runner = Runner(toy_init, toy_update, 2, CHUNK)
+    state = runner.init(jax.random.PRNGKey(1))
+    runner.compile(state)
+    state, metrics = runner.step(state)
+    np.testing.assert_array_equal(metrics["iteration"], [[1, 2, 3], [1, 2, 3]])
+    assert runner.timings.iterations == CHUNK
+
+
+def test_final_metrics_mean_of_the_last_iterations():
+    history = {
+        "erd": np.array([np.arange(12.0), 10 * np.arange(12.0)]),  # [S=2, L=12]
+        "returns": np.arange(2 * 12 * 2, dtype=float).reshape(2, 12, 2),
+    }
+    final = final_metrics(history)
+    # Mean of 2..11 = 6.5.
+    np.testing.assert_allclose(final["erd"], [6.5, 65.0])
+    assert final["returns"].shape == (2, 2)
+    # returns[s, l, k] = 24 s + 2 l + k: mean over l = 2..11 is 24 s + 13 + k.
+    np.testing.assert_allclose(final["returns"], [[13, 14], [37, 38]])
+    np.testing.assert_allclose(final_metrics(history, last=3)["erd"], [10.0, 100.0])
+    short = {"erd": np.array([[1.0, 2.0, 6.0]])}
+    np.testing.assert_allclose(final_metrics(short)["erd"], [3.0])
+
+
+def test_final_metrics_keep_nan_for_missing_accuracy():
+    final = final_metrics({"eval/cluster_accuracy": np.full((2, 12), np.nan)})
+    assert final["eval/cluster_accuracy"].shape == (2,)
+    assert np.all(np.isnan(final["eval/cluster_accuracy"]))
+
+
+def test_concat_history_appends_along_iterations():
+    first = {"a": np.zeros((2, 3)), "b": np.zeros((2, 3, 4))}
+    history = concat_history(None, first)
+    assert history is not first and history.keys() == first.keys()
+    second = {"a": np.ones((2, 2)), "b": np.ones((2, 2, 4))}
+    history = concat_history(history, second)
+    assert history["a"].shape == (2, 5) and history["b"].shape == (2, 5, 4)
+    np.testing.assert_array_equal(history["a"][0], [0, 0, 0, 1, 1])

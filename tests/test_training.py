@@ -1,0 +1,269 @@
+"""One training iteration (rollout, E-step, M-step, B-step, metrics) on a tiny driver config:
+the train state, the metrics, jit against no jit, GAIL's missing posterior and unlabelled
+demonstrations."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import envs
+from emgail_jax import demos as demos_lib
+from emgail_jax.config import Config
+from emgail_jax.demos import Demonstrations
+from emgail_jax.training import ExpertData, TrainState, make_train
+
+K, B, T = 2, 2, 10
+RANDOM_RETURNS = np.array([-300.0, -250.0])
+CONFIG = Config(
+    num_envs=B,
+    rollout_length=T,
+    eval_episodes=1,
+    hidden=(8,),
+    discriminator_steps=2,
+    posterior_steps=2,
+    value_epochs=1,
+    value_minibatches=2,
+)
+COMMON_KEYS = {
+    "eval/erd",
+    "eval/cluster_accuracy",
+    "eval/returns",
+    "eval/matching",
+    "train/pseudo_reward",
+    "discriminator/loss",
+    "discriminator/expert_d",
+    "discriminator/policy_d",
+    "policy/kl",
+    "policy/entropy",
+    "policy/accepted",
+    "value/loss",
+    "value/loss_before",
+}
+POSTERIOR_KEYS = {"posterior/loss", "posterior/policy_accuracy"}
+
+
+@pytest.fixture(scope="module")
+def env():
+    return envs.make("driver", intentions=K)
+
+
+@pytest.fixture(scope="module")
+def demos(env):
+    return demos_lib.generate(env, env.expert_policy, 2, jax.random.PRNGKey(0))
+
+
+@pytest.fixture(scope="module")
+def expert(demos):
+    return ExpertData.create(demos, RANDOM_RETURNS, K)
+
+
+def _train(config, env, expert, iterations):
+    """``(state_0, [(state_i, metrics_i)] for i = 1..iterations)`` with jitted init/update."""
+    init, update = make_train(config, env, expert)
+    state = jax.jit(init)(jax.random.PRNGKey(0))
+    step = jax.jit(update)
+    steps = []
+    for _ in range(iterations):
+        state_next, metrics = step(steps[-1][0] if steps else state)
+        steps.append((state_next, jax.device_get(metrics)))
+    return state, steps, (init, update)
+
+
+@pytest.fixture(scope="module")
+def emgail(env, expert):
+    return _train(CONFIG, env, expert, 2)
+
+
+@pytest.fixture(scope="module")
+def gail(env, expert):
+    return _train(CONFIG.replace(algo="gail"), env, expert, 1)
+
+
+def _leaves(tree):
+    return jax.tree.leaves(tree)
+
+
+def _first_kernel(params):
+    return params["params"]["MLP_0"]["Dense_0"]["kernel"]
+
+
+# ---- ExpertData --------------------------------------------------------------------------
+
+
+def test_expert_data_from_labelled_demos(demos, expert):
+    n = len(demos)
+    assert expert.observations.shape == (n, 10) and expert.observations.dtype == np.float32
+    assert expert.actions.shape == (n, 1) and expert.actions.dtype == np.float32
+    assert expert.labels.dtype == np.int32
+    np.testing.assert_array_equal(expert.labels, demos.intentions)
+    np.testing.assert_allclose(expert.expert_returns, demos.expert_returns)
+    np.testing.assert_allclose(expert.random_returns, RANDOM_RETURNS)
+    # Host arrays, compiled into the update as constants (see ExpertData).
+    assert isinstance(expert.observations, np.ndarray)
+
+
+def test_expert_data_from_unlabelled_demos(demos):
+    bare = Demonstrations(demos.observations, demos.actions, demos.episode_starts)
+    expert = ExpertData.create(bare, RANDOM_RETURNS, K)
+    np.testing.assert_array_equal(expert.labels, np.full(len(demos), -1))
+    assert expert.expert_returns.shape == (K,) and np.all(np.isnan(expert.expert_returns))
+    labels_only = Demonstrations(
+        demos.observations, demos.actions, demos.episode_starts, demos.intentions
+    )
+    expert = ExpertData.create(labels_only, RANDOM_RETURNS, K)
+    np.testing.assert_array_equal(expert.labels, demos.intentions)
+    assert np.all(np.isnan(expert.expert_returns))
+
+
+# ---- init -------------------------------------------------------------------------------
+
+
+def test_init_gives_a_finite_state_with_k_by_b_envs(emgail):
+    state, _, _ = emgail
+    assert isinstance(state, TrainState)
+    assert all(np.all(np.isfinite(leaf)) for leaf in _leaves(state))
+    assert state.env_state.obs.shape == (K, B, 10)
+    assert state.env_state.done.shape == (K, B)
+    np.testing.assert_array_equal(state.env_state.info["steps"], np.zeros((K, B)))
+    assert int(state.iteration) == 0 and state.iteration.dtype == jnp.int32
+    assert float(state.normalizer.count) == 0.0
+    np.testing.assert_allclose(state.policy["params"]["log_std"], [CONFIG.init_log_std])
+    assert state.posterior is not None and state.posterior_opt is not None
+
+
+def test_init_network_inputs_follow_the_algorithm(emgail, gail):
+    emgail_state, gail_state = emgail[0], gail[0]
+    obs, act = 10, 1
+    # EM-GAIL: pi(a | s, i) and D(s, a, i) with a K one-hot; GAIL: neither is conditioned.
+    assert _first_kernel(emgail_state.policy).shape == (obs + K, 8)
+    assert _first_kernel(emgail_state.discriminator).shape == (obs + act + K, 8)
+    assert _first_kernel(gail_state.policy).shape == (obs, 8)
+    assert _first_kernel(gail_state.discriminator).shape == (obs + act, 8)
+    # V(s, i, t) sees the time too.
+    assert _first_kernel(emgail_state.value).shape == (obs + K + 1, 8)
+    assert _first_kernel(emgail_state.posterior).shape == (obs + act, 8)
+    assert gail_state.posterior is None and gail_state.posterior_opt is None
+
+
+def test_init_depends_on_the_key(emgail):
+    state, _, (init, _) = emgail
+    again = jax.jit(init)(jax.random.PRNGKey(0))
+    other = jax.jit(init)(jax.random.PRNGKey(1))
+    for a, b in zip(_leaves(state), _leaves(again), strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert not np.allclose(_first_kernel(state.policy), _first_kernel(other.policy))
+    assert not np.allclose(state.env_state.obs, other.env_state.obs)
+
+
+# ---- update -----------------------------------------------------------------------------
+
+
+def test_update_metrics_have_the_documented_keys_and_shapes(emgail):
+    _, steps, _ = emgail
+    for _, metrics in steps:
+        assert set(metrics) >= COMMON_KEYS | POSTERIOR_KEYS
+        for name, value in metrics.items():
+            expected = (K,) if name in ("eval/returns", "eval/matching") else ()
+            assert np.shape(value) == expected, name
+            assert np.all(np.isfinite(value)), name
+        assert sorted(metrics["eval/matching"]) == list(range(K))
+
+
+def test_update_respects_the_trust_region(emgail):
+    _, steps, _ = emgail
+    for _, metrics in steps:
+        assert 0.0 <= metrics["policy/kl"] <= CONFIG.trpo.max_kl * (1 + 1e-3)
+
+
+def test_erd_is_the_normalised_gap_of_the_matched_returns(emgail, expert):
+    _, steps, _ = emgail
+    for _, metrics in steps:
+        gap = np.abs(expert.expert_returns - metrics["eval/returns"]).sum()
+        scale = np.abs(expert.expert_returns - expert.random_returns).sum()
+        assert metrics["eval/erd"] == pytest.approx(gap / scale, rel=1e-5)
+        # A driver return is minus a distance summed over 100 steps.
+        assert np.all(metrics["eval/returns"] < 0)
+
+
+def test_cluster_accuracy_is_a_fraction_of_the_expert_pairs(emgail, expert):
+    _, steps, _ = emgail
+    n = len(expert.labels)
+    for _, metrics in steps:
+        accuracy = metrics["eval/cluster_accuracy"]
+        # With K = 2 the better of the two matchings gets at least half the pairs right.
+        assert 0.5 <= accuracy <= 1.0
+        assert accuracy * n == pytest.approx(round(accuracy * n), abs=1e-3)
+
+
+def test_update_advances_the_state(emgail):
+    state0, steps, _ = emgail
+    (state1, _), (state2, _) = steps
+    assert (int(state1.iteration), int(state2.iteration)) == (1, 2)
+    # T steps per rollout into 100-step episodes: no episode has ended yet.
+    np.testing.assert_array_equal(state1.env_state.info["steps"], np.full((K, B), T))
+    np.testing.assert_array_equal(state2.env_state.info["steps"], np.full((K, B), 2 * T))
+    assert float(state1.normalizer.count) == T * K * B
+    assert float(state2.normalizer.count) == 2 * T * K * B
+    assert not np.array_equal(state0.key, state1.key)
+    assert not np.array_equal(state1.key, state2.key)
+    for name in ("policy", "value", "discriminator", "posterior"):
+        before, after = getattr(state0, name), getattr(state1, name)
+        changed = [
+            not np.allclose(a, b) for a, b in zip(_leaves(before), _leaves(after), strict=True)
+        ]
+        assert any(changed), name
+    assert all(np.all(np.isfinite(leaf)) for leaf in _leaves(state2))
+
+
+def test_gail_has_no_posterior_and_no_accuracy(gail):
+    _, [(state, metrics)], _ = gail
+    assert state.posterior is None and state.posterior_opt is None
+    assert np.isnan(metrics["eval/cluster_accuracy"])
+    assert not any(name.startswith("posterior/") for name in metrics)
+    assert set(metrics) >= COMMON_KEYS
+    assert metrics["eval/returns"].shape == (K,)
+    for name, value in metrics.items():
+        if name != "eval/cluster_accuracy":
+            assert np.all(np.isfinite(value)), name
+    assert 0.0 <= metrics["policy/kl"] <= CONFIG.trpo.max_kl * (1 + 1e-3)
+
+
+@pytest.mark.slow  # two more compiles of the whole update (vmapped init and update)
+def test_vmapped_update_over_seeds_equals_one_seed_at_a_time(env, expert, emgail):
+    """The runner's form, vmap over seeds: seeds do not interact, so seed 0 of a batch of two
+    is the single-seed run with the same key."""
+    _, [(_, metrics), _], (init, update) = emgail
+    keys = jnp.stack([jax.random.PRNGKey(0), jax.random.PRNGKey(1)])
+    states = jax.jit(jax.vmap(init))(keys)
+    _, batched = jax.jit(jax.vmap(update))(states)
+    for name in metrics:
+        assert batched[name].shape == (2, *np.shape(metrics[name])), name
+        np.testing.assert_allclose(batched[name][0], metrics[name], rtol=1e-4, atol=1e-5)
+    assert not np.allclose(batched["discriminator/loss"][0], batched["discriminator/loss"][1])
+
+
+@pytest.mark.slow  # op-by-op execution of a whole update takes about half a minute
+def test_update_without_jit_equals_the_jitted_update(env, expert, gail):
+    state0, [(state1, metrics)], _ = gail
+    _, update = make_train(CONFIG.replace(algo="gail"), env, expert)
+    eager_state, eager_metrics = update(state0)
+    assert set(eager_metrics) == set(metrics)
+    for name in metrics:
+        np.testing.assert_allclose(
+            eager_metrics[name], metrics[name], rtol=1e-4, atol=1e-5, err_msg=name
+        )
+    for a, b in zip(_leaves(eager_state), _leaves(state1), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
+
+
+def test_unlabelled_demos_give_nan_erd_and_accuracy(env, demos):
+    bare = Demonstrations(demos.observations, demos.actions, demos.episode_starts)
+    expert = ExpertData.create(bare, RANDOM_RETURNS, K)
+    _, [(_, metrics)], _ = _train(CONFIG, env, expert, 1)
+    assert np.isnan(metrics["eval/erd"])
+    assert np.isnan(metrics["eval/cluster_accuracy"])
+    # Training itself does not need labels or expert returns.
+    for name in ("eval/returns", "posterior/loss", "discriminator/loss", "policy/kl"):
+        assert np.all(np.isfinite(metrics[name])), name
+    assert sorted(metrics["eval/matching"]) == list(range(K))
