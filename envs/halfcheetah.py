@@ -68,17 +68,12 @@ class HalfCheetahEnv(MjxEnv):
     def reset(self, key: jax.Array) -> State:
         qpos, qvel = self.reset_qpos_qvel(key, self.reset_noise, self.reset_noise, qvel_normal=True)
         data = self.physics_reset(qpos, qvel)
-        return State(
-            physics=data,
-            obs=self._obs(data),
-            reward=jnp.zeros(self.num_intentions),
-            done=jnp.zeros(()),
-        )
+        return self.initial_state(data)
 
     def step(self, state: State, action: jax.Array) -> State:
         action = self.clip_action(action)
         data = self.physics_step(state.physics, action)
-        x_velocity = (data.qpos[0] - state.physics.qpos[0]) / self.dt
+        x_velocity = self.forward_velocity(state.physics, data)
         pitch_rate = (data.qpos[2] - state.physics.qpos[2]) / self.dt
         flip = -jnp.abs(x_velocity) + self.flip_weight * pitch_rate
         reward = jnp.stack([x_velocity, -x_velocity, flip])[: self.num_intentions]

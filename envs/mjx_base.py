@@ -213,6 +213,22 @@ class MjxEnv(Env):
 
     # ---- physics -------------------------------------------------------------------------
 
+    def _obs(self, data: mjx.Data) -> jax.Array:
+        raise NotImplementedError
+
+    def initial_state(self, data: mjx.Data) -> State:
+        """The env state of a freshly reset ``data``: no reward yet, not done."""
+        return State(
+            physics=data,
+            obs=self._obs(data),
+            reward=jnp.zeros(self.num_intentions),
+            done=jnp.zeros(()),
+        )
+
+    def forward_velocity(self, before: mjx.Data, after: mjx.Data) -> jax.Array:
+        """``Δx / dt`` of the root over one env step."""
+        return (after.qpos[0] - before.qpos[0]) / self.dt
+
     def trace(self, state: State) -> dict[str, jax.Array]:
         """The root's horizontal position, which the observation leaves out."""
         return {"x": state.physics.qpos[0]}

@@ -104,12 +104,7 @@ class ReacherEnv(MjxEnv):
         key_arm, key_balls = jax.random.split(key)
         qpos, qvel = self.reset_qpos_qvel(key_arm, self.reset_qpos_noise, self.reset_qvel_noise)
         data = self.physics_reset(qpos, qvel, mocap_pos=self.sample_balls(key_balls))
-        return State(
-            physics=data,
-            obs=self._obs(data),
-            reward=jnp.zeros(self.num_intentions),
-            done=jnp.zeros(()),
-        )
+        return self.initial_state(data)
 
     def step(self, state: State, action: jax.Array) -> State:
         action = self.clip_action(action)

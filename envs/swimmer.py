@@ -54,17 +54,12 @@ class SwimmerEnv(MjxEnv):
     def reset(self, key: jax.Array) -> State:
         qpos, qvel = self.reset_qpos_qvel(key, self.reset_noise, self.reset_noise)
         data = self.physics_reset(qpos, qvel)
-        return State(
-            physics=data,
-            obs=self._obs(data),
-            reward=jnp.zeros(self.num_intentions),
-            done=jnp.zeros(()),
-        )
+        return self.initial_state(data)
 
     def step(self, state: State, action: jax.Array) -> State:
         action = self.clip_action(action)
         data = self.physics_step(state.physics, action)
-        x_velocity = (data.qpos[0] - state.physics.qpos[0]) / self.dt
+        x_velocity = self.forward_velocity(state.physics, data)
         ctrl_cost = self.ctrl_cost * jnp.sum(action**2)
         reward = jnp.stack([x_velocity, -x_velocity])[: self.num_intentions] - ctrl_cost
         return state.replace(physics=data, obs=self._obs(data), reward=reward, done=jnp.zeros(()))
