@@ -94,7 +94,7 @@ def _cell(value) -> str:
 
 
 def to_json_value(value: Any) -> Any:
-    """numpy scalars/arrays -> plain JSON values; NaN -> null."""
+    """numpy scalars/arrays -> plain JSON values; NaN and ±inf -> null (strict JSON)."""
     if isinstance(value, dict):
         return {k: to_json_value(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
@@ -102,7 +102,7 @@ def to_json_value(value: Any) -> Any:
     if isinstance(value, np.ndarray):
         return to_json_value(value.tolist())
     if isinstance(value, (np.floating, float)):
-        return None if math.isnan(float(value)) else float(value)
+        return float(value) if math.isfinite(float(value)) else None
     if isinstance(value, np.integer):
         return int(value)
     if isinstance(value, np.bool_):
