@@ -26,6 +26,7 @@ def reoptimize(run, seed: int, iterations: int, chunk: int = 10, progress: bool 
     import jax.numpy as jnp
 
     from emgail_jax.metrics import normalized_erd
+    from emgail_jax.progress import ProgressBar
     from emgail_jax.rl import make_rl_train
     from emgail_jax.runner import chunk_length
 
@@ -54,7 +55,7 @@ def reoptimize(run, seed: int, iterations: int, chunk: int = 10, progress: bool 
     expert_returns = demos.expert_returns
     random_returns = run.problem.random_returns
     erds, all_returns = [], []
-    bar = _progress(iterations, progress)
+    bar = ProgressBar("re-optimising", iterations, {"ERD": "-"}, enabled=progress)
     start = time.perf_counter()
     for _ in range(iterations // chunk):
         states, metrics = compiled(states)
@@ -63,10 +64,8 @@ def reoptimize(run, seed: int, iterations: int, chunk: int = 10, progress: bool 
         if expert_returns is not None:
             for r in returns:
                 erds.append(float(normalized_erd(r, expert_returns, random_returns)[0]))
-        if bar:
-            bar[0].update(bar[1], advance=chunk, erd=f"{erds[-1]:.3f}" if erds else "-")
-    if bar:
-        bar[0].stop()
+        bar.update(chunk, ERD=f"{erds[-1]:.3f}" if erds else "-")
+    bar.close()
     train_s = time.perf_counter() - start
     last = np.mean(all_returns[-10:], axis=0)
     result = {
@@ -83,28 +82,6 @@ def reoptimize(run, seed: int, iterations: int, chunk: int = 10, progress: bool 
     if expert_returns is not None:
         result["matching"] = np.asarray(normalized_erd(last, expert_returns, random_returns)[1])
     return result
-
-
-def _progress(total: int, enabled: bool):
-    if not enabled:
-        return None
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeRemainingColumn,
-    )
-
-    progress = Progress(
-        TextColumn("[bold]re-optimising"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TextColumn("ERD {task.fields[erd]}"),
-        TimeRemainingColumn(),
-    )
-    progress.start()
-    return progress, progress.add_task("reoptimize", total=total, erd="-")
 
 
 def main(argv=None) -> int:

@@ -18,7 +18,6 @@ import os
 import shutil
 import signal
 import sys
-import time
 
 import numpy as np
 
@@ -186,6 +185,7 @@ def train(
     import jax
 
     from emgail_jax import checkpoints, records
+    from emgail_jax.progress import ProgressBar
     from emgail_jax.runner import Runner, chunk_length, concat_history, final_metrics
     from emgail_jax.training import ExpertData, make_train
 
@@ -216,7 +216,9 @@ def train(
     if remaining:
         runner.compile(state)
         log = records.MetricsLog(out, keep_until=done if resume else None)
-        bar = _Progress(config.iterations, done, enabled=progress)
+        bar = ProgressBar(
+            "training", config.iterations, {"ERD": "-", "acc": "-"}, done, enabled=progress
+        )
         try:
             with stop:
                 while iteration < config.iterations and stop.signal is None:
@@ -224,7 +226,11 @@ def train(
                     log.write(iteration, metrics)
                     history = concat_history(history, metrics)
                     iteration += runner.chunk
-                    bar.update(runner.chunk, metrics)
+                    bar.update(
+                        runner.chunk,
+                        ERD=_mean_text(metrics["eval/erd"][:, -1]),
+                        acc=_mean_text(metrics["eval/cluster_accuracy"][:, -1]),
+                    )
                     finished = iteration >= config.iterations or stop.signal is not None
                     if finished or iteration - last_saved >= checkpoint_every:
                         checkpoints.save(out, iteration, state, history)
@@ -292,54 +298,9 @@ def _final_summary(problem, config, final, timings, spec) -> dict:
     }
 
 
-class _Progress:
-    """A rich progress bar showing iteration, ERD, clustering accuracy, it/s and ETA."""
-
-    def __init__(self, total: int, completed: int, enabled: bool):
-        self.enabled = enabled
-        if not enabled:
-            return
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeElapsedColumn,
-            TimeRemainingColumn,
-        )
-
-        self.progress = Progress(
-            TextColumn("[bold]training"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TextColumn("ERD {task.fields[erd]}  acc {task.fields[acc]}  {task.fields[speed]}"),
-            TimeElapsedColumn(),
-            TextColumn("ETA"),
-            TimeRemainingColumn(),
-        )
-        self.progress.start()
-        self.task = self.progress.add_task(
-            "train", total=total, completed=completed, erd="-", acc="-", speed=""
-        )
-        self.start = time.perf_counter()
-        self.done = 0
-
-    def update(self, advance: int, metrics: dict) -> None:
-        if not self.enabled:
-            return
-        self.done += advance
-        erd = metrics["eval/erd"][:, -1]
-        acc = metrics["eval/cluster_accuracy"][:, -1]
-        erd_text = "-" if np.all(np.isnan(erd)) else f"{np.nanmean(erd):.3f}"
-        acc_text = "-" if np.all(np.isnan(acc)) else f"{np.nanmean(acc):.3f}"
-        speed = self.done / (time.perf_counter() - self.start)
-        self.progress.update(
-            self.task, advance=advance, erd=erd_text, acc=acc_text, speed=f"{speed:.1f} it/s"
-        )
-
-    def close(self) -> None:
-        if self.enabled:
-            self.progress.stop()
+def _mean_text(values: np.ndarray) -> str:
+    """The mean over seeds of the latest value, or "-" when it is undefined (no labels)."""
+    return "-" if np.all(np.isnan(values)) else f"{np.nanmean(values):.3f}"
 
 
 def print_summary(summary: dict) -> None:

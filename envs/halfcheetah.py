@@ -80,6 +80,10 @@ class HalfCheetahEnv(MjxEnv):
         reward = reward - self.ctrl_cost * jnp.sum(action**2)
         return state.replace(physics=data, obs=self._obs(data), reward=reward, done=jnp.zeros(()))
 
+    def trace(self, state: State) -> dict[str, jax.Array]:
+        """The root's x position and the torso's unwrapped pitch (a flip turns it by 2π)."""
+        return {**super().trace(state), "pitch": state.physics.qpos[2]}
+
     def _obs(self, data) -> jax.Array:
         pitch = jnp.mod(data.qpos[2] + math.pi, 2 * math.pi) - math.pi
         return jnp.concatenate([data.qpos[1:2], pitch[None], data.qpos[3:], data.qvel])

@@ -1,0 +1,376 @@
+"""Experts for the MJX envs: one TRPO policy per intention, trained on its true reward, and the
+demonstrations they write (DESIGN §5).
+
+    python -m emgail_jax.experts --env ENV               # train, checkpoint, score, write demos
+    python -m emgail_jax.experts --env ENV --evaluate    # score the shipped experts only
+    python -m emgail_jax.experts --env ENV --demos-only  # rewrite the demos from the checkpoint
+
+Training vmaps the intentions and runs ``--seeds`` independent seeds of each (sharded over the
+host devices, so both cores work); the best seed of every intention, by its own deterministic
+return over the last iterations, becomes that intention's expert. Its policy and observation
+normaliser are saved with orbax under ``emgail_jax/data/experts/ENV`` (a few tens of kB), with
+``meta.json`` (training settings, returns, quality). The demonstrations are the experts'
+deterministic (mean-action) episodes: 5 x 500 = 2500 pairs per intention (reacher 30 x 50),
+with the hidden labels and each expert's mean true return, in ``emgail_jax/data/ENV.npz``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+import time
+from importlib import resources
+
+import numpy as np
+
+from emgail_jax import runtime
+
+
+@dataclasses.dataclass(frozen=True)
+class ExpertSpec:
+    """How the experts of one env are trained and how many demonstrations they write."""
+
+    iterations: int
+    num_envs: int  # auto-resetting envs per intention and seed
+    rollout_length: int  # steps of each per iteration
+    gamma: float = 0.995
+    max_kl: float = 0.01
+    init_log_std: float = -0.5
+    demo_episodes: int = 5
+    eval_episodes: int = 1  # deterministic episodes per iteration for choosing the best seed
+
+
+# Swimmer needs a long horizon: its reward for moving is small per step and the gait takes many
+# steps to pay off, so gamma 0.995 settles on wriggling in place (as in the TRPO/PPO papers'
+# swimmer settings, gamma 0.9999).
+SPECS: dict[str, ExpertSpec] = {
+    "swimmer": ExpertSpec(iterations=300, num_envs=8, rollout_length=500, gamma=0.9999),
+    "hopper": ExpertSpec(iterations=600, num_envs=16, rollout_length=250),
+    "halfcheetah": ExpertSpec(iterations=600, num_envs=16, rollout_length=250),
+    "reacher": ExpertSpec(iterations=400, num_envs=64, rollout_length=50, demo_episodes=30),
+}
+
+
+def data_dir() -> str:
+    return str(resources.files("emgail_jax") / "data")
+
+
+def checkpoint_dir(env_name: str, root: str | None = None) -> str:
+    return os.path.join(os.path.abspath(root or data_dir()), "experts", env_name)
+
+
+def _config(spec: ExpertSpec):
+    from emgail_jax.config import Config
+    from emgail_jax.trpo import TRPOConfig
+
+    return Config(
+        num_envs=spec.num_envs,
+        rollout_length=spec.rollout_length,
+        gamma=spec.gamma,
+        init_log_std=spec.init_log_std,
+        eval_episodes=spec.eval_episodes,
+        trpo=TRPOConfig(max_kl=spec.max_kl),
+    )
+
+
+def _trainer(env, spec: ExpertSpec):
+    from emgail_jax.rl import make_rl_train
+
+    return make_rl_train(_config(spec), env)
+
+
+def train(env, spec: ExpertSpec, seeds: int, key, progress: bool = True):
+    """Trains ``seeds`` x K policies; returns ``(experts, own_returns [S, iterations, K])`` where
+    ``experts`` is ``{"policy", "normalizer"}`` of the best seed of every intention, stacked [K]."""
+    import jax
+    import jax.numpy as jnp
+
+    from emgail_jax.progress import ProgressBar
+    from emgail_jax.runner import Runner, chunk_length
+
+    trainer = _trainer(env, spec)
+    k = env.num_intentions
+    intentions = jnp.arange(k)
+    init = lambda seed_key: jax.vmap(trainer.init)(jax.random.split(seed_key, k))
+    update = lambda states: jax.vmap(trainer.update)(states, intentions)
+    chunk = chunk_length(spec.iterations, 10)
+    runner = Runner(init, update, seeds, chunk)
+    states = runner.init(key)
+    runner.compile(states)
+    own = []
+    with ProgressBar(
+        f"experts {env.name}", spec.iterations, {"returns": "-"}, enabled=progress
+    ) as bar:
+        for _ in range(spec.iterations // chunk):
+            states, metrics = runner.step(states)
+            own.append(metrics["eval/own_return"])  # [S, chunk, K]
+            latest = own[-1][:, -1].max(0)
+            bar.update(chunk, returns=" ".join(f"{r:.1f}" for r in latest))
+    own = np.concatenate(own, axis=1)
+    best = own[:, -10:].mean(1).argmax(0)  # [K] best seed of every intention
+    states = jax.device_get(states)
+    pick = lambda x: x[best, np.arange(k)]
+    experts = {
+        "policy": jax.tree.map(pick, states.policy),
+        "normalizer": jax.tree.map(pick, states.normalizer),
+    }
+    return experts, own, runner.timings
+
+
+def _target(env, spec: ExpertSpec):
+    """Structure of ``{"policy", "normalizer"}`` stacked over all the env's intentions (what a
+    checkpoint restores into; the networks do not depend on K)."""
+    import jax
+
+    trainer = _trainer(env, spec)
+    keys = jax.random.split(jax.random.PRNGKey(0), env.max_intentions)
+    shapes = jax.eval_shape(jax.vmap(trainer.init), keys)
+    return {"policy": shapes.policy, "normalizer": shapes.normalizer}
+
+
+def save(env_name: str, experts, meta: dict, root: str | None = None) -> str:
+    """Writes the experts' checkpoint (orbax, atomically) and ``meta.json`` beside it."""
+    import orbax.checkpoint as ocp
+
+    from emgail_jax import records
+
+    directory = checkpoint_dir(env_name, root)
+    os.makedirs(directory, exist_ok=True)
+    with ocp.StandardCheckpointer() as checkpointer:
+        checkpointer.save(os.path.join(directory, "params"), experts, force=True)
+    records.write_json(os.path.join(directory, "meta.json"), meta)
+    return directory
+
+
+class ExpertError(ValueError):
+    """No usable expert checkpoint; the message says how to get one."""
+
+
+def load(env, root: str | None = None, spec: ExpertSpec | None = None):
+    """The experts of ``env`` (its first K intentions) as ``{"policy", "normalizer"}`` [K];
+    ``spec`` defaults to the env's entry in :data:`SPECS`.
+
+    Raises:
+      ExpertError: no checkpoint for this env, or one that does not fit it.
+    """
+    import jax
+    import orbax.checkpoint as ocp
+
+    directory = checkpoint_dir(env.name, root)
+    path = os.path.join(directory, "params")
+    if not os.path.isdir(path):
+        raise ExpertError(
+            f"no experts for '{env.name}' in {directory}; train them with "
+            f"`python -m emgail_jax.experts --env {env.name}`"
+        )
+    target = _target(env, spec or SPECS[env.name])
+    try:
+        with ocp.StandardCheckpointer() as checkpointer:
+            experts = checkpointer.restore(path, target)
+    except Exception as error:  # orbax raises many types for damaged or foreign files
+        raise ExpertError(
+            f"the experts' checkpoint in {path} cannot be read ({str(error)[:200]}); "
+            f"retrain with `python -m emgail_jax.experts --env {env.name}`"
+        ) from None
+    return jax.tree.map(lambda x: x[: env.num_intentions], experts)
+
+
+def make_policy(env, experts, spec: ExpertSpec | None = None):
+    """``policy(obs [..., D], intention [...]) -> deterministic action [..., A]``."""
+    import jax
+    import jax.numpy as jnp
+
+    from emgail_jax import normalizer as obs_norm
+    from emgail_jax.networks import GaussianPolicy
+
+    config = _config(spec or SPECS[env.name])
+    net = GaussianPolicy(env.action_size, config.hidden, config.init_log_std)
+
+    def mean_action(params, stats, obs):
+        normalized = obs_norm.normalize(stats, obs, config.obs_clip)
+        return net.apply(params, normalized, jnp.zeros((*obs.shape[:-1], 0)))[0]
+
+    def policy(obs, intention):
+        every = jax.vmap(mean_action, in_axes=(0, 0, None))(
+            experts["policy"], experts["normalizer"], obs
+        )  # [K, ..., A]
+        return jnp.take_along_axis(every, intention[None, ..., None], axis=0)[0]
+
+    return policy
+
+
+def load_expert_policy(env):
+    """The shipped experts of ``env`` as ``policy(obs, intention)``; None if there are none."""
+    try:
+        return make_policy(env, load(env))
+    except (ExpertError, KeyError):
+        return None
+
+
+# The bars of issue 3 (README "Experts"): what each expert must do over 10 deterministic
+# episodes. `velocity` is the mean x-velocity of an episode, `upright` the share of episodes
+# that did not end early (hopper's fall), `turn` the largest pitch change from the start
+# (halfcheetah), `reached` the share of episodes ending within 0.02 of the intended ball.
+BARS: dict[tuple[str, str], tuple[str, object]] = {
+    ("swimmer", "forward"): ("velocity >= 0.25", lambda q: q["velocity"] >= 0.25),
+    ("swimmer", "backward"): ("velocity <= -0.25", lambda q: q["velocity"] <= -0.25),
+    ("hopper", "forward"): (
+        "velocity >= 0.8, upright >= 90 %",
+        lambda q: q["velocity"] >= 0.8 and q["upright"] >= 0.9,
+    ),
+    ("hopper", "backward"): (
+        "velocity <= -0.8, upright >= 90 %",
+        lambda q: q["velocity"] <= -0.8 and q["upright"] >= 0.9,
+    ),
+    ("hopper", "stand"): (
+        "|velocity| < 0.1, upright 100 %",
+        lambda q: abs(q["velocity"]) < 0.1 and q["upright"] == 1.0,
+    ),
+    ("halfcheetah", "forward"): ("velocity >= 2.0", lambda q: q["velocity"] >= 2.0),
+    ("halfcheetah", "backward"): ("velocity <= -1.5", lambda q: q["velocity"] <= -1.5),
+    ("halfcheetah", "flip"): (
+        "turn >= pi, |velocity| < 0.5",
+        lambda q: q["turn"] >= np.pi and abs(q["velocity"]) < 0.5,
+    ),
+}
+for _ball in range(4):
+    BARS[("reacher", f"ball {_ball + 1}")] = ("reached >= 90 %", lambda q: q["reached"] >= 0.9)
+
+
+def quality(env, policy, key, episodes: int = 10) -> list[dict]:
+    """Per intention: mean own return, x-velocity, upright share, pitch turn, reached share, and
+    whether the bar is met, over ``episodes`` deterministic episodes of ``policy``."""
+    import jax
+    import jax.numpy as jnp
+
+    import envs
+    from emgail_jax.rollout import episodes as run_episodes
+
+    k = env.num_intentions
+    rows = jnp.broadcast_to(jnp.arange(k)[:, None], (k, episodes))
+    act = lambda state, _: policy(state.obs, rows)
+    limited = envs.EpisodeWrapper(env)
+    returns, alive, trace = jax.device_get(
+        jax.jit(lambda key: run_episodes(limited, act, key, k, episodes, traces=True))(key)
+    )  # [K, E, K], [T, K, E], {name: [T, K, E]}
+    steps = alive.sum(0).astype(int)  # [K, E]
+    last = lambda values: np.take_along_axis(values, steps[None] - 1, 0)[0]  # [K, E]
+    results = []
+    for i, name in enumerate(env.intention_names[:k]):
+        q = {"intention": name, "return": float(returns[i, :, i].mean())}
+        q["upright"] = float(np.mean(steps[i] == env.episode_length))
+        if "x" in trace:
+            duration = np.maximum(steps[i] - 1, 1) * env.dt
+            q["velocity"] = float(np.mean((last(trace["x"])[i] - trace["x"][0, i]) / duration))
+        if "pitch" in trace:
+            turn = np.abs(trace["pitch"][:, i] - trace["pitch"][0, i]) * alive[:, i]
+            q["turn"] = float(np.mean(turn.max(0)))
+        ball = f"distance to ball {i + 1}"
+        if ball in trace:
+            q["final_distance"] = float(np.mean(last(trace[ball])[i]))
+            q["reached"] = float(np.mean(last(trace[ball])[i] < 0.02))
+        bar = BARS.get((env.name, name))
+        q["bar"] = bar[0] if bar else None
+        q["meets_bar"] = bool(bar[1](q)) if bar else None
+        results.append(q)
+    return results
+
+
+def write_demos(env, policy, key, episodes: int, path: str):
+    """The experts' deterministic episodes as a labelled demonstrations file (DESIGN §5)."""
+    from emgail_jax import demos as demos_lib
+
+    expert = lambda state, intention, _: policy(state.obs, intention)
+    demos = demos_lib.generate(env, expert, episodes, key)
+    demos.save(path)
+    return demos
+
+
+def print_quality(env_name: str, results: list[dict]) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"{env_name} experts (10 deterministic episodes each)")
+    columns = ["intention", "return", "velocity", "upright", "turn", "reached", "bar", "meets_bar"]
+    for column in columns:
+        table.add_column(column)
+    for q in results:
+        cell = lambda v: "-" if v is None else (f"{v:.3f}" if isinstance(v, float) else str(v))
+        table.add_row(*(cell(q.get(column)) for column in columns))
+    Console().print(table)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m emgail_jax.experts", description=__doc__.split("\n")[0]
+    )
+    parser.add_argument("--env", required=True, choices=sorted(SPECS))
+    parser.add_argument("--seeds", type=int, default=2, help="seeds per intention; best kept")
+    parser.add_argument("--iterations", type=int, default=None, help="default: the env's spec")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", default=None, help="data root (default: the package's data)")
+    what = parser.add_mutually_exclusive_group()
+    what.add_argument("--evaluate", action="store_true", help="only score the saved experts")
+    what.add_argument("--demos-only", action="store_true", help="rewrite demos from the checkpoint")
+    parser.add_argument("--quiet", action="store_true")
+    args = parser.parse_args(argv)
+    if args.seeds < 1 or (args.iterations is not None and args.iterations < 1):
+        print("error: --seeds and --iterations must be at least 1", file=sys.stderr)
+        return 2
+    runtime.setup()
+
+    import jax
+
+    import envs
+    from emgail_jax import records
+
+    env = envs.make(args.env)
+    spec = SPECS[args.env]
+    if args.iterations:
+        spec = dataclasses.replace(spec, iterations=args.iterations)
+    root = os.path.abspath(args.out or data_dir())
+    key_train, key_quality, key_demos = jax.random.split(jax.random.PRNGKey(args.seed), 3)
+
+    if args.evaluate or args.demos_only:
+        try:
+            experts = load(env, root)
+        except ExpertError as error:
+            print(f"error: {error}", file=sys.stderr)
+            return 2
+    else:
+        start = time.perf_counter()
+        experts, own_returns, timings = train(env, spec, args.seeds, key_train, not args.quiet)
+        meta = {
+            "env": env.name,
+            "intentions": list(env.intention_names),
+            "spec": dataclasses.asdict(spec),
+            "seeds": args.seeds,
+            "seed": args.seed,
+            "final_own_returns": own_returns[:, -10:].mean(1),  # [S, K]
+            "compile_time_s": timings.compile_s,
+            "train_time_s": timings.train_s,
+            "wall_time_s": time.perf_counter() - start,
+        }
+        save(env.name, experts, meta, root)
+    policy = make_policy(env, experts)
+    results = quality(env, policy, key_quality)
+    print_quality(env.name, results)
+    if not args.evaluate:
+        path = os.path.join(root, f"{env.name}.npz")
+        demos = write_demos(env, policy, key_demos, spec.demo_episodes, path)
+        meta_path = os.path.join(checkpoint_dir(env.name, root), "meta.json")
+        meta = {}
+        if os.path.exists(meta_path):
+            with open(meta_path) as f:
+                meta = json.load(f)
+        meta.update(quality=results, demo_pairs=len(demos), demo_returns=demos.expert_returns)
+        records.write_json(meta_path, meta)
+        print(f"wrote {len(demos)} pairs to {path}; expert returns {demos.expert_returns}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,109 @@
+"""Experts: the training/checkpoint round trip (on the cheap driver) and the shipped experts and
+demonstrations of the MJX envs (their files, and a fresh replay of every expert)."""
+
+import json
+import os
+
+import jax
+import numpy as np
+import pytest
+
+import envs
+from emgail_jax import demos as demos_lib
+from emgail_jax import experts
+from emgail_jax.problem import shipped_demos_path
+
+MJX_ENVS = ("swimmer", "hopper", "halfcheetah", "reacher")
+TINY = experts.ExpertSpec(iterations=2, num_envs=2, rollout_length=20, demo_episodes=2)
+
+
+@pytest.fixture(scope="module")
+def driver_experts(tmp_path_factory):
+    env = envs.make("driver", intentions=4)  # all, as the command trains them
+    trained, own_returns, _ = experts.train(env, TINY, 2, jax.random.PRNGKey(0), progress=False)
+    root = str(tmp_path_factory.mktemp("experts"))
+    experts.save(env.name, trained, {"env": env.name}, root)
+    return env, trained, own_returns, root
+
+
+def test_training_keeps_the_best_seed_of_every_intention(driver_experts):
+    _, trained, own_returns, _ = driver_experts
+    assert own_returns.shape == (2, TINY.iterations, 4)  # [seeds, iterations, K]
+    leaves = jax.tree.leaves(trained)
+    assert leaves and all(leaf.shape[0] == 4 for leaf in leaves)
+
+
+def test_checkpoint_round_trip_and_first_k(driver_experts):
+    env, trained, _, root = driver_experts
+    restored = experts.load(env, root, TINY)
+    for a, b in zip(jax.tree.leaves(trained), jax.tree.leaves(restored), strict=True):
+        np.testing.assert_array_equal(a, b)
+    one = experts.load(envs.make("driver", intentions=1), root, TINY)
+    assert all(leaf.shape[0] == 1 for leaf in jax.tree.leaves(one))
+
+
+def test_policy_picks_each_rows_intention(driver_experts):
+    env, trained, _, _ = driver_experts
+    policy = experts.make_policy(env, trained, TINY)
+    obs = jax.random.normal(jax.random.PRNGKey(1), (3, env.observation_size))
+    own = [policy(obs, np.full(3, i)) for i in range(2)]  # of intentions 0 and 1 of 4
+    mixed = policy(obs, np.array([0, 1, 0]))
+    np.testing.assert_allclose(mixed, np.stack([own[0][0], own[1][1], own[0][2]]), rtol=1e-6)
+    assert not np.allclose(own[0], own[1])
+
+
+def test_missing_checkpoint_is_a_one_line_error(tmp_path, capsys):
+    with pytest.raises(experts.ExpertError, match=r"python -m emgail_jax\.experts --env swimmer"):
+        experts.load(envs.make("swimmer"), str(tmp_path))
+    assert experts.main(["--env", "swimmer", "--evaluate", "--out", str(tmp_path)]) == 2
+    error = capsys.readouterr().err.strip()
+    assert error.startswith("error: no experts for 'swimmer'") and "\n" not in error
+
+
+def test_corrupt_checkpoint_is_a_one_line_error(driver_experts, tmp_path):
+    env = driver_experts[0]
+    params = os.path.join(experts.checkpoint_dir(env.name, str(tmp_path)), "params")
+    os.makedirs(params)
+    with open(os.path.join(params, "_METADATA"), "w") as f:
+        f.write("not a checkpoint")
+    with pytest.raises(experts.ExpertError, match="cannot be read"):
+        experts.load(env, str(tmp_path), TINY)
+
+
+@pytest.mark.parametrize("name", MJX_ENVS)
+def test_shipped_demonstrations_match_their_env(name):
+    env = envs.make(name)
+    spec = experts.SPECS[name]
+    demos = demos_lib.load(shipped_demos_path(name), env)
+    assert demos.num_intentions == env.max_intentions
+    counts = np.bincount(demos.intentions, minlength=env.max_intentions)
+    full = spec.demo_episodes * env.episode_length  # 2500 (reacher 1500) unless an expert fell
+    assert np.all(counts <= full) and np.all(counts >= 0.9 * full), counts
+    assert demos.episode_starts.sum() == spec.demo_episodes * env.max_intentions
+    assert demos.expert_returns.shape == (env.max_intentions,)
+
+
+@pytest.mark.parametrize("name", MJX_ENVS)
+def test_shipped_experts_meta_records_their_quality(name):
+    path = os.path.join(experts.checkpoint_dir(name), "meta.json")
+    with open(path) as f:
+        meta = json.load(f)
+    assert meta["env"] == name
+    assert [q["intention"] for q in meta["quality"]] == list(envs.make(name).intention_names)
+    np.testing.assert_allclose(
+        meta["demo_returns"], demos_lib.load(shipped_demos_path(name)).expert_returns, rtol=1e-6
+    )
+
+
+@pytest.mark.parametrize("name", MJX_ENVS)
+def test_replayed_experts_reproduce_the_shipped_returns(name):
+    """A fresh replay of the shipped checkpoints, with other start states than the demos."""
+    env = envs.make(name)
+    spec = experts.SPECS[name]
+    policy = experts.load_expert_policy(env)
+    assert policy is not None
+    stored = demos_lib.load(shipped_demos_path(name)).expert_returns
+    expert = lambda state, intention, _: policy(state.obs, intention)
+    replay = demos_lib.generate(env, expert, spec.demo_episodes, jax.random.PRNGKey(7))
+    scale = np.abs(stored) + 0.1 * np.abs(stored).mean()
+    np.testing.assert_array_less(np.abs(replay.expert_returns - stored), 0.15 * scale)
