@@ -9,7 +9,7 @@ OUT ?= runs/driver-emgail
 SEEDS ?= 4
 ITERATIONS ?= 400
 
-.PHONY: run test test-slow lint format bench separability clean
+.PHONY: run test test-slow lint format bench separability experts clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -40,6 +40,12 @@ bench: $(STAMP)
 
 separability: $(STAMP)
 	$(PY) experiments/driver_separability.py
+
+# Retrains every MJX env's experts and rewrites the shipped demonstrations (emgail_jax/data).
+experts: $(STAMP)
+	for env in swimmer hopper halfcheetah reacher; do \
+		$(PY) -m emgail_jax.experts --env $$env || exit 1; \
+	done
 
 clean:
 	rm -rf runs .cache

@@ -22,6 +22,7 @@ import json
 import os
 import sys
 import time
+from functools import partial
 from importlib import resources
 
 import numpy as np
@@ -47,7 +48,7 @@ class ExpertSpec:
 # steps to pay off, so gamma 0.995 settles on wriggling in place (as in the TRPO/PPO papers'
 # swimmer settings, gamma 0.9999).
 SPECS: dict[str, ExpertSpec] = {
-    "swimmer": ExpertSpec(iterations=300, num_envs=8, rollout_length=500, gamma=0.9999),
+    "swimmer": ExpertSpec(iterations=1500, num_envs=8, rollout_length=500, gamma=0.9999),
     "hopper": ExpertSpec(iterations=600, num_envs=16, rollout_length=250),
     "halfcheetah": ExpertSpec(iterations=600, num_envs=16, rollout_length=250),
     "reacher": ExpertSpec(iterations=400, num_envs=64, rollout_length=50, demo_episodes=30),
@@ -82,9 +83,11 @@ def _trainer(env, spec: ExpertSpec):
     return make_rl_train(_config(spec), env)
 
 
-def train(env, spec: ExpertSpec, seeds: int, key, progress: bool = True):
-    """Trains ``seeds`` x K policies; returns ``(experts, own_returns [S, iterations, K])`` where
-    ``experts`` is ``{"policy", "normalizer"}`` of the best seed of every intention, stacked [K]."""
+def train(env, spec: ExpertSpec, seeds: int, key, progress: bool = True, intentions=None):
+    """Trains ``seeds`` policies for each of ``intentions`` (indices; default all K).
+
+    Returns ``(experts, own_returns [S, iterations, I], timings)`` where ``experts`` is
+    ``{"policy", "normalizer"}`` of the best seed of every trained intention, stacked [I]."""
     import jax
     import jax.numpy as jnp
 
@@ -92,8 +95,8 @@ def train(env, spec: ExpertSpec, seeds: int, key, progress: bool = True):
     from emgail_jax.runner import Runner, chunk_length
 
     trainer = _trainer(env, spec)
-    k = env.num_intentions
-    intentions = jnp.arange(k)
+    intentions = jnp.arange(env.num_intentions) if intentions is None else jnp.asarray(intentions)
+    k = len(intentions)
     init = lambda seed_key: jax.vmap(trainer.init)(jax.random.split(seed_key, k))
     update = lambda states: jax.vmap(trainer.update)(states, intentions)
     chunk = chunk_length(spec.iterations, 10)
@@ -110,7 +113,7 @@ def train(env, spec: ExpertSpec, seeds: int, key, progress: bool = True):
             latest = own[-1][:, -1].max(0)
             bar.update(chunk, returns=" ".join(f"{r:.1f}" for r in latest))
     own = np.concatenate(own, axis=1)
-    best = own[:, -10:].mean(1).argmax(0)  # [K] best seed of every intention
+    best = own[:, -10:].mean(1).argmax(0)  # [I] best seed of every intention
     states = jax.device_get(states)
     pick = lambda x: x[best, np.arange(k)]
     experts = {
@@ -237,7 +240,7 @@ BARS: dict[tuple[str, str], tuple[str, object]] = {
     ),
 }
 for _ball in range(4):
-    BARS[("reacher", f"ball {_ball + 1}")] = ("reached >= 90 %", lambda q: q["reached"] >= 0.9)
+    BARS[("reacher", f"ball{_ball + 1}")] = ("reached >= 90 %", lambda q: q["reached"] >= 0.9)
 
 
 def quality(env, policy, key, episodes: int = 10) -> list[dict]:
@@ -300,7 +303,25 @@ def print_quality(env_name: str, results: list[dict]) -> None:
     for q in results:
         cell = lambda v: "-" if v is None else (f"{v:.3f}" if isinstance(v, float) else str(v))
         table.add_row(*(cell(q.get(column)) for column in columns))
-    Console().print(table)
+    Console(width=140).print(table)
+
+
+def _replace_rows(old, new, rows: list[int]) -> np.ndarray:
+    merged = np.array(old)
+    merged[rows] = new
+    return merged
+
+
+def _intention_indices(env, names: list[str] | None) -> list[int] | None:
+    if names is None:
+        return None
+    unknown = [name for name in names if name not in env.intention_names]
+    if unknown:
+        raise ValueError(
+            f"'{env.name}' has no intention {', '.join(unknown)}; "
+            f"its intentions are {', '.join(env.intention_names)}"
+        )
+    return [env.intention_names.index(name) for name in names]
 
 
 def main(argv=None) -> int:
@@ -312,6 +333,12 @@ def main(argv=None) -> int:
     parser.add_argument("--iterations", type=int, default=None, help="default: the env's spec")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default=None, help="data root (default: the package's data)")
+    parser.add_argument(
+        "--only",
+        nargs="+",
+        metavar="INTENTION",
+        help="retrain only these intentions (names), keeping the other saved experts",
+    )
     what = parser.add_mutually_exclusive_group()
     what.add_argument("--evaluate", action="store_true", help="only score the saved experts")
     what.add_argument("--demos-only", action="store_true", help="rewrite demos from the checkpoint")
@@ -332,7 +359,14 @@ def main(argv=None) -> int:
     if args.iterations:
         spec = dataclasses.replace(spec, iterations=args.iterations)
     root = os.path.abspath(args.out or data_dir())
-    key_train, key_quality, key_demos = jax.random.split(jax.random.PRNGKey(args.seed), 3)
+    key_train = jax.random.PRNGKey(args.seed)
+    # Scores and demos depend on the experts only, not on the seed they were trained with.
+    key_quality, key_demos = jax.random.split(jax.random.PRNGKey(0))
+    meta_path = os.path.join(checkpoint_dir(env.name, root), "meta.json")
+    meta = {}
+    if os.path.exists(meta_path):
+        with open(meta_path) as f:
+            meta = json.load(f)
 
     if args.evaluate or args.demos_only:
         try:
@@ -341,19 +375,33 @@ def main(argv=None) -> int:
             print(f"error: {error}", file=sys.stderr)
             return 2
     else:
+        try:
+            only = _intention_indices(env, args.only)
+            kept = load(env, root) if only is not None else None
+        except (ExpertError, ValueError) as error:
+            print(f"error: {error}", file=sys.stderr)
+            return 2
         start = time.perf_counter()
-        experts, own_returns, timings = train(env, spec, args.seeds, key_train, not args.quiet)
-        meta = {
-            "env": env.name,
-            "intentions": list(env.intention_names),
-            "spec": dataclasses.asdict(spec),
-            "seeds": args.seeds,
-            "seed": args.seed,
-            "final_own_returns": own_returns[:, -10:].mean(1),  # [S, K]
-            "compile_time_s": timings.compile_s,
-            "train_time_s": timings.train_s,
-            "wall_time_s": time.perf_counter() - start,
-        }
+        experts, own_returns, timings = train(
+            env, spec, args.seeds, key_train, not args.quiet, intentions=only
+        )
+        if kept is not None:
+            experts = jax.tree.map(partial(_replace_rows, rows=only), kept, experts)
+        trained = only if only is not None else range(env.num_intentions)
+        if only is None:
+            meta = {}
+        meta.update(env=env.name, intentions=list(env.intention_names))
+        training = meta.setdefault("training", {})
+        for column, index in enumerate(trained):
+            training[env.intention_names[index]] = {
+                "spec": dataclasses.asdict(spec),
+                "seeds": args.seeds,
+                "seed": args.seed,
+                "own_return_per_seed": own_returns[:, -10:, column].mean(1),
+                "compile_time_s": timings.compile_s,
+                "train_time_s": timings.train_s,
+                "wall_time_s": time.perf_counter() - start,
+            }
         save(env.name, experts, meta, root)
     policy = make_policy(env, experts)
     results = quality(env, policy, key_quality)
@@ -361,11 +409,6 @@ def main(argv=None) -> int:
     if not args.evaluate:
         path = os.path.join(root, f"{env.name}.npz")
         demos = write_demos(env, policy, key_demos, spec.demo_episodes, path)
-        meta_path = os.path.join(checkpoint_dir(env.name, root), "meta.json")
-        meta = {}
-        if os.path.exists(meta_path):
-            with open(meta_path) as f:
-                meta = json.load(f)
         meta.update(quality=results, demo_pairs=len(demos), demo_returns=demos.expert_returns)
         records.write_json(meta_path, meta)
         print(f"wrote {len(demos)} pairs to {path}; expert returns {demos.expert_returns}")

@@ -133,7 +133,7 @@ def test_rewards_match_their_formulas(compiled, name):
         expected.append(-abs(v) + healthy - ctrl)
     if name == "halfcheetah":
         pitch_rate = float(after.physics.qpos[2] - before.physics.qpos[2]) / c.env.dt
-        expected.append(-abs(v) + c.env.flip_weight * pitch_rate - ctrl)
+        expected.append(-c.env.flip_move_weight * abs(v) + c.env.flip_weight * pitch_rate - ctrl)
     np.testing.assert_allclose(after.reward, expected, rtol=1e-4, atol=1e-4)
 
 

@@ -60,6 +60,22 @@ def test_missing_checkpoint_is_a_one_line_error(tmp_path, capsys):
     assert error.startswith("error: no experts for 'swimmer'") and "\n" not in error
 
 
+def test_retraining_an_unknown_intention_is_a_one_line_error(tmp_path, capsys):
+    args = ["--env", "swimmer", "--only", "sideways", "--out", str(tmp_path)]
+    assert experts.main(args) == 2
+    error = capsys.readouterr().err.strip()
+    assert error == (
+        "error: 'swimmer' has no intention sideways; its intentions are forward, backward"
+    )
+
+
+def test_retraining_keeps_the_other_intentions_rows():
+    old = np.arange(8.0).reshape(4, 2)
+    merged = experts._replace_rows(old, np.array([[-1.0, -1.0]]), [2])
+    np.testing.assert_array_equal(merged, [[0, 1], [2, 3], [-1, -1], [6, 7]])
+    assert old[2, 0] == 4.0  # the kept experts are not modified in place
+
+
 def test_corrupt_checkpoint_is_a_one_line_error(driver_experts, tmp_path):
     env = driver_experts[0]
     params = os.path.join(experts.checkpoint_dir(env.name, str(tmp_path)), "params")
