@@ -22,8 +22,9 @@ the "increasing body angle" of the paper is rewarded):
 With ``w = 1`` every full turn earns ``2π / dt ≈ 126`` over the steps it takes, whatever its
 speed, while lying or standing still earns 0 and translating is penalised; a cheetah flipping
 once a second earns about as much per episode as one running forward at 6 m/s. Why ``m = 3``:
-with ``m = 1`` the TRPO expert flipped about once a second but drifted at 0.86 m/s (flipping
-over the head carries the body along), far from turning over in place.
+with ``m = 1`` the TRPO expert (``emgail_jax.experts``) flipped about once a second but drifted
+at 0.86 m/s (flipping over the head carries the body along); with ``m = 3`` it turns over once
+(pitch +3.3 rad) in place and then lies on its back (mean velocity 0.00 m/s).
 
 No termination; 500-step episodes. Reset as gym: ``qpos0`` plus uniform noise in ±0.1, zero
 velocity plus normal noise of std 0.1.
