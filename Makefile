@@ -9,7 +9,7 @@ OUT ?= runs/driver-emgail
 SEEDS ?= 4
 ITERATIONS ?= 400
 
-.PHONY: run test test-slow lint format bench separability experts clean
+.PHONY: run test test-slow lint format bench bench-envs check-envs separability experts clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -37,6 +37,16 @@ format: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) experiments/bench_driver.py
+
+# Env-steps/s of every env, batched, against native MuJoCo on both cores, as ratios.
+bench-envs: $(STAMP)
+	$(PY) experiments/bench_env_throughput.py
+
+# The MJX envs' fast solver settings against native MuJoCo's defaults: open-loop gaits, then
+# the shipped experts' closed-loop behaviour.
+check-envs: $(STAMP)
+	$(PY) experiments/check_mjx_dynamics.py
+	$(PY) experiments/check_expert_replay.py
 
 separability: $(STAMP)
 	$(PY) experiments/driver_separability.py
