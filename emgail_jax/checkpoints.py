@@ -6,18 +6,46 @@ so an interrupted save never replaces the last complete checkpoint. A checkpoint
 - ``state``: the ``TrainState`` pytree with the seeds as leading axis (sharded as in training);
 - ``history``: every metric so far, ``{name: [S, iterations, ...]}`` (exact, unlike the CSV);
 - ``meta``: ``{"iteration": n}``.
+
+Orbax refuses zero-size arrays, which MJX states hold (``physics.act`` of a model without
+actuator activations, ``mocap_pos`` of one without mocap bodies); they carry no values, so they
+are left out of the checkpoint and rebuilt from the restore target's shapes.
 """
 
 from __future__ import annotations
 
 import os
 
+import jax
 import numpy as np
 import orbax.checkpoint as ocp
 
 
 class CheckpointError(ValueError):
     """No usable checkpoint; the message says what is wrong."""
+
+
+def _is_empty(leaf) -> bool:
+    return int(np.prod(leaf.shape)) == 0
+
+
+def _without_empty(tree):
+    """``tree`` with its zero-size leaves replaced by ``None`` (an empty subtree)."""
+    return jax.tree.map(lambda leaf: None if _is_empty(leaf) else leaf, tree)
+
+
+def _with_empty(restored, target):
+    """``restored`` (saved by :func:`_without_empty`) with ``target``'s zero-size leaves back."""
+    filled = iter(jax.tree.leaves(restored))
+
+    def leaf(template):
+        if not _is_empty(template):
+            return next(filled)
+        empty = np.zeros(template.shape, template.dtype)
+        sharding = getattr(template, "sharding", None)
+        return jax.device_put(empty, sharding) if sharding is not None else jax.numpy.asarray(empty)
+
+    return jax.tree.map(leaf, target)
 
 
 def directory(run_dir: str) -> str:
@@ -37,7 +65,7 @@ def save(run_dir: str, iteration: int, state, history: dict[str, np.ndarray]) ->
         manager.save(
             iteration,
             args=ocp.args.Composite(
-                state=ocp.args.StandardSave(state),
+                state=ocp.args.StandardSave(_without_empty(state)),
                 history=ocp.args.StandardSave(history),
                 meta=ocp.args.JsonSave({"iteration": iteration}),
             ),
@@ -66,7 +94,7 @@ def restore(run_dir: str, target_state, iteration: int | None = None):
             restored = manager.restore(
                 iteration,
                 args=ocp.args.Composite(
-                    state=ocp.args.StandardRestore(target_state),
+                    state=ocp.args.StandardRestore(_without_empty(target_state)),
                     history=ocp.args.StandardRestore(),
                     meta=ocp.args.JsonRestore(),
                 ),
@@ -78,4 +106,5 @@ def restore(run_dir: str, target_state, iteration: int | None = None):
             f"read ({message[:200]}); delete it to fall back to an older one"
         ) from None
     history = {name: np.asarray(values) for name, values in restored.history.items()}
-    return restored.state, history, int(restored.meta["iteration"])
+    state = _with_empty(restored.state, target_state)
+    return state, history, int(restored.meta["iteration"])

@@ -243,6 +243,15 @@ for _ball in range(4):
     BARS[("reacher", f"ball{_ball + 1}")] = ("reached >= 90 %", lambda q: q["reached"] >= 0.9)
 
 
+def evaluation_keys():
+    """``(key_quality, key_demos)``: fixed, so that scores and demos depend on the experts
+    only, not on the seed they were trained with."""
+    import jax
+
+    key_quality, key_demos = jax.random.split(jax.random.PRNGKey(0))
+    return key_quality, key_demos
+
+
 def quality(env, policy, key, episodes: int = 10) -> list[dict]:
     """Per intention: mean own return, x-velocity, upright share, pitch turn, reached share, and
     whether the bar is met, over ``episodes`` deterministic episodes of ``policy``."""
@@ -360,8 +369,7 @@ def main(argv=None) -> int:
         spec = dataclasses.replace(spec, iterations=args.iterations)
     root = os.path.abspath(args.out or data_dir())
     key_train = jax.random.PRNGKey(args.seed)
-    # Scores and demos depend on the experts only, not on the seed they were trained with.
-    key_quality, key_demos = jax.random.split(jax.random.PRNGKey(0))
+    key_quality, key_demos = evaluation_keys()
     meta_path = os.path.join(checkpoint_dir(env.name, root), "meta.json")
     meta = {}
     if os.path.exists(meta_path):

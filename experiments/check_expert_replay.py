@@ -77,7 +77,7 @@ def main() -> int:
     parser.add_argument("--episodes", type=int, default=10)
     args = parser.parse_args()
     runtime.setup(host_devices=1)
-    key = jax.random.PRNGKey(0)  # the key `python -m emgail_jax.experts --evaluate` scores with
+    key, _ = experts.evaluation_keys()  # the start states `python -m emgail_jax.experts` scores
     print(
         f"{'env':12s} {'intention':10s} {'bar':34s} {'':7s} {'return':>9s} {'velocity':>8s} "
         f"{'upright':>7s} {'turn':>6s} {'reached':>7s}  met"
