@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import itertools
 import os
 import shutil
 import signal
@@ -41,7 +42,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--algo", default=None, choices=NAMES, help="default: emgail")
     parser.add_argument("--seeds", type=int, default=None, help="seeds in parallel (default 4)")
     parser.add_argument("--iterations", type=int, default=None, help="total (default 400)")
-    parser.add_argument("--out", default=None, help="output directory")
+    parser.add_argument(
+        "--out", default=None, help="output directory (default: a new runs/ENV-ALGO[-N])"
+    )
     parser.add_argument("--resume", default=None, metavar="DIR", help="continue the run in DIR")
     parser.add_argument("--demos", default=None, help="demonstrations .npz (DESIGN §5)")
     parser.add_argument("--radius", type=float, default=None, help="driver: radius of path 2")
@@ -97,8 +100,6 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
             spec = dataclasses.replace(spec, config=spec.config.replace(iterations=args.iterations))
         return spec
 
-    if args.out is None:
-        raise RunError("--out DIR is required (or --resume DIR)")
     env = args.env or "driver"
     if (args.seeds is not None and args.seeds < 1) or (
         args.iterations is not None and args.iterations < 1
@@ -130,6 +131,14 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         demo_seed=args.demo_seed or 0,
         config=config,
     )
+
+
+def default_output(env: str, algo: str, root: str = "runs") -> str:
+    """``runs/ENV-ALGO``, or the first ``runs/ENV-ALGO-N`` not taken: a run without ``--out``
+    never touches an earlier one."""
+    base = os.path.join(root, f"{env}-{algo}")
+    candidates = itertools.chain([base], (f"{base}-{n}" for n in itertools.count(2)))
+    return next(path for path in candidates if not os.path.exists(path))
 
 
 def prepare_output(out: str, overwrite: bool) -> None:
@@ -349,7 +358,7 @@ def main(argv=None) -> int:
 
     try:
         spec = spec_from_args(args)
-        out = args.resume or args.out
+        out = args.resume or args.out or default_output(spec.env, spec.algo)
         if args.resume is not None and latest_iteration(out) is None:
             raise CheckpointError(f"'{out}' holds no checkpoint to resume from")
         problem = spec.problem()

@@ -149,3 +149,11 @@ def test_demonstrations_without_labels_or_returns(tmp_path, capsys):
     final = json.loads((out / "summary.json").read_text())["final"]
     assert final["erd"] is None and final["cluster_accuracy"] is None
     assert np.asarray(final["returns"]).shape == (SEEDS, 2)
+
+
+def test_without_out_a_run_takes_the_first_free_directory(tmp_path):
+    root = str(tmp_path)
+    assert run.default_output("halfcheetah", "emgail", root) == f"{root}/halfcheetah-emgail"
+    (tmp_path / "halfcheetah-emgail").mkdir()
+    (tmp_path / "halfcheetah-emgail-2").mkdir()
+    assert run.default_output("halfcheetah", "emgail", root) == f"{root}/halfcheetah-emgail-3"
