@@ -17,6 +17,7 @@ from flax import struct
 from emgail_jax.config import Config
 from emgail_jax.gae import generalized_advantages
 from emgail_jax.networks import action_distribution
+from emgail_jax.rollout import intention_major, time_major
 from emgail_jax.trpo import trpo_step
 from emgail_jax.value import fit_value
 
@@ -49,35 +50,40 @@ def b_step(
 ):
     """One policy improvement on ``reward [T, K, B]``.
 
+    The networks see the samples grouped by intention (``[K, T * B]``, see
+    :func:`~emgail_jax.rollout.intention_major`), GAE sees them in time order.
     Returns ``(policy, value, value_opt_state, metrics)``.
     """
-    n = reward.size
-    flat = lambda x: x.reshape(n, *x.shape[3:])  # explicit n: C may be 0
+    t = reward.shape[0]
     obs, action, condition, time = map(
-        flat, (samples.obs, samples.action, samples.condition, samples.time)
+        intention_major, (samples.obs, samples.action, samples.condition, samples.time)
     )
-    values = value_apply(value, obs, condition, time).reshape(reward.shape)
-    bootstrap = value_apply(value, samples.last_obs, samples.last_condition, samples.last_time)
+    values = time_major(value_apply(value, obs, condition, time, intention_major=True), t)
+    bootstrap = value_apply(
+        value, samples.last_obs, samples.last_condition, samples.last_time, intention_major=True
+    )
     advantages, returns = generalized_advantages(
         reward, values, samples.done, bootstrap, config.gamma, config.gae_lambda
     )
     # Each intention's advantages are standardised on their own, so that no intention's reward
     # scale dominates a shared policy update.
-    mean = advantages.mean((0, 2), keepdims=True)
-    std = advantages.std((0, 2), keepdims=True)
-    advantages = ((advantages - mean) / (std + 1e-8)).reshape(-1)
+    advantages = intention_major(advantages)  # [K, T * B]
+    mean = advantages.mean(1, keepdims=True)
+    std = advantages.std(1, keepdims=True)
+    advantages = (advantages - mean) / (std + 1e-8)
 
     def distribution(params):
-        return action_distribution(*policy_apply(params, obs, condition))
+        return action_distribution(*policy_apply(params, obs, condition, intention_major=True))
 
     policy, policy_metrics = trpo_step(distribution, policy, action, advantages, config.trpo)
+    value_predict = lambda params, *inputs: value_apply(params, *inputs, intention_major=True)
     value, value_opt_state, value_metrics = fit_value(
-        value_apply,
+        value_predict,
         value_optimizer,
         value,
         value_opt_state,
         (obs, condition, time),
-        returns.reshape(-1),
+        intention_major(returns),
         key,
         config.value_epochs,
         config.value_minibatches,

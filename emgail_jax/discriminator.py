@@ -22,10 +22,9 @@ from emgail_jax.optim import minimize
 
 
 def expert_logits(apply: Callable, params, obs, actions, conditions: jax.Array) -> jax.Array:
-    """``[N, C]``: f(s, a, c) of every expert pair under every condition ``conditions [C, c]``."""
-    n = obs.shape[0]
-    per_condition = lambda c: apply(params, obs, actions, jnp.broadcast_to(c, (n, c.shape[-1])))
-    return jax.vmap(per_condition, out_axes=1)(conditions)
+    """``[N, C]``: f(s, a, c) of every expert pair under every condition ``conditions [C, c]``
+    (broadcast, so that a discriminator with one head per intention runs each head once)."""
+    return apply(params, obs[None], actions[None], conditions[:, None, :], intention_major=True).T
 
 
 def discriminator_loss(
@@ -45,10 +44,12 @@ def discriminator_loss(
       expert_obs, expert_actions: ``[N, D]``, ``[N, A]`` (normalised observations).
       expert_weights: ``[N, C]`` weight of each expert pair under each condition.
       conditions: ``[C, c]`` the discriminator conditions (one-hot rows, or one empty row).
-      policy_obs, policy_actions, policy_conditions: ``[M, D]``, ``[M, A]``, ``[M, c]``.
+      policy_obs, policy_actions, policy_conditions: ``[C, M, D]``, ``[C, M, A]``,
+        ``[C, M, c]``: M samples of each condition, row c generated under condition c (the
+        intention-major layout of :func:`~emgail_jax.rollout.intention_major`).
     """
     real = expert_logits(apply, params, expert_obs, expert_actions, conditions)
-    fake = apply(params, policy_obs, policy_actions, policy_conditions)
+    fake = apply(params, policy_obs, policy_actions, policy_conditions, intention_major=True)
     expert_term = jnp.mean(jnp.sum(expert_weights * jax.nn.softplus(-real), -1))
     policy_term = jnp.mean(jax.nn.softplus(fake))
     loss = expert_term + policy_term

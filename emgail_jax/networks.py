@@ -1,10 +1,17 @@
 """The four networks of the paper (§5.3): policy, value, discriminator and posterior.
 
 All are 64-64 tanh MLPs. The intention enters the policy, the value and (for EM-GAIL) the
-discriminator as a one-hot vector concatenated to the input, as in the paper; an unconditioned
-network (GAIL's policy, Info/IntentionGAIL's discriminator) receives an empty vector instead, so
-the same modules serve all three algorithms. Modules hold no data: parameters live in the
-train state and are passed to ``apply``.
+discriminator in one of two ways (DESIGN §2):
+
+- one-hot (``heads=False``): a one-hot vector concatenated to the input, as the paper's
+  parameter counts (Table 2) imply. The intentions share every hidden unit and differ only by a
+  bias of the first layer, so a policy update for one intention moves the others too.
+- K heads (``heads=True``): one MLP per intention, the one of the sample's intention selected
+  by the one-hot vector, as the paper's public code does. The intentions share nothing.
+
+An unconditioned network (GAIL's policy, Info/IntentionGAIL's discriminator) receives an empty
+condition vector and is a single MLP either way, so the same modules serve all three algorithms.
+Modules hold no data: parameters live in the train state and are passed to ``apply``.
 """
 
 from __future__ import annotations
@@ -36,16 +43,65 @@ class MLP(nn.Module):
         return nn.Dense(self.out, kernel_init=final_init)(x)
 
 
+def conditioned_mlp(
+    hidden: Sequence[int],
+    out: int,
+    x: jax.Array,
+    condition: jax.Array,
+    heads: bool,
+    final_scale: float = 1.0,
+    intention_major: bool = False,
+) -> jax.Array:
+    """An MLP of ``x [..., D]`` for the intention one-hot ``condition [..., K]`` (K may be 0);
+    the leading dimensions of the two broadcast against each other. Call inside a compact method.
+
+    One-hot (``heads=False``): a single MLP of ``[x, condition]`` (parameters ``MLP_0``).
+    Heads: K MLPs of ``x`` (parameters ``heads``, stacked on a leading K axis). In general all K
+    are evaluated on every row and the row's own is selected by its one-hot condition (K times
+    the work). ``intention_major`` says that the leading axis of the inputs is the intention,
+    row k belonging to intention k (the layout of rollouts, ``[K, ...]``): then head k runs on
+    row k only and the condition is not read.
+    """
+    k = condition.shape[-1]
+    batch = jnp.broadcast_shapes(x.shape[:-1], condition.shape[:-1])
+    x = jnp.broadcast_to(x, (*batch, x.shape[-1]))
+    if not heads or k == 0:
+        condition = jnp.broadcast_to(condition, (*batch, k))
+        return MLP(hidden, out, final_scale)(jnp.concatenate([x, condition], -1))
+    stacked = nn.vmap(
+        MLP,
+        variable_axes={"params": 0},
+        split_rngs={"params": True},
+        in_axes=0 if intention_major else None,
+        axis_size=k,
+    )(hidden, out, final_scale, name="heads")
+    if intention_major:
+        return stacked(x)  # [K, ..., out]
+    return jnp.einsum("k...o,...k->...o", stacked(x), condition)
+
+
 class GaussianPolicy(nn.Module):
-    """pi(a | s, i): mean from an MLP of (normalised obs, condition); state-independent log-std."""
+    """pi(a | s, i): mean from an MLP of (normalised obs, condition); state-independent log-std
+    (shared by the intentions, as in the paper's code)."""
 
     action_size: int
     hidden: Sequence[int] = (64, 64)
     init_log_std: float = 0.0
+    heads: bool = False
 
     @nn.compact
-    def __call__(self, obs: jax.Array, condition: jax.Array) -> tuple[jax.Array, jax.Array]:
-        mean = MLP(self.hidden, self.action_size)(jnp.concatenate([obs, condition], -1))
+    def __call__(
+        self, obs: jax.Array, condition: jax.Array, intention_major: bool = False
+    ) -> tuple[jax.Array, jax.Array]:
+        mean = conditioned_mlp(
+            self.hidden,
+            self.action_size,
+            obs,
+            condition,
+            self.heads,
+            final_scale=0.01,
+            intention_major=intention_major,
+        )
         log_std = self.param(
             "log_std", nn.initializers.constant(self.init_log_std), (self.action_size,)
         )
@@ -56,22 +112,40 @@ class ValueNet(nn.Module):
     """V(s, i, t): the normalised time t/T is an input because the horizon is fixed."""
 
     hidden: Sequence[int] = (64, 64)
+    heads: bool = False
 
     @nn.compact
-    def __call__(self, obs: jax.Array, condition: jax.Array, time: jax.Array) -> jax.Array:
-        x = jnp.concatenate([obs, condition, time[..., None]], -1)
-        return MLP(self.hidden, 1, final_scale=1.0)(x)[..., 0]
+    def __call__(
+        self,
+        obs: jax.Array,
+        condition: jax.Array,
+        time: jax.Array,
+        intention_major: bool = False,
+    ) -> jax.Array:
+        x = jnp.concatenate([obs, time[..., None]], -1)
+        return conditioned_mlp(
+            self.hidden, 1, x, condition, self.heads, intention_major=intention_major
+        )[..., 0]
 
 
 class Discriminator(nn.Module):
     """The logit f of D = sigmoid(f): f(s, a, i) for EM-GAIL, f(s, a) for the baselines."""
 
     hidden: Sequence[int] = (64, 64)
+    heads: bool = False
 
     @nn.compact
-    def __call__(self, obs: jax.Array, action: jax.Array, condition: jax.Array) -> jax.Array:
-        x = jnp.concatenate([obs, action, condition], -1)
-        return MLP(self.hidden, 1, final_scale=1.0)(x)[..., 0]
+    def __call__(
+        self,
+        obs: jax.Array,
+        action: jax.Array,
+        condition: jax.Array,
+        intention_major: bool = False,
+    ) -> jax.Array:
+        x = jnp.concatenate([obs, action], -1)
+        return conditioned_mlp(
+            self.hidden, 1, x, condition, self.heads, intention_major=intention_major
+        )[..., 0]
 
 
 class Posterior(nn.Module):

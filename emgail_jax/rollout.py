@@ -29,6 +29,19 @@ class Transitions:
     true_reward: jax.Array  # [T, K, B, K] true reward of every intention (evaluation only)
 
 
+def intention_major(x: jax.Array) -> jax.Array:
+    """``[T, K, B, ...] -> [K, T * B, ...]``: a rollout's samples grouped by intention, the
+    layout the networks take with ``intention_major=True``."""
+    t, k, b = x.shape[:3]
+    return jnp.swapaxes(x, 0, 1).reshape(k, t * b, *x.shape[3:])
+
+
+def time_major(x: jax.Array, length: int) -> jax.Array:
+    """``[K, T * B, ...] -> [T, K, B, ...]``: the inverse of :func:`intention_major`."""
+    k, tb = x.shape[:2]
+    return jnp.swapaxes(x.reshape(k, length, tb // length, *x.shape[2:]), 0, 1)
+
+
 def batch_reset(env: envs.Env, key: jax.Array, shape: tuple[int, ...]) -> envs.State:
     """Independent resets of ``shape`` envs (e.g. ``(K, B)``)."""
     keys = jax.random.split(key, shape)

@@ -31,6 +31,7 @@ DEFAULT_CHECKPOINT_EVERY = 50
 
 def parse_args(argv=None) -> argparse.Namespace:
     from emgail_jax.algorithms import NAMES
+    from emgail_jax.config import INTENTION_INPUTS
 
     parser = argparse.ArgumentParser(
         prog="python -m emgail_jax.run", description=__doc__.split("\n")[0]
@@ -51,6 +52,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--seed", type=int, default=None, help="first training seed")
     parser.add_argument("--demo-seed", type=int, default=None, help="driver: demonstration seed")
     parser.add_argument("--info-weight", type=float, default=None, help="infogail: lambda")
+    parser.add_argument(
+        "--intention-input",
+        default=None,
+        choices=INTENTION_INPUTS,
+        help="one network head per intention (default) or the intention as a one-hot input",
+    )
     parser.add_argument("--num-envs", type=int, default=None, help="envs per intention")
     parser.add_argument("--rollout-length", type=int, default=None, help="steps per rollout")
     parser.add_argument("--eval-episodes", type=int, default=None)
@@ -77,6 +84,7 @@ _RUN_OPTIONS = (
     "seed",
     "demo_seed",
     "info_weight",
+    "intention_input",
     "num_envs",
     "rollout_length",
     "eval_episodes",
@@ -114,6 +122,7 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         "algo": args.algo,
         "iterations": args.iterations,
         "info_weight": args.info_weight,
+        "intention_input": args.intention_input,
         "num_envs": args.num_envs,
         "rollout_length": args.rollout_length,
         "eval_episodes": args.eval_episodes,

@@ -42,7 +42,13 @@ from emgail_jax.networks import (
     action_distribution,
 )
 from emgail_jax.posterior import posterior_update, responsibilities
-from emgail_jax.rollout import batch_reset, episode_returns, rollout
+from emgail_jax.rollout import (
+    batch_reset,
+    episode_returns,
+    intention_major,
+    rollout,
+    time_major,
+)
 
 
 @struct.dataclass
@@ -101,10 +107,11 @@ class Networks:
 
 
 def make_networks(config: Config, env: envs.Env) -> Networks:
+    heads = config.intention_input == "heads"
     return Networks(
-        policy=GaussianPolicy(env.action_size, config.hidden, config.init_log_std),
-        value=ValueNet(config.hidden),
-        discriminator=Discriminator(config.hidden),
+        policy=GaussianPolicy(env.action_size, config.hidden, config.init_log_std, heads),
+        value=ValueNet(config.hidden, heads),
+        discriminator=Discriminator(config.hidden, heads),
         posterior=Posterior(env.num_intentions, config.hidden),
     )
 
@@ -118,7 +125,10 @@ def policy_function(networks: Networks, algorithm: Algorithm, config: Config, k:
             rows = jnp.broadcast_to(jnp.arange(k)[:, None], obs.shape[:2])
             condition = algorithm.policy_condition(rows, k)
             mean, log_std = networks.policy.apply(
-                params, obs_norm.normalize(normalizer, obs, config.obs_clip), condition
+                params,
+                obs_norm.normalize(normalizer, obs, config.obs_clip),
+                condition,
+                intention_major=True,
             )
             if deterministic:
                 return mean
@@ -143,8 +153,10 @@ def make_train(config: Config, env: envs.Env, expert: ExpertData):
     posterior_opt = optax.adam(config.posterior_learning_rate)
     has_labels = bool(expert.labels.min() >= 0)
 
-    # Intention of every sample of a flattened [T, K, B] rollout (host constant, see ExpertData).
-    sample_intention = np.broadcast_to(np.arange(k)[None, :, None], (t, k, b)).reshape(-1)
+    # Intention of every sample of a rollout in the intention-major layout [K, T * B], and
+    # flattened to [N] (host constants, see ExpertData).
+    intention_rows = np.broadcast_to(np.arange(k)[:, None], (k, t * b))
+    sample_intention = intention_rows.reshape(-1)
 
     def init(key: jax.Array) -> TrainState:
         policy_condition = algorithm.policy_condition(sample_intention[:1], k)
@@ -184,16 +196,17 @@ def make_train(config: Config, env: envs.Env, expert: ExpertData):
 
     def update(state: TrainState) -> tuple[TrainState, dict]:
         key_next, key_rollout, key_value, key_eval = jax.random.split(state.key, 4)
-        policy_condition = algorithm.policy_condition(sample_intention, k)  # [N, C]
-        discriminator_condition = algorithm.discriminator_condition(sample_intention, k)
+        policy_condition = algorithm.policy_condition(intention_rows, k)  # [K, T * B, C]
+        discriminator_condition = algorithm.discriminator_condition(intention_rows, k)
 
         # 1. Rollout of every intention with the current policy.
         behaviour = make_policy(state.policy, state.normalizer, deterministic=False)
         env_state, batch = rollout(train_env, behaviour, state.env_state, key_rollout, t)
         normalizer = obs_norm.update(state.normalizer, batch.obs)
         normalize = lambda x: obs_norm.normalize(normalizer, x, config.obs_clip)
-        obs = normalize(batch.obs).reshape(t * k * b, -1)  # [N, D]
-        actions = batch.action.reshape(t * k * b, -1)  # [N, A]
+        obs = normalize(intention_major(batch.obs))  # [K, T * B, D]
+        actions = intention_major(batch.action)  # [K, T * B, A]
+        flat_obs, flat_actions = obs.reshape(k * t * b, -1), actions.reshape(k * t * b, -1)
         expert_obs = normalize(expert.observations)
 
         # 2. E-step: posterior on the policy's labelled samples, gamma on the expert pairs.
@@ -203,8 +216,8 @@ def make_train(config: Config, env: envs.Env, expert: ExpertData):
                 posterior_opt,
                 state.posterior,
                 state.posterior_opt,
-                obs,
-                actions,
+                flat_obs,
+                flat_actions,
                 sample_intention,
                 config.posterior_steps,
             )
@@ -212,13 +225,13 @@ def make_train(config: Config, env: envs.Env, expert: ExpertData):
                 networks.posterior.apply, posterior, expert_obs, expert.actions
             )
             log_posterior = jax.nn.log_softmax(networks.posterior.apply(posterior, obs, actions))
-            own_log_posterior = jnp.take_along_axis(log_posterior, sample_intention[:, None], -1)[
-                :, 0
+            own_log_posterior = jnp.take_along_axis(log_posterior, intention_rows[..., None], -1)[
+                ..., 0
             ]
         else:
             posterior, posterior_opt_state, posterior_metrics = None, None, {}
             gamma = jnp.full((expert_obs.shape[0], k), 1.0 / k)
-            own_log_posterior = jnp.zeros(obs.shape[0])
+            own_log_posterior = jnp.zeros(intention_rows.shape)
 
         # 3. M-step: discriminator, expert pairs weighted over intentions by gamma.
         discriminator, discriminator_opt_state, discriminator_metrics = discriminator_update(
@@ -237,13 +250,15 @@ def make_train(config: Config, env: envs.Env, expert: ExpertData):
         )
 
         # 4. B-step: TRPO on the pseudo-reward of every sample under its own intention.
-        logits = networks.discriminator.apply(discriminator, obs, actions, discriminator_condition)
-        reward = algorithm.pseudo_reward(logits, own_log_posterior)
+        logits = networks.discriminator.apply(
+            discriminator, obs, actions, discriminator_condition, intention_major=True
+        )
+        reward = algorithm.pseudo_reward(logits, own_log_posterior)  # [K, T * B]
         last_intention = np.broadcast_to(np.arange(k)[:, None], (k, b))
         samples = PolicySamples(
-            obs=obs.reshape(t, k, b, -1),
+            obs=time_major(obs, t),
             action=batch.action,
-            condition=policy_condition.reshape(t, k, b, policy_condition.shape[-1]),
+            condition=time_major(policy_condition, t),
             time=batch.time,
             done=batch.done,
             last_obs=normalize(env_state.obs),
@@ -259,7 +274,7 @@ def make_train(config: Config, env: envs.Env, expert: ExpertData):
             state.value,
             state.value_opt,
             samples,
-            reward.reshape(t, k, b),
+            time_major(reward, t),
             key_value,
         )
 

@@ -10,7 +10,7 @@ import optax
 
 
 def value_loss(predict: Callable, params, inputs, targets: jax.Array) -> jax.Array:
-    """Mean squared error of ``predict(params, *inputs) [N]`` against ``targets [N]``."""
+    """Mean squared error of ``predict(params, *inputs) [...]`` against ``targets [...]``."""
     return jnp.mean((predict(params, *inputs) - targets) ** 2)
 
 
@@ -27,17 +27,19 @@ def fit_value(
 ):
     """Epochs of shuffled minibatch Adam steps on the value loss.
 
-    ``inputs`` are arrays with leading dimension N (divisible by ``minibatches``).
+    ``inputs`` and ``targets`` have leading dimensions ``[G, M]``: G groups (the intentions, in
+    the layout of :func:`~emgail_jax.rollout.intention_major`) of M samples, shuffled along M,
+    so that every minibatch holds the same number of samples of every group.
     Returns ``(params, opt_state, metrics)``.
     """
-    n = targets.shape[0]
+    n = targets.shape[1]
     size = n // minibatches
     grad_fn = jax.value_and_grad(lambda p, x, y: value_loss(predict, p, x, y))
 
     def minibatch_step(carry, index):
         params, opt_state = carry
-        batch_inputs = tuple(x[index] for x in inputs)
-        loss, grads = grad_fn(params, batch_inputs, targets[index])
+        batch_inputs = tuple(x[:, index] for x in inputs)
+        loss, grads = grad_fn(params, batch_inputs, targets[:, index])
         updates, opt_state = optimizer.update(grads, opt_state, params)
         return (optax.apply_updates(params, updates), opt_state), loss
 

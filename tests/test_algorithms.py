@@ -129,7 +129,7 @@ def test_unconditioned_discriminator_conditions_and_weights(name):
         np.testing.assert_array_equal(policy_condition, np.eye(k)[[0, 2, 1]])
 
 
-def _linear_discriminator(params, obs, actions, condition):
+def _linear_discriminator(params, obs, actions, condition, intention_major=False):
     """f = w . [s, a] + v . c (the condition part vanishes for an empty condition)."""
     x = jnp.concatenate([obs, actions], -1)
     return x @ params["w"] + condition @ params["v"][: condition.shape[-1]]
@@ -153,9 +153,9 @@ def test_baseline_m_step_is_the_gail_loss(name):
         expert_act,
         algorithm.expert_weights(gamma),
         algorithm.discriminator_conditions(k),
-        policy_obs,
-        policy_act,
-        algorithm.discriminator_condition(jnp.array([0, 1, 2, 0]), k),
+        policy_obs[None],
+        policy_act[None],
+        algorithm.discriminator_condition(jnp.array([[0, 1, 2, 0]]), k),
     )
     f_real = np.asarray(jnp.concatenate([expert_obs, expert_act], -1) @ params["w"], np.float64)
     f_fake = np.asarray(jnp.concatenate([policy_obs, policy_act], -1) @ params["w"], np.float64)

@@ -99,3 +99,17 @@ def test_to_dict_is_json_serialisable_and_complete():
         **{**data, "hidden": tuple(data["hidden"]), "trpo": TRPOConfig(**data["trpo"])}
     )
     assert rebuilt == config
+
+
+def test_intention_input_defaults_to_heads_and_rejects_unknown_values():
+    assert Config().intention_input == "heads"
+    assert Config(intention_input="onehot").intention_input == "onehot"
+    with pytest.raises(ValueError, match="unknown intention input 'twoheads'"):
+        Config(intention_input="twoheads")
+
+
+def test_from_dict_round_trip_and_older_runs_without_the_intention_input():
+    config = Config(intention_input="onehot", hidden=(8,))
+    assert Config.from_dict(json.loads(json.dumps(config.to_dict()))) == config
+    older = {k: v for k, v in Config().to_dict().items() if k != "intention_input"}
+    assert Config.from_dict(older).intention_input == "onehot"

@@ -19,9 +19,9 @@ from emgail_jax.networks import Discriminator
 LN3 = math.log(3.0)
 
 
-def toy_apply(params, obs, actions, condition):
+def toy_apply(params, obs, actions, condition, intention_major=False):
     """f(s, a, c) = s_0 + a_0 + c . params: logits chosen by hand through the inputs."""
-    return obs[:, 0] + actions[:, 0] + condition @ params
+    return obs[..., 0] + actions[..., 0] + condition @ params
 
 
 def log_sigmoid(x):
@@ -36,11 +36,12 @@ def test_loss_hand_computed_values():
     expert_obs = jnp.array([[0.0], [-LN3]])
     expert_actions = jnp.zeros((2, 1))
     gamma = jnp.array([[0.5, 0.5], [1.0, 0.0]])
-    # Policy sample 0 under condition 1: f = ln 3 -> -log(1 - 3/4) = log 4.
-    # Policy sample 1 under condition 0: f = -ln 3 -> -log(1 - 1/4) = log 4/3.
-    policy_obs = jnp.array([[0.0], [-LN3]])
-    policy_actions = jnp.zeros((2, 1))
-    policy_conditions = jnp.array([[0.0, 1.0], [1.0, 0.0]])
+    # Policy samples, one per condition (intention-major [C, M, ...]):
+    # under condition 0: f = -ln 3 -> -log(1 - 1/4) = log 4/3;
+    # under condition 1: f = ln 3 -> -log(1 - 3/4) = log 4.
+    policy_obs = jnp.array([[[-LN3]], [[0.0]]])
+    policy_actions = jnp.zeros((2, 1, 1))
+    policy_conditions = jnp.eye(2)[:, None, :]
     loss, metrics = discriminator_loss(
         toy_apply,
         params,
@@ -61,20 +62,21 @@ def test_loss_hand_computed_values():
     assert float(metrics["discriminator/policy_d"]) == pytest.approx(0.5, rel=1e-6)
 
 
-@pytest.fixture(scope="module")
-def network_batch():
-    """A real discriminator network and a random tiny batch with K = 3 intentions."""
-    k, n, m = 3, 6, 9
+@pytest.fixture(scope="module", params=[False, True], ids=["one-hot", "heads"])
+def network_batch(request):
+    """A real discriminator network (intention as a one-hot input, or one head per intention)
+    and a random tiny batch with K = 3 intentions, policy samples intention-major [K, M]."""
+    k, n, m = 3, 6, 3
     keys = jax.random.split(jax.random.PRNGKey(0), 6)
-    net = Discriminator(hidden=(8,))
+    net = Discriminator(hidden=(8,), heads=request.param)
     batch = dict(
         expert_obs=jax.random.normal(keys[0], (n, 4)),
         expert_actions=jax.random.normal(keys[1], (n, 2)),
         expert_weights=jax.nn.softmax(jax.random.normal(keys[2], (n, k))),
         conditions=jnp.eye(k),
-        policy_obs=jax.random.normal(keys[3], (m, 4)),
-        policy_actions=jax.random.normal(keys[4], (m, 2)),
-        policy_conditions=jax.nn.one_hot(jnp.arange(m) % k, k),
+        policy_obs=jax.random.normal(keys[3], (k, m, 4)),
+        policy_actions=jax.random.normal(keys[4], (k, m, 2)),
+        policy_conditions=jnp.broadcast_to(jnp.eye(k)[:, None, :], (k, m, k)),
     )
     params = net.init(
         keys[5], batch["policy_obs"], batch["policy_actions"], batch["policy_conditions"]
@@ -127,15 +129,17 @@ def test_one_hot_gamma_reduces_to_per_intention_gail_losses(network_batch):
     k = batch["conditions"].shape[0]
     # Two expert pairs per intention, three policy samples per intention.
     expert_labels = jnp.array([0, 1, 2, 2, 0, 1])
-    policy_labels = jnp.argmax(batch["policy_conditions"], -1)
     one_hot = {**batch, "expert_weights": jax.nn.one_hot(expert_labels, k)}
     em_loss, _ = discriminator_loss(net.apply, params, **one_hot)
+    # The intention-major fast path assumes all K intentions in order; intention i alone goes
+    # through the general path (a head per row, selected by its one-hot condition).
+    general_apply = lambda p, obs, act, cond, intention_major=False: net.apply(p, obs, act, cond)
     gail_losses = []
     for i in range(k):
-        e, p = np.flatnonzero(expert_labels == i), np.flatnonzero(policy_labels == i)
+        e, p = np.flatnonzero(expert_labels == i), slice(i, i + 1)
         # GAIL on intention i alone: D(s, a) := D(s, a, i), every pair weighted one.
         gail_loss, _ = discriminator_loss(
-            net.apply,
+            general_apply,
             params,
             expert_obs=batch["expert_obs"][e],
             expert_actions=batch["expert_actions"][e],
@@ -179,9 +183,9 @@ def test_loss_finite_at_extreme_logits():
         jnp.zeros((2, 1)),
         jnp.ones((2, 1)),
         jnp.ones((1, 1)),
-        huge,
-        jnp.zeros((2, 1)),
-        jnp.ones((2, 1)),
+        huge[None],
+        jnp.zeros((1, 2, 1)),
+        jnp.ones((1, 2, 1)),
     )
     # Expert: softplus(-100) + softplus(100) ~ 100, halved; policy: the same.
     assert float(loss) == pytest.approx(100.0, rel=1e-4)

@@ -212,3 +212,66 @@ def test_action_distribution_samples_have_the_given_mean_and_std():
     assert samples.shape == (20000, 2)
     np.testing.assert_allclose(samples.mean(0), [0.5, -2.0], atol=0.05)
     np.testing.assert_allclose(samples.std(0), [0.1, 2.0], rtol=0.03)
+
+
+def _heads_networks():
+    """The three intention-conditioned networks with one head per intention, and how to call
+    each on ``(obs, action, condition, time)``."""
+    return {
+        "policy": (
+            GaussianPolicy(ACT, HIDDEN, heads=True),
+            lambda obs, act, c, t, **kw: (obs, c),
+        ),
+        "value": (ValueNet(HIDDEN, heads=True), lambda obs, act, c, t, **kw: (obs, c, t)),
+        "discriminator": (
+            Discriminator(HIDDEN, heads=True),
+            lambda obs, act, c, t, **kw: (obs, act, c),
+        ),
+    }
+
+
+def _output(net, params, args, **kwargs):
+    out = net.apply(params, *args, **kwargs)
+    return out[0] if isinstance(out, tuple) else out
+
+
+@pytest.mark.parametrize("name", ["policy", "value", "discriminator"])
+def test_heads_share_nothing_between_intentions(inputs, name):
+    """With one head per intention, changing the parameters of head 1 changes the outputs of
+    intention 1's rows only; the heads are stacked on a leading K axis."""
+    obs, action, one_hot, time = inputs
+    net, args = _heads_networks()[name]
+    params = net.init(jax.random.PRNGKey(12), *args(obs, action, one_hot, time))
+    kernel = params["params"]["heads"]["Dense_0"]["kernel"]
+    assert kernel.shape[0] == K
+    assert "MLP_0" not in params["params"]
+    out = _output(net, params, args(obs, action, one_hot, time))
+    bumped = jax.tree_util.tree_map_with_path(
+        lambda path, x: x.at[1].add(0.5) if "heads" in jax.tree_util.keystr(path) else x, params
+    )
+    changed = np.abs(np.asarray(_output(net, bumped, args(obs, action, one_hot, time)) - out))
+    changed = changed.reshape(N, -1).max(-1)
+    rows_of_1 = np.asarray(one_hot[:, 1]) > 0
+    assert np.all(changed[~rows_of_1] == 0) and np.all(changed[rows_of_1] > 0)
+
+
+@pytest.mark.parametrize("heads", [False, True], ids=["one-hot", "heads"])
+@pytest.mark.parametrize("name", ["policy", "value", "discriminator"])
+def test_intention_major_inputs_give_the_general_outputs(inputs, name, heads):
+    """``intention_major=True`` (row k of ``[K, M]`` inputs is intention k; head k runs on row k
+    only) computes what the general path computes from the one-hot conditions."""
+    obs, action, _, time = inputs
+    net, args = _heads_networks()[name]
+    net = net.clone(heads=heads)
+    grouped = lambda x: jnp.broadcast_to(x, (K, *x.shape))  # every sample under each intention
+    condition = jnp.broadcast_to(jnp.eye(K)[:, None, :], (K, N, K))
+    grouped_args = args(grouped(obs), grouped(action), condition, grouped(time))
+    params = net.init(jax.random.PRNGKey(13), *grouped_args)
+    general = _output(net, params, grouped_args)
+    major = _output(net, params, grouped_args, intention_major=True)
+    np.testing.assert_allclose(major, general, rtol=1e-5, atol=1e-6)
+    # The condition broadcasts: [K, 1, K] is enough in the intention-major layout.
+    slim = args(grouped(obs), grouped(action), jnp.eye(K)[:, None, :], grouped(time))
+    np.testing.assert_allclose(
+        _output(net, params, slim, intention_major=True), general, rtol=1e-5, atol=1e-6
+    )

@@ -8,7 +8,14 @@ import pytest
 
 import envs
 from emgail_jax import demos as demos_lib
-from emgail_jax.rollout import batch_reset, episode_returns, rollout, uniform_random_policy
+from emgail_jax.rollout import (
+    batch_reset,
+    episode_returns,
+    intention_major,
+    rollout,
+    time_major,
+    uniform_random_policy,
+)
 from envs.driver import DriverPhysics
 
 K, B = 2, 3
@@ -215,3 +222,16 @@ def test_uniform_random_policy_covers_the_action_box():
     driver_actions = uniform_random_policy(driver)(jnp.zeros((K, B, 10)), jax.random.PRNGKey(6))
     assert driver_actions.shape == (K, B, 1)
     assert np.all(np.abs(driver_actions) <= 1.0)
+
+
+def test_intention_major_groups_samples_by_intention_and_time_major_undoes_it():
+    t, k, b = 3, 2, 4
+    x = np.arange(t * k * b * 2).reshape(t, k, b, 2)  # time, intention, env, feature
+    major = np.asarray(intention_major(jnp.asarray(x)))
+    assert major.shape == (k, t * b, 2)
+    # Row k holds intention k's samples, time-major within the row: sample s = (time s // b,
+    # env s % b).
+    for i in range(k):
+        for s in range(t * b):
+            np.testing.assert_array_equal(major[i, s], x[s // b, i, s % b])
+    np.testing.assert_array_equal(time_major(jnp.asarray(major), t), x)

@@ -85,7 +85,14 @@ def _leaves(tree):
 
 
 def _first_kernel(params):
-    return params["params"]["MLP_0"]["Dense_0"]["kernel"]
+    """The first layer's kernel: ``[K, in, out]`` with one head per intention, else ``[in, out]``."""
+    layers = params["params"]
+    return (layers["heads"] if "heads" in layers else layers["MLP_0"])["Dense_0"]["kernel"]
+
+
+@pytest.fixture(scope="module")
+def emgail_onehot(env, expert):
+    return _train(CONFIG.replace(intention_input="onehot"), env, expert, 1)
 
 
 # ---- ExpertData --------------------------------------------------------------------------
@@ -132,18 +139,30 @@ def test_init_gives_a_finite_state_with_k_by_b_envs(emgail):
     assert state.posterior is not None and state.posterior_opt is not None
 
 
-def test_init_network_inputs_follow_the_algorithm(emgail, gail):
-    emgail_state, gail_state = emgail[0], gail[0]
+def test_init_network_inputs_follow_the_algorithm(emgail, emgail_onehot, gail):
+    heads, onehot, gail_state = emgail[0], emgail_onehot[0], gail[0]
     obs, act = 10, 1
-    # EM-GAIL: pi(a | s, i) and D(s, a, i) with a K one-hot; GAIL: neither is conditioned.
-    assert _first_kernel(emgail_state.policy).shape == (obs + K, 8)
-    assert _first_kernel(emgail_state.discriminator).shape == (obs + act + K, 8)
+    # EM-GAIL: pi(a | s, i), V(s, i, t) and D(s, a, i), with one head per intention (default)
+    # or a K one-hot input; V sees the time too.
+    assert _first_kernel(heads.policy).shape == (K, obs, 8)
+    assert _first_kernel(heads.value).shape == (K, obs + 1, 8)
+    assert _first_kernel(heads.discriminator).shape == (K, obs + act, 8)
+    assert _first_kernel(onehot.policy).shape == (obs + K, 8)
+    assert _first_kernel(onehot.value).shape == (obs + 1 + K, 8)
+    assert _first_kernel(onehot.discriminator).shape == (obs + act + K, 8)
+    # P(i | s, a) is not conditioned; GAIL conditions nothing and has no posterior.
+    assert _first_kernel(heads.posterior).shape == (obs + act, 8)
     assert _first_kernel(gail_state.policy).shape == (obs, 8)
     assert _first_kernel(gail_state.discriminator).shape == (obs + act, 8)
-    # V(s, i, t) sees the time too.
-    assert _first_kernel(emgail_state.value).shape == (obs + K + 1, 8)
-    assert _first_kernel(emgail_state.posterior).shape == (obs + act, 8)
     assert gail_state.posterior is None and gail_state.posterior_opt is None
+
+
+def test_one_hot_intention_input_trains_too(emgail_onehot):
+    _, steps, _ = emgail_onehot
+    state, metrics = steps[0]
+    assert all(np.all(np.isfinite(leaf)) for leaf in _leaves(state))
+    assert set(metrics) >= COMMON_KEYS | POSTERIOR_KEYS
+    assert float(metrics["policy/accepted"]) == 1.0
 
 
 def test_init_depends_on_the_key(emgail):

@@ -17,31 +17,33 @@ def test_value_loss_hand_computed():
     assert float(loss) == pytest.approx(5.0 / 3.0)
 
 
-@pytest.fixture(scope="module")
-def regression():
-    """V(s, i, t) on a smooth toy target that depends on all three inputs."""
-    n, k = 64, 2
-    keys = jax.random.split(jax.random.PRNGKey(0), 4)
-    obs = jax.random.normal(keys[0], (n, 3))
-    condition = jax.nn.one_hot(jax.random.randint(keys[1], (n,), 0, k), k)
-    time = jax.random.uniform(keys[2], (n,))
-    targets = jnp.sin(obs[:, 0]) + 2.0 * condition[:, 1] - time + 1.0
-    net = ValueNet(hidden=(16,))
-    params = net.init(keys[3], obs, condition, time)
-    return net, params, (obs, condition, time), targets
+@pytest.fixture(scope="module", params=[False, True], ids=["one-hot", "heads"])
+def regression(request):
+    """V(s, i, t) on a smooth toy target that depends on all three inputs; samples grouped by
+    intention ``[K, M]`` as the B-step passes them."""
+    k, m = 2, 32
+    keys = jax.random.split(jax.random.PRNGKey(0), 3)
+    obs = jax.random.normal(keys[0], (k, m, 3))
+    condition = jnp.broadcast_to(jnp.eye(k)[:, None, :], (k, m, k))
+    time = jax.random.uniform(keys[1], (k, m))
+    targets = jnp.sin(obs[..., 0]) + 2.0 * condition[..., 1] - time + 1.0
+    net = ValueNet(hidden=(16,), heads=request.param)
+    params = net.init(keys[2], obs, condition, time)
+    predict = lambda p, *inputs: net.apply(p, *inputs, intention_major=True)
+    return predict, params, (obs, condition, time), targets
 
 
 def test_fit_reduces_the_loss(regression):
-    net, params, inputs, targets = regression
+    predict, params, inputs, targets = regression
     optimizer = optax.adam(1e-2)
     fit = jax.jit(
         lambda p, s, key: fit_value(
-            net.apply, optimizer, p, s, inputs, targets, key, epochs=30, minibatches=4
+            predict, optimizer, p, s, inputs, targets, key, epochs=30, minibatches=4
         )
     )
     new_params, opt_state, metrics = fit(params, optimizer.init(params), jax.random.PRNGKey(1))
-    before = float(value_loss(net.apply, params, inputs, targets))
-    after = float(value_loss(net.apply, new_params, inputs, targets))
+    before = float(value_loss(predict, params, inputs, targets))
+    after = float(value_loss(predict, new_params, inputs, targets))
     assert float(metrics["value/loss_before"]) == pytest.approx(before, rel=1e-5)
     assert float(metrics["value/loss"]) == pytest.approx(after, rel=1e-5)
     assert after < 0.2 * before
@@ -49,17 +51,17 @@ def test_fit_reduces_the_loss(regression):
     assert int(opt_state[0].count) == 120
 
 
-def test_fit_uses_whole_minibatches_when_n_is_not_divisible(regression):
-    net, params, inputs, targets = regression
-    inputs = tuple(x[:10] for x in inputs)
+def test_fit_uses_whole_minibatches_when_m_is_not_divisible(regression):
+    predict, params, inputs, targets = regression
+    inputs = tuple(x[:, :10] for x in inputs)
     optimizer = optax.sgd(1e-2)
     new_params, _, metrics = fit_value(
-        net.apply,
+        predict,
         optimizer,
         params,
         optimizer.init(params),
         inputs,
-        targets[:10],
+        targets[:, :10],
         jax.random.PRNGKey(2),
         epochs=2,
         minibatches=3,
