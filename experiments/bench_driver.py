@@ -30,13 +30,13 @@ def main(argv=None) -> int:
     import jax
 
     from emgail_jax.config import Config
-    from emgail_jax.problem import make_problem
     from emgail_jax.run import train
+    from emgail_jax.runs import RunSpec
 
-    problem = make_problem("driver", 2)
     config = Config(algo=args.algo, iterations=args.iterations)
+    spec = RunSpec("driver", 2, {}, args.algo, args.seeds, 0, None, 0, config)
     with tempfile.TemporaryDirectory() as out:
-        summary = train(problem, config, args.seeds, out, progress=False)
+        summary = train(spec, spec.problem(), out, progress=False)
     final = summary["final"]
     compile_s, train_s = final["compile_time_s"], final["train_time_s"]
     seed_iterations = args.seeds * args.iterations

@@ -85,7 +85,7 @@ def _leaves(tree):
 
 
 def _first_kernel(params):
-    """The first layer's kernel: ``[K, in, out]`` with one head per intention, else ``[in, out]``."""
+    """The first kernel: ``[K, in, out]`` with one head per intention, else ``[in, out]``."""
     layers = params["params"]
     return (layers["heads"] if "heads" in layers else layers["MLP_0"])["Dense_0"]["kernel"]
 
