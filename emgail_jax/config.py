@@ -52,6 +52,10 @@ class Config:
     info_weight: float = 1.0
     # Iterations compiled into one call; host work (logs, progress) happens between chunks.
     chunk_size: int = 10
+    # Seeds vmapped together on one device; None: one at a time on CPU, all on accelerators
+    # (emgail_jax.runner.default_seed_batch). Part of the config because it changes the
+    # floating-point results slightly, and a resumed run must continue them exactly.
+    seed_batch: int | None = None
 
     def __post_init__(self):
         if self.intention_input not in INTENTION_INPUTS:
@@ -80,6 +84,7 @@ class Config:
         values = dict(values)
         # Runs written before the option existed fed the intention as a one-hot input.
         values.setdefault("intention_input", "onehot")
+        values.setdefault("seed_batch", None)
         values["hidden"] = tuple(values["hidden"])
         values["trpo"] = TRPOConfig(**values["trpo"])
         return cls(**values)

@@ -63,6 +63,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--eval-episodes", type=int, default=None)
     parser.add_argument("--chunk-size", type=int, default=None, help="iterations per call")
     parser.add_argument(
+        "--seed-batch",
+        type=int,
+        default=None,
+        help="seeds vmapped together on a device (default: 1 on CPU, all on GPU/TPU)",
+    )
+    parser.add_argument(
         "--checkpoint-every",
         type=int,
         default=DEFAULT_CHECKPOINT_EVERY,
@@ -89,6 +95,7 @@ _RUN_OPTIONS = (
     "rollout_length",
     "eval_episodes",
     "chunk_size",
+    "seed_batch",
 )
 
 
@@ -113,6 +120,8 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         args.iterations is not None and args.iterations < 1
     ):
         raise RunError("--seeds and --iterations must be at least 1")
+    if args.seed_batch is not None and args.seed_batch < 1:
+        raise RunError("--seed-batch must be at least 1")
     env_options = {}
     if args.radius is not None:
         if env != "driver":
@@ -127,6 +136,7 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         "rollout_length": args.rollout_length,
         "eval_episodes": args.eval_episodes,
         "chunk_size": args.chunk_size,
+        "seed_batch": args.seed_batch,
     }
     config = Config().replace(**{k: v for k, v in overrides.items() if v is not None})
     return RunSpec(
@@ -220,7 +230,13 @@ def train(
 
     # Chunks only group iterations into compiled calls; they do not change the results.
     remaining = max(config.iterations - done, 0)
-    runner = Runner(init, update, spec.seeds, chunk_length(remaining or 1, config.chunk_size))
+    runner = Runner(
+        init,
+        update,
+        spec.seeds,
+        chunk_length(remaining or 1, config.chunk_size),
+        config.seed_batch,
+    )
     summary["devices"] = [str(d) for d in runner.sharding.mesh.devices.flat]
     key = jax.random.PRNGKey(spec.first_seed)
     if resume:

@@ -105,6 +105,7 @@ def _error(capsys):
         (["--intentions", "5"], "has 4 intentions"),
         (["--radius", "0.1"], "tighter than the car can turn"),
         (["--seeds", "0"], "--seeds and --iterations must be at least 1"),
+        (["--seed-batch", "0"], "--seed-batch must be at least 1"),
     ],
 )
 def test_bad_input_gives_one_line_and_exit_code_2(tmp_path, capsys, extra, message):

@@ -176,3 +176,36 @@ def test_concat_history_appends_along_iterations():
     history = concat_history(history, second)
     assert history["a"].shape == (2, 5) and history["b"].shape == (2, 5, 4)
     np.testing.assert_array_equal(history["a"][0], [0, 0, 0, 1, 1])
+
+
+def test_default_seed_batch_is_one_on_cpu():
+    assert jax.default_backend() == "cpu"
+    assert runner_lib.default_seed_batch() == 1
+    assert Runner(toy_init, toy_update, 4, CHUNK).seed_batch == 1
+
+
+@pytest.mark.parametrize("batch", [1, 2, 3, None])
+def test_map_in_batches_equals_vmap_and_keeps_zero_size_leaves(batch):
+    """Groups of seeds one after the other compute what one vmap over all seeds does, also
+    with zero-size leaves (MJX states hold some) and a batch that does not divide the seeds
+    (3 of 4 -> groups of 2)."""
+    f = lambda tree: {"y": 2.0 * tree["x"] + 1.0, "empty": tree["empty"] + 1.0}
+    tree = {"x": jnp.arange(12.0).reshape(4, 3), "empty": jnp.zeros((4, 0, 2))}
+    mapped = jax.jit(runner_lib.map_in_batches(f, batch))(tree)
+    expected = jax.vmap(f)(tree)
+    np.testing.assert_array_equal(mapped["y"], expected["y"])
+    assert mapped["empty"].shape == (4, 0, 2)
+
+
+@pytest.mark.parametrize("seed_batch", [2, None])
+def test_vmapped_seed_batches_give_the_sequential_results(four_seeds, seed_batch):
+    """Two seeds per device, vmapped together or (the CPU default) one after the other."""
+    runner = Runner(toy_init, toy_update, 4, CHUNK, seed_batch=seed_batch)
+    state = runner.init(jax.random.PRNGKey(0))
+    history = None
+    for _ in range(2):
+        state, metrics = runner.step(state)
+        history = concat_history(history, metrics)
+    _, _, sequential = four_seeds
+    for name in history:
+        np.testing.assert_allclose(history[name], sequential[name], rtol=1e-6, atol=1e-6)
