@@ -44,3 +44,21 @@ def posterior_update(
 def responsibilities(apply: Callable, params, obs: jax.Array, actions: jax.Array) -> jax.Array:
     """gamma(i | s, a) = P(i | s, a) on the expert pairs: ``[N, K]``, rows sum to one."""
     return jax.nn.softmax(apply(params, obs, actions), axis=-1)
+
+
+def trajectory_responsibilities(
+    apply: Callable, params, obs: jax.Array, actions: jax.Array, episode: jax.Array, episodes: int
+) -> jax.Array:
+    """gamma of every expert pair from its whole demonstration: ``[N, K]``.
+
+    A demonstration has one intention. Treating its pairs as independent given the intention,
+    with a uniform prior, the posterior of the intention of episode e is proportional to
+    ``prod_t P(i | s_t, a_t)`` over its pairs; every pair takes the posterior of its episode.
+
+    Args:
+      obs, actions: ``[N, D]``, ``[N, A]`` the expert pairs.
+      episode: ``[N]`` index of each pair's episode, in ``[0, episodes)``.
+    """
+    log_posterior = jax.nn.log_softmax(apply(params, obs, actions), axis=-1)
+    per_episode = jax.ops.segment_sum(log_posterior, episode, num_segments=episodes)
+    return jax.nn.softmax(per_episode, axis=-1)[episode]

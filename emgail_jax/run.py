@@ -31,7 +31,7 @@ DEFAULT_CHECKPOINT_EVERY = 50
 
 def parse_args(argv=None) -> argparse.Namespace:
     from emgail_jax.algorithms import NAMES
-    from emgail_jax.config import INTENTION_INPUTS
+    from emgail_jax.config import INTENTION_INPUTS, RESPONSIBILITIES
 
     parser = argparse.ArgumentParser(
         prog="python -m emgail_jax.run", description=__doc__.split("\n")[0]
@@ -57,6 +57,12 @@ def parse_args(argv=None) -> argparse.Namespace:
         default=None,
         choices=INTENTION_INPUTS,
         help="one network head per intention (default) or the intention as a one-hot input",
+    )
+    parser.add_argument(
+        "--responsibilities",
+        default=None,
+        choices=RESPONSIBILITIES,
+        help="E-step posterior of each expert pair (default, eq. 18) or of its whole trajectory",
     )
     parser.add_argument("--num-envs", type=int, default=None, help="envs per intention")
     parser.add_argument("--rollout-length", type=int, default=None, help="steps per rollout")
@@ -91,6 +97,7 @@ _RUN_OPTIONS = (
     "demo_seed",
     "info_weight",
     "intention_input",
+    "responsibilities",
     "num_envs",
     "rollout_length",
     "eval_episodes",
@@ -132,6 +139,7 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         "iterations": args.iterations,
         "info_weight": args.info_weight,
         "intention_input": args.intention_input,
+        "responsibilities": args.responsibilities,
         "num_envs": args.num_envs,
         "rollout_length": args.rollout_length,
         "eval_episodes": args.eval_episodes,

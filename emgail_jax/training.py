@@ -41,7 +41,11 @@ from emgail_jax.networks import (
     ValueNet,
     action_distribution,
 )
-from emgail_jax.posterior import posterior_update, responsibilities
+from emgail_jax.posterior import (
+    posterior_update,
+    responsibilities,
+    trajectory_responsibilities,
+)
 from emgail_jax.rollout import (
     batch_reset,
     episode_returns,
@@ -79,6 +83,7 @@ class ExpertData:
 
     observations: jax.Array  # [N, D] raw
     actions: jax.Array  # [N, A]
+    episode: jax.Array  # [N] index of each pair's demonstration (episode)
     labels: jax.Array  # [N] hidden intention labels, -1 when unknown
     expert_returns: jax.Array  # [K] NaN when unknown
     random_returns: jax.Array  # [K]
@@ -89,9 +94,11 @@ class ExpertData:
         labels = demos.intentions if demos.intentions is not None else np.full(n, -1)
         returns = demos.expert_returns
         returns = np.full(k, np.nan) if returns is None else returns
+        episode = np.maximum(np.cumsum(demos.episode_starts) - 1, 0).astype(np.int32)
         return cls(
             observations=np.asarray(demos.observations, np.float32),
             actions=np.asarray(demos.actions, np.float32),
+            episode=episode,
             labels=np.asarray(labels, np.int32),
             expert_returns=np.asarray(returns, np.float32),
             random_returns=np.asarray(random_returns, np.float32),
@@ -221,9 +228,19 @@ def make_train(config: Config, env: envs.Env, expert: ExpertData):
                 sample_intention,
                 config.posterior_steps,
             )
-            gamma = responsibilities(
-                networks.posterior.apply, posterior, expert_obs, expert.actions
-            )
+            if config.responsibilities == "trajectory":
+                gamma = trajectory_responsibilities(
+                    networks.posterior.apply,
+                    posterior,
+                    expert_obs,
+                    expert.actions,
+                    expert.episode,
+                    int(expert.episode.max()) + 1,
+                )
+            else:
+                gamma = responsibilities(
+                    networks.posterior.apply, posterior, expert_obs, expert.actions
+                )
             log_posterior = jax.nn.log_softmax(networks.posterior.apply(posterior, obs, actions))
             own_log_posterior = jnp.take_along_axis(log_posterior, intention_rows[..., None], -1)[
                 ..., 0

@@ -9,7 +9,12 @@ import optax
 import pytest
 
 from emgail_jax.networks import Posterior
-from emgail_jax.posterior import posterior_loss, posterior_update, responsibilities
+from emgail_jax.posterior import (
+    posterior_loss,
+    posterior_update,
+    responsibilities,
+    trajectory_responsibilities,
+)
 
 LN3 = math.log(3.0)
 
@@ -86,3 +91,33 @@ def test_update_reduces_loss_on_separable_problem(separable_problem):
     assert gamma.shape == (60, 3)
     np.testing.assert_allclose(gamma.sum(-1), 1.0, rtol=1e-5)
     np.testing.assert_array_equal(jnp.argmax(gamma, -1), labels)
+
+
+def test_trajectory_responsibilities_hand_computed():
+    """Episode 0 = pairs 0, 1, 2 with P = (3/4, 1/4), (1/4, 3/4) and (1/2, 1/2): the product is
+    symmetric, so gamma = (1/2, 1/2). Episode 1 = pairs 3, 4, both (3/4, 1/4): the product
+    (9/16, 1/16) normalises to (9/10, 1/10), which both pairs take."""
+    logits = jnp.array([[LN3, 0.0], [0.0, LN3], [0.0, 0.0], [LN3, 0.0], [LN3, 0.0]])
+    episode = jnp.array([0, 0, 0, 1, 1])
+    gamma = trajectory_responsibilities(
+        toy_apply, logits, jnp.zeros((5, 1)), jnp.zeros((5, 1)), episode, 2
+    )
+    expected = [[0.5, 0.5]] * 3 + [[0.9, 0.1]] * 2
+    np.testing.assert_allclose(gamma, expected, rtol=1e-6)
+
+
+def test_trajectory_responsibilities_let_the_majority_of_an_episode_decide():
+    """A demonstration whose pairs mostly point to intention 1 gives every one of its pairs,
+    also those the per-pair posterior got wrong, to intention 1; and it stays finite where the
+    per-pair probabilities underflow."""
+    rng = np.random.default_rng(0)
+    pair_logits = np.where(rng.random((100, 1)) < 0.8, [-2.0, 2.0], [2.0, -2.0])
+    logits = jnp.asarray(np.concatenate([pair_logits, [[-200.0, 200.0]]]), jnp.float32)
+    episode = jnp.zeros(101, jnp.int32)
+    per_pair = responsibilities(toy_apply, logits, jnp.zeros((101, 1)), jnp.zeros((101, 1)))
+    assert np.mean(np.argmax(per_pair, -1) == 1) < 0.9
+    gamma = trajectory_responsibilities(
+        toy_apply, logits, jnp.zeros((101, 1)), jnp.zeros((101, 1)), episode, 1
+    )
+    assert np.all(np.isfinite(gamma))
+    np.testing.assert_allclose(gamma, np.tile([0.0, 1.0], (101, 1)), atol=1e-6)

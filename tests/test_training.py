@@ -95,6 +95,11 @@ def emgail_onehot(env, expert):
     return _train(CONFIG.replace(intention_input="onehot"), env, expert, 1)
 
 
+@pytest.fixture(scope="module")
+def emgail_trajectory(env, expert):
+    return _train(CONFIG.replace(responsibilities="trajectory"), env, expert, 1)
+
+
 # ---- ExpertData --------------------------------------------------------------------------
 
 
@@ -104,6 +109,9 @@ def test_expert_data_from_labelled_demos(demos, expert):
     assert expert.actions.shape == (n, 1) and expert.actions.dtype == np.float32
     assert expert.labels.dtype == np.int32
     np.testing.assert_array_equal(expert.labels, demos.intentions)
+    # Episode index of every pair: 0, 0, ..., 1, 1, ... from the episode starts.
+    np.testing.assert_array_equal(expert.episode, np.cumsum(demos.episode_starts) - 1)
+    assert expert.episode.min() == 0 and demos.episode_starts[0]
     np.testing.assert_allclose(expert.expert_returns, demos.expert_returns)
     np.testing.assert_allclose(expert.random_returns, RANDOM_RETURNS)
     # Host arrays, compiled into the update as constants (see ExpertData).
@@ -286,3 +294,13 @@ def test_unlabelled_demos_give_nan_erd_and_accuracy(env, demos):
     for name in ("eval/returns", "posterior/loss", "discriminator/loss", "policy/kl"):
         assert np.all(np.isfinite(metrics[name])), name
     assert sorted(metrics["eval/matching"]) == list(range(K))
+
+
+def test_trajectory_responsibilities_label_whole_demonstrations(emgail_trajectory, expert):
+    """With trajectory responsibilities every demonstration's pairs fall into one cluster, so
+    the clustering accuracy is a multiple of one demonstration's share of the pairs."""
+    _, steps, _ = emgail_trajectory
+    _, metrics = steps[0]
+    episodes = int(expert.episode.max()) + 1
+    accuracy = float(metrics["eval/cluster_accuracy"])
+    assert accuracy * episodes == pytest.approx(round(accuracy * episodes), abs=1e-4)
