@@ -349,11 +349,15 @@ def print_summary(summary: dict) -> None:
     from rich.console import Console
     from rich.table import Table
 
+    from emgail_jax.runner import FINAL_WINDOW
+
     final = summary["final"]
     seeds = summary["seeds"]
+    done = summary["iterations_done"]
+    window = f"the last {FINAL_WINDOW} of {done}" if done > FINAL_WINDOW else f"all {done}"
     table = Table(
         title=f"{summary['algo']} on {summary['env']} (K={summary['intentions']}), "
-        f"mean of the last 10 of {summary['iterations_done']} iterations ({summary['status']})"
+        f"mean of {window} iterations ({summary['status']})"
     )
     table.add_column("seed", justify="right")
     table.add_column("norm. ERD", justify="right")

@@ -137,7 +137,12 @@ class Runner:
         return state, metrics
 
 
-def final_metrics(history: dict[str, np.ndarray], last: int = 10) -> dict[str, np.ndarray]:
+FINAL_WINDOW = 10
+
+
+def final_metrics(
+    history: dict[str, np.ndarray], last: int = FINAL_WINDOW
+) -> dict[str, np.ndarray]:
     """Per-seed means over the last ``last`` iterations (single-iteration ERD is noisy)."""
     return {name: np.mean(values[:, -last:], axis=1) for name, values in history.items()}
 
