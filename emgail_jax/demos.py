@@ -61,6 +61,13 @@ class Demonstrations:
 REQUIRED = ("observations", "actions", "episode_starts")
 
 
+def _starts_like_numpy(path: str) -> bool:
+    """Whether the file starts as a zip archive (.npz) or a .npy array does."""
+    with open(path, "rb") as file:
+        head = file.read(6)
+    return head.startswith((b"PK\x03\x04", b"PK\x05\x06")) or head == b"\x93NUMPY"
+
+
 def load(path: str, env: envs.Env | None = None) -> Demonstrations:
     """Reads and validates a demonstrations file; ``env`` checks it fits that env.
 
@@ -71,6 +78,11 @@ def load(path: str, env: envs.Env | None = None) -> Demonstrations:
         raise DemonstrationError(f"demonstrations file '{path}' does not exist")
     if os.path.getsize(path) == 0:
         raise DemonstrationError(f"demonstrations file '{path}' is empty")
+    if not _starts_like_numpy(path):
+        # np.load takes anything else for a pickle and says so, which misleads.
+        raise DemonstrationError(
+            f"'{path}' is not an .npz file (not a zip archive); write it with numpy.savez"
+        )
     try:
         data = np.load(path, allow_pickle=False)
     except (zipfile.BadZipFile, ValueError, OSError, EOFError) as error:

@@ -266,7 +266,7 @@ def test_load_rejects_missing_and_empty_files(tmp_path):
 def test_load_rejects_a_file_that_is_not_an_npz(tmp_path):
     text = tmp_path / "notes.npz"
     text.write_text("observations,actions\n1,2\n")
-    with pytest.raises(DemonstrationError, match=r"not a readable \.npz file"):
+    with pytest.raises(DemonstrationError, match=r"not an \.npz file \(not a zip archive\)"):
         demos_lib.load(str(text))
     truncated = tmp_path / "truncated.npz"
     truncated.write_bytes(b"PK\x03\x04" + b"\x00" * 20)
