@@ -159,6 +159,7 @@ def make_train(config: Config, env: envs.Env, expert: ExpertData):
     discriminator_opt = optax.adam(config.discriminator_learning_rate)
     posterior_opt = optax.adam(config.posterior_learning_rate)
     has_labels = bool(expert.labels.min() >= 0)
+    expert_episodes = int(expert.episode.max()) + 1
 
     # Intention of every sample of a rollout in the intention-major layout [K, T * B], and
     # flattened to [N] (host constants, see ExpertData).
@@ -235,7 +236,7 @@ def make_train(config: Config, env: envs.Env, expert: ExpertData):
                     expert_obs,
                     expert.actions,
                     expert.episode,
-                    int(expert.episode.max()) + 1,
+                    expert_episodes,
                 )
             else:
                 gamma = responsibilities(

@@ -44,14 +44,19 @@ def reference(seed_key, iterations):
     return {k: np.stack([m[k] for m in out]) for k in out[0]}
 
 
-def run(seeds, chunks, key=0):
-    runner = Runner(toy_init, toy_update, seeds, CHUNK)
+def run_chunks(runner, chunks, key=0):
+    """``chunks`` steps of ``runner`` from fresh seeds: (final state, host history)."""
     state = runner.init(jax.random.PRNGKey(key))
     history = None
     for _ in range(chunks):
         state, metrics = runner.step(state)
         history = concat_history(history, metrics)
-    return runner, state, history
+    return state, history
+
+
+def run(seeds, chunks, key=0):
+    runner = Runner(toy_init, toy_update, seeds, CHUNK)
+    return runner, *run_chunks(runner, chunks, key)
 
 
 @pytest.fixture(scope="module")
@@ -127,11 +132,7 @@ def test_results_do_not_depend_on_the_number_of_devices(four_seeds, monkeypatch)
         patch.setattr(runner_lib.jax, "devices", lambda *args: one_device)
         runner = Runner(toy_init, toy_update, 4, CHUNK)
     assert runner.sharding.mesh.devices.size == 1
-    state = runner.init(jax.random.PRNGKey(0))
-    history = None
-    for _ in range(2):
-        state, metrics = runner.step(state)
-        history = concat_history(history, metrics)
+    _, history = run_chunks(runner, 2)
     _, _, two_devices = four_seeds
     for name in history:
         np.testing.assert_allclose(history[name], two_devices[name], rtol=1e-6, atol=1e-6)
@@ -201,11 +202,7 @@ def test_map_in_batches_equals_vmap_and_keeps_zero_size_leaves(batch):
 def test_vmapped_seed_batches_give_the_sequential_results(four_seeds, seed_batch):
     """Two seeds per device, vmapped together or (the CPU default) one after the other."""
     runner = Runner(toy_init, toy_update, 4, CHUNK, seed_batch=seed_batch)
-    state = runner.init(jax.random.PRNGKey(0))
-    history = None
-    for _ in range(2):
-        state, metrics = runner.step(state)
-        history = concat_history(history, metrics)
+    _, history = run_chunks(runner, 2)
     _, _, sequential = four_seeds
     for name in history:
         np.testing.assert_allclose(history[name], sequential[name], rtol=1e-6, atol=1e-6)
