@@ -181,12 +181,21 @@ def first_intentions(demos: Demonstrations, k: int) -> Demonstrations:
     )
 
 
+def executed_actions(demos: Demonstrations, env: envs.Env) -> Demonstrations:
+    """The demonstrations with their actions clipped to ``env``'s action range: the actions the
+    env executed, which is what the discriminator and the posterior compare with the policy's
+    (clipped) samples. A file may hold raw actions outside the range; they are clipped here."""
+    actions = np.clip(demos.actions, env.action_low, env.action_high).astype(np.float32)
+    return dataclasses.replace(demos, actions=actions)
+
+
 Expert = Callable[[envs.State, jax.Array, jax.Array], jax.Array]
 
 
 def generate(env: envs.Env, expert: Expert, episodes: int, key: jax.Array) -> Demonstrations:
     """Rolls ``expert(state, intention, key) -> action`` for ``episodes`` episodes of every
-    intention of ``env`` and returns the labelled pairs with each expert's mean true return.
+    intention of ``env`` and returns the labelled pairs (with the actions the env executed,
+    i.e. clipped to its range) and each expert's mean true return.
 
     Pairs after an episode terminated early are dropped. Deterministic for a given ``key``.
     """
@@ -203,7 +212,9 @@ def generate(env: envs.Env, expert: Expert, episodes: int, key: jax.Array) -> De
 
         def body(carry, step_key):
             state, alive = carry
-            action = act(state, intention, jax.random.split(step_key, (k, episodes)))
+            action = limited.clip_action(
+                act(state, intention, jax.random.split(step_key, (k, episodes)))
+            )
             next_state = step(state, action)
             out = (state.obs, action, next_state.reward, alive)
             return (next_state, alive * (1.0 - next_state.done)), out

@@ -2,8 +2,10 @@
 
     python -m emgail_jax.evaluate RUN_DIR [--episodes 10] [--seed 0]
 
-Prints, per seed, the normalised ERD with the matching of true to learned intentions and the
-clustering accuracy of the posterior (Hungarian matching), and writes to ``RUN_DIR/figures``:
+Prints, per seed, the normalised ERD (and each true intention's share of it) with the matching
+of true to learned intentions, and the clustering accuracy of the posterior as training measures
+it (eq. 29; in trajectory mode also the trajectory labels' accuracy), with the Hungarian mapping.
+Writes the same numbers to ``RUN_DIR/evaluation.json`` and figures to ``RUN_DIR/figures``:
 
 - ``learning_curves.png``: ERD and clustering accuracy over iterations (from ``metrics.csv``);
 - driver: ``paths_seed{S}.png``, the XY paths of every learned intention over the experts' paths
@@ -69,22 +71,29 @@ def expert_rollouts(run, episodes: int, key):
 
 
 def score(run, seed: int, returns: np.ndarray) -> dict:
-    """ERD with the best matching, and clustering accuracy with the Hungarian mapping."""
+    """ERD with the best matching, and the clustering accuracies as training measures them
+    (with the Hungarian mapping of true intentions to clusters)."""
     from scipy.optimize import linear_sum_assignment
 
-    from emgail_jax.metrics import hungarian_accuracy, normalized_erd
+    from emgail_jax.metrics import normalized_erd
 
     demos = run.problem.demos
     mean_returns = returns.mean(1)  # [K learned, K true]
-    result = {"returns": mean_returns, "erd": None, "matching": None, "accuracy": None}
+    result = {
+        "returns": mean_returns,
+        "episodes": int(returns.shape[1]),
+        "erd": None,
+        "erd_per_intention": None,
+        "matching": None,
+    }
     if demos.expert_returns is not None:
-        erd, matching = normalized_erd(
-            mean_returns, demos.expert_returns, run.problem.random_returns
-        )
-        result["erd"], result["matching"] = float(erd), np.asarray(matching)
-    if run.algorithm.learns_posterior and demos.intentions is not None:
-        predicted = run.responsibilities(seed).argmax(-1)
-        result["accuracy"] = hungarian_accuracy(predicted, demos.intentions, run.num_intentions)
+        erd = normalized_erd(mean_returns, demos.expert_returns, run.problem.random_returns)
+        result["erd"] = float(erd.mean)
+        result["erd_per_intention"] = np.asarray(erd.per_intention)
+        result["matching"] = np.asarray(erd.matching)
+    result.update(run.clustering(seed))
+    if "cluster_accuracy" in result:
+        predicted = run.responsibilities(seed).pair_labels
         counts = np.zeros((run.num_intentions,) * 2)
         np.add.at(counts, (demos.intentions, predicted), 1)
         result["cluster_of_intention"] = linear_sum_assignment(-counts)[1]
@@ -196,6 +205,7 @@ def main(argv=None) -> int:
     matplotlib.use("Agg")
 
     import envs
+    from emgail_jax import records
     from emgail_jax.checkpoints import CheckpointError
     from emgail_jax.demos import DemonstrationError
     from emgail_jax.runs import RunError
@@ -226,16 +236,28 @@ def main(argv=None) -> int:
                 for i, j in enumerate(result["matching"])
             )
             parts.append(f"ERD {result['erd']:.3f} [{matched}]")
-        if result["accuracy"] is not None:
+        if "cluster_accuracy" in result:
             clusters = ", ".join(
                 f"{names[i]} -> cluster {c}" for i, c in enumerate(result["cluster_of_intention"])
             )
-            parts.append(f"accuracy {result['accuracy']:.3f} [{clusters}]")
+            parts.append(f"accuracy {result['cluster_accuracy']:.3f} [{clusters}]")
+        if "trajectory_cluster_accuracy" in result:
+            parts.append(f"trajectory accuracy {result['trajectory_cluster_accuracy']:.3f}")
         print(" ".join(parts))
+
+    evaluation_path = os.path.join(args.run_dir, "evaluation.json")
+    records.write_json(
+        evaluation_path,
+        {
+            "iteration": run.iteration,
+            "episodes_per_intention": args.episodes,
+            "seeds": {str(run.spec.first_seed + s): r[-1] for s, r in enumerate(results)},
+        },
+    )
 
     out = args.out or os.path.join(args.run_dir, "figures")
     os.makedirs(out, exist_ok=True)
-    written = [os.path.join(out, "learning_curves.png")]
+    written = [evaluation_path, os.path.join(out, "learning_curves.png")]
     plot_learning_curves(args.run_dir, written[-1])
     returns, alive, trace, result = results[args.seed]
     if env.name == "driver":

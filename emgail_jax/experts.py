@@ -98,17 +98,18 @@ def train(env, spec: ExpertSpec, seeds: int, key, progress: bool = True, intenti
     intentions = jnp.arange(env.num_intentions) if intentions is None else jnp.asarray(intentions)
     k = len(intentions)
     init = lambda seed_key: jax.vmap(trainer.init)(jax.random.split(seed_key, k))
-    update = lambda states: jax.vmap(trainer.update)(states, intentions)
+    update = lambda states, _: jax.vmap(trainer.update)(states, intentions)
     chunk = chunk_length(spec.iterations, 10)
-    runner = Runner(init, update, seeds, chunk)
+    inputs = np.zeros(chunk, bool)  # the update takes no per-iteration input
+    runner = Runner(init, update, seeds)
     states = runner.init(key)
-    runner.compile(states)
+    runner.compile(states, inputs)
     own = []
     with ProgressBar(
         f"experts {env.name}", spec.iterations, {"returns": "-"}, enabled=progress
     ) as bar:
         for _ in range(spec.iterations // chunk):
-            states, metrics = runner.step(states)
+            states, metrics = runner.step(states, inputs)
             own.append(metrics["eval/own_return"])  # [S, chunk, K]
             latest = own[-1][:, -1].max(0)
             bar.update(chunk, returns=" ".join(f"{r:.1f}" for r in latest))

@@ -8,6 +8,7 @@ at most 24); on the host, :func:`hungarian_accuracy` solves the same assignment 
 from __future__ import annotations
 
 import itertools
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -22,28 +23,36 @@ def permutations(k: int) -> np.ndarray:
     return np.asarray(list(itertools.permutations(range(k))), np.int32)
 
 
-def normalized_erd(
-    returns: jax.Array, expert_returns: jax.Array, random_returns: jax.Array
-) -> tuple[jax.Array, jax.Array]:
-    """Normalised expected reward difference (eq. 27/28): 0 is the expert, 1 random actions.
+class ERD(NamedTuple):
+    """The normalised ERD of a set of learned intentions (see :func:`normalized_erd`)."""
+
+    mean: jax.Array  # [] the mean over true intentions: the paper's ERD
+    per_intention: jax.Array  # [K] e_i of every true intention under the matching
+    matching: jax.Array  # [K] learned intention assigned to each true intention
+
+
+def normalized_erd(returns: jax.Array, expert_returns: jax.Array, random_returns: jax.Array) -> ERD:
+    """Normalised expected reward difference (eq. 28): 0 is the expert, 1 random actions.
+
+    Every true intention is normalised on its own,
+    ``e_i = |J_i(expert_i) - J_i(learned sigma(i))| / |J_i(expert_i) - J_i(random)|``, and the
+    ERD is the mean of the ``e_i`` (eq. 28's expectation over intentions), so an intention whose
+    returns are small counts as much as one whose returns are large. ``sigma`` is the one-to-one
+    matching of true to learned intentions that minimises that mean.
 
     Args:
       returns: ``[K_learned, K]`` mean true return of learned intention j under true intention i
         (column i). GAIL's single policy fills every row the same.
       expert_returns: ``[K]`` J_i of the expert of intention i.
       random_returns: ``[K]`` J_i of uniformly random actions.
-
-    Returns:
-      ``(erd, matching [K])``: ``matching[i]`` is the learned intention assigned to true i, the
-      one minimising sum_i |J_i(expert_i) - J_i(learned_matching[i])|.
     """
     k = expert_returns.shape[0]
     perms = jnp.asarray(permutations(k))
     matched = returns[perms, jnp.arange(k)]  # [K!, K] J_i of learned perm[i]
-    gaps = jnp.abs(expert_returns - matched).sum(-1)
-    best = jnp.argmin(gaps)
-    scale = jnp.abs(expert_returns - random_returns).sum()
-    return gaps[best] / scale, perms[best]
+    scale = jnp.abs(expert_returns - random_returns)  # [K]
+    per_intention = jnp.abs(expert_returns - matched) / scale  # [K!, K]
+    best = jnp.argmin(per_intention.mean(-1))
+    return ERD(per_intention[best].mean(), per_intention[best], perms[best])
 
 
 def confusion_matrix(predicted: jax.Array, labels: jax.Array, k: int) -> jax.Array:

@@ -12,6 +12,7 @@ from collections.abc import Callable
 import jax
 import jax.numpy as jnp
 import optax
+from flax import struct
 
 from emgail_jax.optim import minimize
 
@@ -41,14 +42,12 @@ def posterior_update(
     return minimize(loss, optimizer, params, opt_state, steps)
 
 
-def responsibilities(apply: Callable, params, obs: jax.Array, actions: jax.Array) -> jax.Array:
-    """gamma(i | s, a) = P(i | s, a) on the expert pairs: ``[N, K]``, rows sum to one."""
-    return jax.nn.softmax(apply(params, obs, actions), axis=-1)
+def log_posterior(apply: Callable, params, obs: jax.Array, actions: jax.Array) -> jax.Array:
+    """``[..., K]`` log P(i | s, a) of (normalised) ``obs [..., D]`` and ``actions [..., A]``."""
+    return jax.nn.log_softmax(apply(params, obs, actions), axis=-1)
 
 
-def trajectory_responsibilities(
-    apply: Callable, params, obs: jax.Array, actions: jax.Array, episode: jax.Array, episodes: int
-) -> jax.Array:
+def trajectory_responsibilities(log_p: jax.Array, episode: jax.Array, episodes: int) -> jax.Array:
     """gamma of every expert pair from its whole demonstration: ``[N, K]``.
 
     A demonstration has one intention. Treating its pairs as independent given the intention,
@@ -56,9 +55,49 @@ def trajectory_responsibilities(
     ``prod_t P(i | s_t, a_t)`` over its pairs; every pair takes the posterior of its episode.
 
     Args:
-      obs, actions: ``[N, D]``, ``[N, A]`` the expert pairs.
+      log_p: ``[N, K]`` log P(i | s, a) of the expert pairs.
       episode: ``[N]`` index of each pair's episode, in ``[0, episodes)``.
     """
-    log_posterior = jax.nn.log_softmax(apply(params, obs, actions), axis=-1)
-    per_episode = jax.ops.segment_sum(log_posterior, episode, num_segments=episodes)
+    per_episode = jax.ops.segment_sum(log_p, episode, num_segments=episodes)
     return jax.nn.softmax(per_episode, axis=-1)[episode]
+
+
+@struct.dataclass
+class Responsibilities:
+    """What the E-step concludes about the expert pairs, in one place for training, evaluation
+    and the saved-run API.
+
+    Attributes:
+      gamma: ``[N, K]`` the weights of the M-step: ``P(i | s, a)`` of each pair (eq. 18), or,
+        with ``mode="trajectory"``, the posterior of the pair's whole demonstration.
+      pair_labels: ``[N]`` ``argmax_i P(i | s, a)`` of each pair: the clustering the paper's
+        accuracy (eq. 29) scores, in either mode.
+      trajectory_labels: ``[N]`` ``argmax_i gamma``: the labels the M-step acts on; equal to
+        ``pair_labels`` in pair mode.
+    """
+
+    gamma: jax.Array
+    pair_labels: jax.Array
+    trajectory_labels: jax.Array
+
+
+def expert_responsibilities(
+    apply: Callable,
+    params,
+    obs: jax.Array,
+    actions: jax.Array,
+    episode: jax.Array,
+    episodes: int,
+    mode: str,
+) -> Responsibilities:
+    """The E-step's responsibilities of the expert pairs ``obs [N, D]`` (normalised),
+    ``actions [N, A]`` (executed) under the posterior ``params``; ``mode`` is ``"pair"``
+    (eq. 18) or ``"trajectory"`` (see :func:`trajectory_responsibilities`)."""
+    log_p = log_posterior(apply, params, obs, actions)
+    pair_labels = jnp.argmax(log_p, -1)
+    if mode == "trajectory":
+        gamma = trajectory_responsibilities(log_p, episode, episodes)
+        return Responsibilities(gamma, pair_labels, jnp.argmax(gamma, -1))
+    if mode != "pair":
+        raise ValueError(f"unknown responsibilities mode '{mode}': choose pair or trajectory")
+    return Responsibilities(jnp.exp(log_p), pair_labels, pair_labels)

@@ -86,6 +86,7 @@ def make_problem(
         env = envs.make(env_name, intentions=intentions, **env_options)
         demos, source = default_demos(env, demo_seed)
         demos = _first_intentions(demos, env)
+    demos = demos_lib.executed_actions(demos, env)
     return Problem(env, demos, source, demo_seed + 1, random_episodes)
 
 

@@ -63,7 +63,7 @@ def reoptimize(run, seed: int, iterations: int, chunk: int = 10, progress: bool 
         all_returns.extend(returns)
         if expert_returns is not None:
             for r in returns:
-                erds.append(float(normalized_erd(r, expert_returns, random_returns)[0]))
+                erds.append(float(normalized_erd(r, expert_returns, random_returns).mean))
         bar.update(chunk, ERD=f"{erds[-1]:.3f}" if erds else "-")
     bar.close()
     train_s = time.perf_counter() - start
@@ -80,7 +80,9 @@ def reoptimize(run, seed: int, iterations: int, chunk: int = 10, progress: bool 
         "train_time_s": train_s,
     }
     if expert_returns is not None:
-        result["matching"] = np.asarray(normalized_erd(last, expert_returns, random_returns)[1])
+        erd = normalized_erd(last, expert_returns, random_returns)
+        result["matching"] = np.asarray(erd.matching)
+        result["erd_per_intention"] = np.asarray(erd.per_intention)
     return result
 
 

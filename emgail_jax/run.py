@@ -67,6 +67,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--num-envs", type=int, default=None, help="envs per intention")
     parser.add_argument("--rollout-length", type=int, default=None, help="steps per rollout")
     parser.add_argument("--eval-episodes", type=int, default=None)
+    parser.add_argument(
+        "--eval-every",
+        type=int,
+        default=None,
+        help="evaluation episodes every N iterations and in the last 10 (default 10)",
+    )
     parser.add_argument("--chunk-size", type=int, default=None, help="iterations per call")
     parser.add_argument(
         "--seed-batch",
@@ -101,6 +107,7 @@ _RUN_OPTIONS = (
     "num_envs",
     "rollout_length",
     "eval_episodes",
+    "eval_every",
     "chunk_size",
     "seed_batch",
 )
@@ -127,8 +134,10 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         args.iterations is not None and args.iterations < 1
     ):
         raise RunError("--seeds and --iterations must be at least 1")
-    if args.seed_batch is not None and args.seed_batch < 1:
-        raise RunError("--seed-batch must be at least 1")
+    for name in ("seed_batch", "eval_every", "eval_episodes", "chunk_size"):
+        value = getattr(args, name)
+        if value is not None and value < 1:
+            raise RunError(f"--{name.replace('_', '-')} must be at least 1")
     env_options = {}
     if args.radius is not None:
         if env != "driver":
@@ -143,6 +152,7 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         "num_envs": args.num_envs,
         "rollout_length": args.rollout_length,
         "eval_episodes": args.eval_episodes,
+        "eval_every": args.eval_every,
         "chunk_size": args.chunk_size,
         "seed_batch": args.seed_batch,
     }
@@ -170,6 +180,8 @@ def default_output(env: str, algo: str, root: str = "runs") -> str:
 
 def prepare_output(out: str, overwrite: bool) -> None:
     """Creates ``out``; refuses to mix with an earlier run unless ``overwrite``."""
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise RunError(f"--out '{out}' is a file, not a directory: choose another --out")
     existing = [name for name in OUTPUTS if os.path.exists(os.path.join(out, name))]
     if existing and not overwrite:
         raise RunError(
@@ -177,6 +189,8 @@ def prepare_output(out: str, overwrite: bool) -> None:
             "pass --resume to continue it, --overwrite to replace it, or choose another --out"
         )
     os.makedirs(out, exist_ok=True)
+    if not os.access(out, os.W_OK):
+        raise RunError(f"cannot write to '{out}': choose a writable --out")
     for name in existing:
         path = os.path.join(out, name)
         shutil.rmtree(path) if os.path.isdir(path) else os.remove(path)
@@ -222,7 +236,12 @@ def train(
 
     from emgail_jax import checkpoints, records
     from emgail_jax.progress import ProgressBar
-    from emgail_jax.runner import Runner, chunk_length, concat_history, final_metrics
+    from emgail_jax.runner import (
+        Runner,
+        chunks,
+        concat_history,
+        evaluation_plan,
+    )
     from emgail_jax.training import ExpertData, make_train
 
     env = problem.env
@@ -236,16 +255,9 @@ def train(
     if resume:
         timings = read_summary(out).get("timings", timings)
 
-    # Chunks only group iterations into compiled calls; they do not change the results.
-    remaining = max(config.iterations - done, 0)
-    runner = Runner(
-        init,
-        update,
-        spec.seeds,
-        chunk_length(remaining or 1, config.chunk_size),
-        config.seed_batch,
-    )
+    runner = Runner(init, update, spec.seeds, config.seed_batch)
     summary["devices"] = [str(d) for d in runner.sharding.mesh.devices.flat]
+    summary["parameters"] = parameter_counts(init)
     key = jax.random.PRNGKey(spec.first_seed)
     if resume:
         state, history, done = checkpoints.restore(out, runner.abstract_state(key))
@@ -253,26 +265,28 @@ def train(
         state, history = runner.init(key), None
     records.write_json(summary_path, {**summary, "status": "running", "timings": timings})
 
+    # Chunks only group iterations into compiled calls; they do not change the results.
+    plan = chunks(done, config.iterations, config.chunk_size)
     stop = _StopRequest()
     iteration = last_saved = done
-    if remaining:
-        runner.compile(state)
+    if plan:
         log = records.MetricsLog(out, keep_until=done if resume else None)
         bar = ProgressBar(
             "training", config.iterations, {"ERD": "-", "acc": "-"}, done, enabled=progress
         )
         try:
             with stop:
-                while iteration < config.iterations and stop.signal is None:
-                    state, metrics = runner.step(state)
-                    log.write(iteration, metrics)
-                    history = concat_history(history, metrics)
-                    iteration += runner.chunk
-                    bar.update(
-                        runner.chunk,
-                        ERD=_mean_text(metrics["eval/erd"][:, -1]),
-                        acc=_mean_text(metrics["eval/cluster_accuracy"][:, -1]),
+                for first, length in plan:
+                    if stop.signal is not None:
+                        break
+                    evaluating = evaluation_plan(
+                        first, length, config.iterations, config.eval_every
                     )
+                    state, metrics = runner.step(state, evaluating)
+                    log.write(first, metrics)
+                    history = concat_history(history, metrics)
+                    iteration = first + length
+                    bar.update(length, **_progress_fields(history))
                     finished = iteration >= config.iterations or stop.signal is not None
                     if finished or iteration - last_saved >= checkpoint_every:
                         checkpoints.save(out, iteration, state, history)
@@ -293,7 +307,7 @@ def train(
         summary["stopped_by"] = signal.Signals(stop.signal).name
     else:
         summary["status"] = "completed"
-    summary["final"] = _final_summary(problem, config, final_metrics(history), timings, spec)
+    summary["final"] = _final_summary(problem, config, history, timings, spec)
     records.write_json(summary_path, summary)
     return records.to_json_value(summary)
 
@@ -320,29 +334,58 @@ def _summary_header(spec: RunSpec, problem, config) -> dict:
     }
 
 
-def _final_summary(problem, config, final, timings, spec) -> dict:
+def _final_summary(problem, config, history, timings, spec) -> dict:
+    from emgail_jax.runner import final_metrics
+
     env = problem.env
     k, b, t = env.num_intentions, config.num_envs, config.rollout_length
-    steps_per_iteration = k * (b * t + config.eval_episodes * env.episode_length)
+    final = final_metrics(history)
+    iterations = history["eval/returns"].shape[1]
+    evaluated = int(np.sum(~np.isnan(history["eval/returns"][0, :, 0])))
+    env_steps = k * (b * t * iterations + config.eval_episodes * env.episode_length * evaluated)
     no_accuracy = config.algo == "gail" or problem.demos.intentions is None
     no_erd = problem.demos.expert_returns is None
-    iterations = max(timings["iterations"], 1)
-    return {
+    summary = {
         "erd": None if no_erd else final["eval/erd"],
+        "erd_per_intention": None if no_erd else final["eval/erd_per_intention"],
         "cluster_accuracy": None if no_accuracy else final["eval/cluster_accuracy"],
         "returns": final["eval/returns"],
         "expert_returns": problem.demos.expert_returns,
         "random_returns": problem.random_returns,
         "compile_time_s": timings["compile_time_s"],
         "train_time_s": timings["train_time_s"],
-        "iteration_time_s": timings["train_time_s"] / iterations,
-        "env_steps": steps_per_iteration * timings["iterations"] * spec.seeds,
+        "iteration_time_s": timings["train_time_s"] / max(timings["iterations"], 1),
+        "env_steps": env_steps * spec.seeds,
     }
+    if config.responsibilities == "trajectory":
+        name = "trajectory_cluster_accuracy"
+        summary[name] = None if no_accuracy else final[f"eval/{name}"]
+    return summary
 
 
-def _mean_text(values: np.ndarray) -> str:
-    """The mean over seeds of the latest value, or "-" when it is undefined (no labels)."""
-    return "-" if np.all(np.isnan(values)) else f"{np.nanmean(values):.3f}"
+def _progress_fields(history: dict[str, np.ndarray]) -> dict[str, str]:
+    """The progress bar's latest ERD and accuracy: means over seeds of the last measured
+    values, or "-" when undefined (no labels, nothing evaluated yet)."""
+    fields = {}
+    for label, name in (("ERD", "eval/erd"), ("acc", "eval/cluster_accuracy")):
+        values = history[name]
+        measured = np.flatnonzero(~np.all(np.isnan(values), 0))
+        fields[label] = "-" if not len(measured) else f"{np.nanmean(values[:, measured[-1]]):.3f}"
+    return fields
+
+
+def parameter_counts(init) -> dict[str, int]:
+    """Learnable parameters of each network of one seed, and their total (the paper's Table 2
+    "#LP" counts policy, value, discriminator and posterior)."""
+    import jax
+
+    state = jax.eval_shape(init, jax.random.PRNGKey(0))
+    networks = ("policy", "value", "discriminator", "posterior")
+    counts = {
+        name: sum(int(np.prod(leaf.shape)) for leaf in jax.tree.leaves(getattr(state, name)))
+        for name in networks
+    }
+    return {**counts, "total": sum(counts.values())}
 
 
 def print_summary(summary: dict) -> None:
@@ -361,20 +404,25 @@ def print_summary(summary: dict) -> None:
     )
     table.add_column("seed", justify="right")
     table.add_column("norm. ERD", justify="right")
+    table.add_column("per intention", justify="right")
     table.add_column("cluster acc.", justify="right")
     table.add_column("true returns (learned / expert)")
     erds = final["erd"] or [None] * seeds
+    per_intention = final.get("erd_per_intention") or [None] * seeds
     accuracy = final["cluster_accuracy"] or [None] * seeds
     expert = final["expert_returns"] or [None] * summary["intentions"]
-    for seed, (erd, acc, returns) in enumerate(zip(erds, accuracy, final["returns"], strict=True)):
+    number = lambda x: "-" if x is None else f"{x:.3f}"
+    rows = zip(erds, per_intention, accuracy, final["returns"], strict=True)
+    for seed, (erd, erd_i, acc, returns) in enumerate(rows):
         pairs = ", ".join(
             f"{r:.1f}" if e is None else f"{r:.1f}/{e:.1f}"
             for r, e in zip(returns, expert, strict=True)
         )
         table.add_row(
             str(summary["first_seed"] + seed),
-            "-" if erd is None else f"{erd:.3f}",
-            "-" if acc is None else f"{acc:.3f}",
+            number(erd),
+            "-" if erd_i is None else " ".join(f"{e:.2f}" for e in erd_i),
+            number(acc),
             pairs,
         )
     console = Console()
@@ -417,6 +465,14 @@ def main(argv=None) -> int:
         )
     except (envs.EnvError, DemonstrationError, RunError, CheckpointError) as error:
         print(f"error: {error}", file=sys.stderr)
+        return 2
+    except OSError as error:  # the output cannot be created or written (permissions, full disk)
+        where = f" ('{error.filename}')" if error.filename else ""
+        print(
+            f"error: {error.strerror or error}{where}: the run's outputs could not be written; "
+            "check that --out is a writable directory with room on its disk",
+            file=sys.stderr,
+        )
         return 2
     if not args.quiet:
         print_summary(summary)

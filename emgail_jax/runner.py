@@ -67,11 +67,14 @@ def map_in_batches(f: Callable, batch: int | None) -> Callable:
 
 
 class Runner:
-    """Compiles ``init`` and a chunk of ``update`` for ``seeds`` seeds, then steps chunks.
+    """Compiles ``init`` and chunks of ``update`` for ``seeds`` seeds, then steps chunks.
 
-    Seeds are sharded over the devices; on each device, ``seed_batch`` of them are vmapped
-    together (default: :func:`default_seed_batch`). ``step`` returns host numpy metrics
-    ``[S, L, ...]``.
+    ``update(state, x) -> (state, metrics)`` takes, besides one seed's state, one element of a
+    per-iteration input that every seed shares (e.g. whether to evaluate): it is not batched
+    over seeds, so a ``lax.cond`` on it really skips the branch not taken. Seeds are sharded
+    over the devices; on each device, ``seed_batch`` of them are vmapped together (default:
+    :func:`default_seed_batch`). ``step`` returns host numpy metrics ``[S, L, ...]``; a program
+    is compiled for every chunk length used (a run uses at most two: its chunk and a remainder).
     """
 
     def __init__(
@@ -79,29 +82,38 @@ class Runner:
         init: Callable,
         update: Callable,
         seeds: int,
-        chunk: int,
         seed_batch: int | None = None,
     ):
         self.seeds = seeds
-        self.chunk = chunk
         self.sharding = seed_sharding(seeds)
         self.seed_batch = seed_batch or default_seed_batch()
+        mesh, spec = self.sharding.mesh, self.sharding.spec
 
-        def scan_chunk(state: TrainState):
-            return jax.lax.scan(lambda s, _: update(s), state, None, length=chunk)
+        def scan_chunk(state: TrainState, inputs: jax.Array):
+            per_seed = lambda s: jax.lax.scan(update, s, inputs)
+            return map_in_batches(per_seed, self.seed_batch)(state)
 
         # shard_map runs each device's share of the seeds as its own program: seeds never
         # interact, so no cross-device communication is compiled in.
-        per_device = lambda f: jax.shard_map(
-            map_in_batches(f, self.seed_batch),
-            mesh=self.sharding.mesh,
-            in_specs=self.sharding.spec,
-            out_specs=self.sharding.spec,
-            check_vma=False,
+        self._init = jax.jit(
+            jax.shard_map(
+                map_in_batches(init, self.seed_batch),
+                mesh=mesh,
+                in_specs=spec,
+                out_specs=spec,
+                check_vma=False,
+            )
         )
-        self._init = jax.jit(per_device(init))
-        self._chunk = jax.jit(per_device(scan_chunk))
-        self._compiled = None
+        self._chunk = jax.jit(
+            jax.shard_map(
+                scan_chunk,
+                mesh=mesh,
+                in_specs=(spec, PartitionSpec()),
+                out_specs=spec,
+                check_vma=False,
+            )
+        )
+        self._compiled: dict[int, Callable] = {}
         self.timings = Timings()
 
     def init(self, key: jax.Array) -> TrainState:
@@ -121,31 +133,71 @@ class Runner:
             lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=self.sharding), shapes
         )
 
-    def compile(self, state: TrainState) -> None:
+    def _replicated(self, inputs) -> jax.Array:
+        return jax.device_put(
+            np.asarray(inputs), NamedSharding(self.sharding.mesh, PartitionSpec())
+        )
+
+    def compile(self, state: TrainState, inputs) -> None:
+        """Compiles the chunk program for ``len(inputs)`` iterations (once per length)."""
+        length = len(inputs)
+        if length in self._compiled:
+            return
         start = time.perf_counter()
-        self._compiled = self._chunk.lower(state).compile()
+        self._compiled[length] = self._chunk.lower(state, self._replicated(inputs)).compile()
         self.timings.compile_s += time.perf_counter() - start
 
-    def step(self, state: TrainState) -> tuple[TrainState, dict[str, np.ndarray]]:
-        """Runs one chunk of iterations; returns the new state and host metrics."""
-        if self._compiled is None:
-            self.compile(state)
+    @property
+    def programs(self) -> int:
+        """How many chunk programs were compiled."""
+        return len(self._compiled)
+
+    def step(self, state: TrainState, inputs) -> tuple[TrainState, dict[str, np.ndarray]]:
+        """Runs ``len(inputs)`` iterations, iteration ``l`` with ``inputs[l]``; returns the new
+        state and host metrics."""
+        self.compile(state, inputs)
         start = time.perf_counter()
-        state, metrics = self._compiled(state)
+        state, metrics = self._compiled[len(inputs)](state, self._replicated(inputs))
         metrics = jax.device_get(metrics)
         self.timings.train_s += time.perf_counter() - start
-        self.timings.iterations += self.chunk
+        self.timings.iterations += len(inputs)
         return state, metrics
+
+
+def chunks(done: int, total: int, chunk_size: int) -> list[tuple[int, int]]:
+    """``(first, length)`` of the chunks from iteration ``done`` to ``total``: full chunks of
+    ``chunk_size`` and one shorter remainder, so at most two programs are compiled."""
+    starts = range(done, total, chunk_size)
+    return [(first, min(chunk_size, total - first)) for first in starts]
 
 
 FINAL_WINDOW = 10
 
 
+def evaluation_plan(first: int, length: int, total: int, every: int) -> np.ndarray:
+    """``[length]`` whether iterations ``first + 1 .. first + length`` (of ``total``) run the
+    evaluation episodes: every ``every``-th iteration and each of the last
+    :data:`FINAL_WINDOW`, so that the final metrics always average evaluated iterations."""
+    numbers = np.arange(first + 1, first + length + 1)
+    return (numbers % every == 0) | (numbers > total - FINAL_WINDOW)
+
+
 def final_metrics(
     history: dict[str, np.ndarray], last: int = FINAL_WINDOW
 ) -> dict[str, np.ndarray]:
-    """Per-seed means over the last ``last`` iterations (single-iteration ERD is noisy)."""
-    return {name: np.mean(values[:, -last:], axis=1) for name, values in history.items()}
+    """Per-seed means over the last ``last`` iterations in which a metric was measured (an
+    iteration without evaluation logs NaN); single-iteration ERD is noisy."""
+    final = {}
+    for name, values in history.items():
+        values = np.asarray(values, np.float64)
+        measured = ~np.all(np.isnan(values.reshape(*values.shape[:2], -1)), -1)  # [S, L]
+        per_seed = []
+        for seed_values, seed_measured in zip(values, measured, strict=True):
+            chosen = seed_values[np.flatnonzero(seed_measured)[-last:]]
+            empty = np.full(values.shape[2:], np.nan)
+            per_seed.append(chosen.mean(0) if len(chosen) else empty)
+        final[name] = np.stack(per_seed)
+    return final
 
 
 def concat_history(history: dict | None, metrics: dict[str, np.ndarray]) -> dict:

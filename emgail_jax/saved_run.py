@@ -23,10 +23,18 @@ from emgail_jax import checkpoints
 from emgail_jax import normalizer as obs_norm
 from emgail_jax.algorithms import Algorithm, make_algorithm
 from emgail_jax.config import Config
+from emgail_jax.posterior import Responsibilities, expert_responsibilities, log_posterior
 from emgail_jax.problem import Problem
 from emgail_jax.runner import Runner
 from emgail_jax.runs import RunError, RunSpec, read_summary
-from emgail_jax.training import ExpertData, Networks, TrainState, make_networks, make_train
+from emgail_jax.training import (
+    ExpertData,
+    Networks,
+    TrainState,
+    clustering_metrics,
+    make_networks,
+    make_train,
+)
 
 
 @dataclasses.dataclass
@@ -41,6 +49,7 @@ class SavedRun:
     state: TrainState  # every seed, leading axis
     history: dict[str, np.ndarray]
     iteration: int
+    expert_data: ExpertData  # the demonstrations as training sees them (no ERD references)
 
     @classmethod
     def open(cls, run_dir: str) -> SavedRun:
@@ -59,7 +68,7 @@ class SavedRun:
             problem.demos, np.full(env.num_intentions, np.nan), env.num_intentions
         )
         init, update = make_train(config, env, expert)
-        runner = Runner(init, update, spec.seeds, 1)
+        runner = Runner(init, update, spec.seeds)
         target = runner.abstract_state(jax.random.PRNGKey(spec.first_seed))
         state, history, iteration = checkpoints.restore(run_dir, target)
         return cls(
@@ -73,6 +82,7 @@ class SavedRun:
             state=state,
             history=history,
             iteration=iteration,
+            expert_data=expert,
         )
 
     @property
@@ -103,22 +113,21 @@ class SavedRun:
     def reward(self, seed: int = 0) -> Callable[[jax.Array, jax.Array, jax.Array], jax.Array]:
         """The learned pseudo-reward ``R_i(obs [..., D], action [..., A], i [...]) -> [...]``:
         -log(1 - D(s, a, i)) for EM-GAIL (eq. 20), plus lambda log P(i | s, a) for
-        Info/IntentionGAIL (eq. 23), -log(1 - D(s, a)) for GAIL."""
+        Info/IntentionGAIL (eq. 23), -log(1 - D(s, a)) for GAIL. The action is clipped to the
+        env's range first: the discriminator learned on executed actions."""
         state = self.seed_state(seed)
         k, algorithm, clip = self.num_intentions, self.algorithm, self.config.obs_clip
-        networks = self.networks
+        networks, env = self.networks, self.problem.env
 
         def reward(obs, action, intention):
             obs = jnp.asarray(obs, jnp.float32)
-            action = jnp.asarray(action, jnp.float32)
+            action = env.clip_action(jnp.asarray(action, jnp.float32))
             intention = jnp.broadcast_to(jnp.asarray(intention, jnp.int32), obs.shape[:-1])
             normalized = obs_norm.normalize(state.normalizer, obs, clip)
             condition = algorithm.discriminator_condition(intention, k)
             logit = networks.discriminator.apply(state.discriminator, normalized, action, condition)
             if algorithm.learns_posterior:
-                log_p = jax.nn.log_softmax(
-                    networks.posterior.apply(state.posterior, normalized, action)
-                )
+                log_p = log_posterior(networks.posterior.apply, state.posterior, normalized, action)
                 own = jnp.take_along_axis(log_p, intention[..., None], -1)[..., 0]
             else:
                 own = jnp.zeros_like(logit)
@@ -126,15 +135,39 @@ class SavedRun:
 
         return reward
 
-    def responsibilities(self, seed: int = 0) -> np.ndarray:
-        """``[N, K]`` gamma(i | s, a) of the posterior on the run's demonstrations."""
+    def responsibilities(self, seed: int = 0) -> Responsibilities:
+        """The E-step's responsibilities of the run's demonstrations under the posterior of
+        ``seed`` (gamma ``[N, K]`` and the pair and trajectory labels), computed as training
+        computes them, in the run's ``responsibilities`` mode."""
         if not self.algorithm.learns_posterior:
             raise RunError(f"{self.config.algo} learns no posterior")
         state = self.seed_state(seed)
-        demos = self.problem.demos
-        normalized = obs_norm.normalize(state.normalizer, demos.observations, self.config.obs_clip)
-        logits = self.networks.posterior.apply(state.posterior, normalized, demos.actions)
-        return np.asarray(jax.nn.softmax(logits, -1))
+        expert = self.expert_data
+        normalized = obs_norm.normalize(state.normalizer, expert.observations, self.config.obs_clip)
+        result = expert_responsibilities(
+            self.networks.posterior.apply,
+            state.posterior,
+            normalized,
+            expert.actions,
+            expert.episode,
+            expert.episodes,
+            self.config.responsibilities,
+        )
+        return jax.device_get(result)
+
+    def clustering(self, seed: int = 0) -> dict[str, float]:
+        """The clustering accuracies training logs (eq. 29, and in trajectory mode the
+        trajectory labels' too) of ``seed``'s current posterior; empty without hidden labels
+        or a posterior."""
+        if not (self.algorithm.learns_posterior and self.expert_data.has_labels):
+            return {}
+        metrics = clustering_metrics(
+            self.responsibilities(seed),
+            self.expert_data,
+            self.num_intentions,
+            self.config.responsibilities,
+        )
+        return {name.removeprefix("eval/"): float(value) for name, value in metrics.items()}
 
 
 def load_policy(run_dir: str, seed: int = 0):

@@ -42,9 +42,10 @@ from emgail_jax.networks import (
     action_distribution,
 )
 from emgail_jax.posterior import (
+    Responsibilities,
+    expert_responsibilities,
+    log_posterior,
     posterior_update,
-    responsibilities,
-    trajectory_responsibilities,
 )
 from emgail_jax.rollout import (
     batch_reset,
@@ -87,6 +88,8 @@ class ExpertData:
     labels: jax.Array  # [N] hidden intention labels, -1 when unknown
     expert_returns: jax.Array  # [K] NaN when unknown
     random_returns: jax.Array  # [K]
+    episodes: int = struct.field(pytree_node=False, default=1)  # demonstrations (episodes)
+    has_labels: bool = struct.field(pytree_node=False, default=False)
 
     @classmethod
     def create(cls, demos: Demonstrations, random_returns: np.ndarray, k: int) -> ExpertData:
@@ -102,6 +105,8 @@ class ExpertData:
             labels=np.asarray(labels, np.int32),
             expert_returns=np.asarray(returns, np.float32),
             random_returns=np.asarray(random_returns, np.float32),
+            episodes=int(episode.max()) + 1,
+            has_labels=demos.intentions is not None,
         )
 
 
@@ -146,6 +151,24 @@ def policy_function(networks: Networks, algorithm: Algorithm, config: Config, k:
     return make
 
 
+def clustering_metrics(
+    e_step: Responsibilities | None, expert: ExpertData, k: int, mode: str
+) -> dict:
+    """The clustering accuracy of eq. 29 (the posterior's argmax on every expert pair) and, when
+    the E-step works on whole demonstrations, the accuracy of those trajectory labels too; NaN
+    without a posterior (GAIL) or without hidden labels."""
+    names = ["eval/cluster_accuracy"]
+    if mode == "trajectory":
+        names.append("eval/trajectory_cluster_accuracy")
+    if e_step is None or not expert.has_labels:
+        return {name: jnp.float32(jnp.nan) for name in names}
+    labels = (e_step.pair_labels, e_step.trajectory_labels)
+    return {
+        name: cluster_accuracy(predicted, expert.labels, k)
+        for name, predicted in zip(names, labels, strict=False)
+    }
+
+
 def make_train(config: Config, env: envs.Env, expert: ExpertData):
     """Builds ``init(key) -> TrainState`` and ``update(state) -> (state, metrics)``."""
     config = config.resolved(env)
@@ -158,8 +181,6 @@ def make_train(config: Config, env: envs.Env, expert: ExpertData):
     value_opt = optax.adam(config.value_learning_rate)
     discriminator_opt = optax.adam(config.discriminator_learning_rate)
     posterior_opt = optax.adam(config.posterior_learning_rate)
-    has_labels = bool(expert.labels.min() >= 0)
-    expert_episodes = int(expert.episode.max()) + 1
 
     # Intention of every sample of a rollout in the intention-major layout [K, T * B], and
     # flattened to [N] (host constants, see ExpertData).
@@ -202,7 +223,31 @@ def make_train(config: Config, env: envs.Env, expert: ExpertData):
             iteration=jnp.zeros((), jnp.int32),
         )
 
-    def update(state: TrainState) -> tuple[TrainState, dict]:
+    def evaluate(policy, normalizer, key) -> dict:
+        """Deterministic episodes of every learned intention, scored against the experts."""
+        greedy = make_policy(policy, normalizer, deterministic=True)
+        returns = episode_returns(eval_env, greedy, key, k, config.eval_episodes)  # [K, K]
+        erd = normalized_erd(returns, expert.expert_returns, expert.random_returns)
+        return {
+            "eval/erd": erd.mean,
+            "eval/erd_per_intention": erd.per_intention,  # [K] per true intention
+            "eval/returns": returns[erd.matching, jnp.arange(k)],  # [K] per true intention
+            "eval/matching": erd.matching,
+        }
+
+    def skip_evaluation(*_) -> dict:
+        """What :func:`evaluate` returns when no episodes run: NaN (and matching -1)."""
+        missing = jnp.full(k, jnp.nan, jnp.float32)
+        return {
+            "eval/erd": jnp.float32(jnp.nan),
+            "eval/erd_per_intention": missing,
+            "eval/returns": missing,
+            "eval/matching": jnp.full(k, -1, jnp.int32),
+        }
+
+    def update(state: TrainState, evaluating: jax.Array) -> tuple[TrainState, dict]:
+        """One iteration; ``evaluating`` (a bool scalar, not batched over seeds, so that the
+        evaluation is really skipped) says whether to run the evaluation episodes."""
         key_next, key_rollout, key_value, key_eval = jax.random.split(state.key, 4)
         policy_condition = algorithm.policy_condition(intention_rows, k)  # [K, T * B, C]
         discriminator_condition = algorithm.discriminator_condition(intention_rows, k)
@@ -213,8 +258,10 @@ def make_train(config: Config, env: envs.Env, expert: ExpertData):
         normalizer = obs_norm.update(state.normalizer, batch.obs)
         normalize = lambda x: obs_norm.normalize(normalizer, x, config.obs_clip)
         obs = normalize(intention_major(batch.obs))  # [K, T * B, D]
-        actions = intention_major(batch.action)  # [K, T * B, A]
-        flat_obs, flat_actions = obs.reshape(k * t * b, -1), actions.reshape(k * t * b, -1)
+        # The posterior and the discriminator judge the action the env executed (clipped to
+        # its range), as they do the demonstrations'; TRPO keeps the raw sample.
+        executed = env.clip_action(intention_major(batch.action))  # [K, T * B, A]
+        flat_obs, flat_executed = obs.reshape(k * t * b, -1), executed.reshape(k * t * b, -1)
         expert_obs = normalize(expert.observations)
 
         # 2. E-step: posterior on the policy's labelled samples, gamma on the expert pairs.
@@ -225,29 +272,28 @@ def make_train(config: Config, env: envs.Env, expert: ExpertData):
                 state.posterior,
                 state.posterior_opt,
                 flat_obs,
-                flat_actions,
+                flat_executed,
                 sample_intention,
                 config.posterior_steps,
             )
-            if config.responsibilities == "trajectory":
-                gamma = trajectory_responsibilities(
-                    networks.posterior.apply,
-                    posterior,
-                    expert_obs,
-                    expert.actions,
-                    expert.episode,
-                    expert_episodes,
-                )
-            else:
-                gamma = responsibilities(
-                    networks.posterior.apply, posterior, expert_obs, expert.actions
-                )
-            log_posterior = jax.nn.log_softmax(networks.posterior.apply(posterior, obs, actions))
-            own_log_posterior = jnp.take_along_axis(log_posterior, intention_rows[..., None], -1)[
-                ..., 0
-            ]
+            e_step = expert_responsibilities(
+                networks.posterior.apply,
+                posterior,
+                expert_obs,
+                expert.actions,
+                expert.episode,
+                expert.episodes,
+                config.responsibilities,
+            )
+            gamma = e_step.gamma
+            own_log_posterior = jnp.take_along_axis(
+                log_posterior(networks.posterior.apply, posterior, obs, executed),
+                intention_rows[..., None],
+                -1,
+            )[..., 0]
         else:
             posterior, posterior_opt_state, posterior_metrics = None, None, {}
+            e_step = None
             gamma = jnp.full((expert_obs.shape[0], k), 1.0 / k)
             own_log_posterior = jnp.zeros(intention_rows.shape)
 
@@ -263,13 +309,13 @@ def make_train(config: Config, env: envs.Env, expert: ExpertData):
             expert_weights=algorithm.expert_weights(gamma),
             conditions=algorithm.discriminator_conditions(k),
             policy_obs=obs,
-            policy_actions=actions,
+            policy_actions=executed,
             policy_conditions=discriminator_condition,
         )
 
         # 4. B-step: TRPO on the pseudo-reward of every sample under its own intention.
         logits = networks.discriminator.apply(
-            discriminator, obs, actions, discriminator_condition, intention_major=True
+            discriminator, obs, executed, discriminator_condition, intention_major=True
         )
         reward = algorithm.pseudo_reward(logits, own_log_posterior)  # [K, T * B]
         last_intention = np.broadcast_to(np.arange(k)[:, None], (k, b))
@@ -296,19 +342,13 @@ def make_train(config: Config, env: envs.Env, expert: ExpertData):
             key_value,
         )
 
-        # 5. Metrics: deterministic episodes of every learned intention.
-        greedy = make_policy(policy, normalizer, deterministic=True)
-        eval_returns = episode_returns(eval_env, greedy, key_eval, k, config.eval_episodes)
-        erd, matching = normalized_erd(eval_returns, expert.expert_returns, expert.random_returns)
-        if algorithm.learns_posterior and has_labels:
-            accuracy = cluster_accuracy(jnp.argmax(gamma, -1), expert.labels, k)
-        else:
-            accuracy = jnp.nan
+        # 5. Metrics: the clustering every iteration (cheap), the evaluation episodes when asked.
+        eval_metrics = jax.lax.cond(
+            evaluating, evaluate, skip_evaluation, policy, normalizer, key_eval
+        )
         metrics = {
-            "eval/erd": erd,
-            "eval/cluster_accuracy": accuracy,
-            "eval/returns": eval_returns[matching, jnp.arange(k)],  # [K] per true intention
-            "eval/matching": matching,
+            **eval_metrics,
+            **clustering_metrics(e_step, expert, k, config.responsibilities),
             "train/pseudo_reward": reward.mean(),
             **posterior_metrics,
             **discriminator_metrics,

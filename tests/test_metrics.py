@@ -82,27 +82,29 @@ def test_cluster_accuracy_jit_matches_eager():
 # ---- normalised ERD -------------------------------------------------------------------------
 
 EXPERT = jnp.array([10.0, 20.0, 30.0])
-RANDOM = jnp.array([0.0, -5.0, 6.0])  # scale = 10 + 25 + 24 = 59
+RANDOM = jnp.array([0.0, -5.0, 6.0])  # per-intention scales |J_E - J_rand|: 10, 25, 24
 
 
 def test_erd_expert_returns_give_zero():
     returns = jnp.diag(EXPERT) + 3.0 * (1.0 - jnp.eye(3))  # learned i on true i is the expert
-    erd, matching = jit_erd(returns, EXPERT, RANDOM)
+    erd, per_intention, matching = jit_erd(returns, EXPERT, RANDOM)
     assert float(erd) == 0.0
+    np.testing.assert_array_equal(per_intention, [0.0, 0.0, 0.0])
     np.testing.assert_array_equal(matching, [0, 1, 2])
 
 
 def test_erd_random_returns_give_one():
     returns = jnp.broadcast_to(RANDOM, (3, 3))  # every learned intention acts randomly
-    erd, _ = jit_erd(returns, EXPERT, RANDOM)
+    erd, per_intention, _ = jit_erd(returns, EXPERT, RANDOM)
     assert float(erd) == pytest.approx(1.0)
+    np.testing.assert_allclose(per_intention, [1.0, 1.0, 1.0], rtol=1e-6)
 
 
 def test_erd_permuted_learned_order_is_matched_back():
     true_order = jnp.diag(EXPERT) + 3.0 * (1.0 - jnp.eye(3))
     learned_is_true = np.array([2, 0, 1])  # learned intention j imitates true intention p[j]
     returns = true_order[learned_is_true]
-    erd, matching = jit_erd(returns, EXPERT, RANDOM)
+    erd, _, matching = jit_erd(returns, EXPERT, RANDOM)
     assert float(erd) == 0.0
     # matching[i] is the learned intention assigned to true i: the inverse permutation.
     np.testing.assert_array_equal(matching, np.argsort(learned_is_true))
@@ -111,30 +113,76 @@ def test_erd_permuted_learned_order_is_matched_back():
 
 def test_erd_hand_computed_intermediate_values():
     expert = jnp.array([10.0, 20.0])
-    random = jnp.array([0.0, 5.0])  # scale |10 - 0| + |20 - 5| = 25
-    # Identity: |10 - 8| + |20 - 14| = 8 ; swapped: |10 - 1| + |20 - 2| = 27  -> 8 / 25.
-    erd, matching = jit_erd(jnp.array([[8.0, 2.0], [1.0, 14.0]]), expert, random)
-    assert float(erd) == pytest.approx(0.32)
+    random = jnp.array([0.0, 5.0])  # scales 10 and 15
+    # Identity: e = (|10 - 8| / 10, |20 - 14| / 15) = (0.2, 0.4), mean 0.3;
+    # swapped: (|10 - 1| / 10, |20 - 2| / 15) = (0.9, 1.2), mean 1.05.
+    erd, per_intention, matching = jit_erd(jnp.array([[8.0, 2.0], [1.0, 14.0]]), expert, random)
+    assert float(erd) == pytest.approx(0.3)
+    np.testing.assert_allclose(per_intention, [0.2, 0.4], rtol=1e-6)
     np.testing.assert_array_equal(matching, [0, 1])
-    # Identity: |10 - 1| + |20 - 3| = 26 ; swapped: |10 - 6| + |20 - 17| = 7  -> 7 / 25.
-    erd, matching = jit_erd(jnp.array([[1.0, 17.0], [6.0, 3.0]]), expert, random)
-    assert float(erd) == pytest.approx(0.28)
+    # Identity: (0.9, 17 / 15), mean 1.0167; swapped: (|10 - 6| / 10, |20 - 17| / 15) =
+    # (0.4, 0.2), mean 0.3.
+    erd, per_intention, matching = jit_erd(jnp.array([[1.0, 17.0], [6.0, 3.0]]), expert, random)
+    assert float(erd) == pytest.approx(0.3)
+    np.testing.assert_allclose(per_intention, [0.4, 0.2], rtol=1e-6)
     np.testing.assert_array_equal(matching, [1, 0])
+
+
+def test_erd_is_a_mean_of_ratios_not_a_ratio_of_sums():
+    # Half-cheetah-like scales: intention 0 returns thousands, intention 1 tens.
+    expert = jnp.array([2000.0, 40.0])
+    random = jnp.array([0.0, -60.0])  # scales 2000 and 100
+    # Intention 0 imitated to within 100, intention 1 no better than random.
+    returns = jnp.array([[1900.0, -500.0], [-500.0, -60.0]])
+    erd, per_intention, matching = jit_erd(returns, expert, random)
+    np.testing.assert_array_equal(matching, [0, 1])
+    np.testing.assert_allclose(per_intention, [0.05, 1.0], rtol=1e-6)
+    assert float(erd) == pytest.approx(0.525)
+    # The ratio of sums would hide the failed intention: (100 + 100) / 2100 = 0.095.
+    ratio_of_sums = (100.0 + 100.0) / (2000.0 + 100.0)
+    assert ratio_of_sums == pytest.approx(0.0952, abs=1e-4)
+
+
+def test_erd_matching_minimises_the_mean_not_the_sum_of_gaps():
+    # The matching that minimises the summed raw gaps is not the one that minimises the mean of
+    # the normalised gaps, because the scales differ (10 and 1000).
+    expert = jnp.array([10.0, 1000.0])
+    random = jnp.array([0.0, 0.0])
+    returns = jnp.array([[10.0, 1000.0], [0.0, 500.0]])  # [learned, true]
+    # Identity: gaps (0, 500), normalised (0, 0.5), mean 0.25.
+    # Swapped:  gaps (10, 0), normalised (1, 0),  mean 0.5, but the summed raw gap is smaller.
+    erd, per_intention, matching = jit_erd(returns, expert, random)
+    np.testing.assert_array_equal(matching, [0, 1])
+    assert float(erd) == pytest.approx(0.25)
+    np.testing.assert_allclose(per_intention, [0.0, 0.5])
+    # And it is the best of all K! matchings, checked by brute force on random returns.
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        returns = jnp.asarray(rng.normal(size=(3, 3)) * 20.0)
+        erd, _, _ = jit_erd(returns, EXPERT, RANDOM)
+        scale = np.abs(np.asarray(EXPERT - RANDOM))
+        means = [
+            np.mean(np.abs(np.asarray(EXPERT) - np.asarray(returns)[list(p), range(3)]) / scale)
+            for p in itertools.permutations(range(3))
+        ]
+        assert float(erd) == pytest.approx(min(means), rel=1e-5)
 
 
 def test_erd_of_a_single_policy_gail_style():
     # GAIL: one policy, every row identical; worse than random on intention 1 counts in full.
     row = jnp.array([10.0, -10.0, 30.0])
-    erd, _ = jit_erd(jnp.broadcast_to(row, (3, 3)), EXPERT, RANDOM)
-    assert float(erd) == pytest.approx(30.0 / 59.0)
+    erd, per_intention, _ = jit_erd(jnp.broadcast_to(row, (3, 3)), EXPERT, RANDOM)
+    np.testing.assert_allclose(per_intention, [0.0, 30.0 / 25.0, 0.0], rtol=1e-6)
+    assert float(erd) == pytest.approx(0.4)
 
 
 def test_erd_jit_matches_eager():
     returns = jnp.array([[1.0, 17.0, 2.0], [6.0, 3.0, 9.0], [0.0, 4.0, 25.0]])
     eager = metrics.normalized_erd(returns, EXPERT, RANDOM)
     jitted = jit_erd(returns, EXPERT, RANDOM)
-    np.testing.assert_allclose(eager[0], jitted[0], rtol=1e-6)
-    np.testing.assert_array_equal(eager[1], jitted[1])
+    np.testing.assert_allclose(eager.mean, jitted.mean, rtol=1e-6)
+    np.testing.assert_allclose(eager.per_intention, jitted.per_intention, rtol=1e-6)
+    np.testing.assert_array_equal(eager.matching, jitted.matching)
 
 
 # ---- separability ---------------------------------------------------------------------------

@@ -10,9 +10,10 @@ import pytest
 
 from emgail_jax.networks import Posterior
 from emgail_jax.posterior import (
+    expert_responsibilities,
+    log_posterior,
     posterior_loss,
     posterior_update,
-    responsibilities,
     trajectory_responsibilities,
 )
 
@@ -53,10 +54,26 @@ def test_loss_equals_cross_entropy_of_network():
     assert float(loss) == pytest.approx(expected, rel=1e-5)
 
 
+def pair_mode(logits, episode=None, episodes=1, mode="pair"):
+    n = logits.shape[0]
+    episode = jnp.zeros(n, jnp.int32) if episode is None else episode
+    zeros = jnp.zeros((n, 1))
+    return expert_responsibilities(toy_apply, logits, zeros, zeros, episode, episodes, mode)
+
+
 def test_responsibilities_are_the_posterior_probabilities():
-    logits = jnp.array([[0.0, LN3], [LN3, 0.0], [0.0, 0.0]])
-    gamma = responsibilities(toy_apply, logits, jnp.zeros((3, 1)), jnp.zeros((3, 1)))
-    np.testing.assert_allclose(gamma, [[0.25, 0.75], [0.75, 0.25], [0.5, 0.5]], rtol=1e-6)
+    logits = jnp.array([[0.0, LN3], [LN3, 0.0], [0.0, 0.1]])
+    result = pair_mode(logits)
+    np.testing.assert_allclose(
+        result.gamma, [[0.25, 0.75], [0.75, 0.25], [0.475021, 0.524979]], rtol=1e-5
+    )
+    np.testing.assert_array_equal(result.pair_labels, [1, 0, 1])
+    np.testing.assert_array_equal(result.trajectory_labels, [1, 0, 1])
+
+
+def test_unknown_mode_is_refused():
+    with pytest.raises(ValueError, match="pair or trajectory"):
+        pair_mode(jnp.zeros((2, 2)), mode="episode")
 
 
 @pytest.fixture(scope="module")
@@ -87,7 +104,7 @@ def test_update_reduces_loss_on_separable_problem(separable_problem):
     assert float(metrics["posterior/loss"]) == pytest.approx(float(before), rel=1e-5)
     assert float(after) < 0.5 * float(before)
     assert float(after_metrics["posterior/policy_accuracy"]) == 1.0
-    gamma = responsibilities(net.apply, new_params, obs, actions)
+    gamma = jnp.exp(log_posterior(net.apply, new_params, obs, actions))
     assert gamma.shape == (60, 3)
     np.testing.assert_allclose(gamma.sum(-1), 1.0, rtol=1e-5)
     np.testing.assert_array_equal(jnp.argmax(gamma, -1), labels)
@@ -99,11 +116,14 @@ def test_trajectory_responsibilities_hand_computed():
     (9/16, 1/16) normalises to (9/10, 1/10), which both pairs take."""
     logits = jnp.array([[LN3, 0.0], [0.0, LN3], [0.0, 0.0], [LN3, 0.0], [LN3, 0.0]])
     episode = jnp.array([0, 0, 0, 1, 1])
-    gamma = trajectory_responsibilities(
-        toy_apply, logits, jnp.zeros((5, 1)), jnp.zeros((5, 1)), episode, 2
-    )
+    gamma = trajectory_responsibilities(jax.nn.log_softmax(logits), episode, 2)
     expected = [[0.5, 0.5]] * 3 + [[0.9, 0.1]] * 2
     np.testing.assert_allclose(gamma, expected, rtol=1e-6)
+    # In trajectory mode gamma is the episode's; the pair labels stay each pair's own argmax.
+    result = pair_mode(logits, episode, 2, mode="trajectory")
+    np.testing.assert_allclose(result.gamma, expected, rtol=1e-6)
+    np.testing.assert_array_equal(result.pair_labels, [0, 1, 0, 0, 0])
+    np.testing.assert_array_equal(result.trajectory_labels, [0, 0, 0, 0, 0])
 
 
 def test_trajectory_responsibilities_let_the_majority_of_an_episode_decide():
@@ -114,10 +134,8 @@ def test_trajectory_responsibilities_let_the_majority_of_an_episode_decide():
     pair_logits = np.where(rng.random((100, 1)) < 0.8, [-2.0, 2.0], [2.0, -2.0])
     logits = jnp.asarray(np.concatenate([pair_logits, [[-200.0, 200.0]]]), jnp.float32)
     episode = jnp.zeros(101, jnp.int32)
-    per_pair = responsibilities(toy_apply, logits, jnp.zeros((101, 1)), jnp.zeros((101, 1)))
+    per_pair = pair_mode(logits).gamma
     assert np.mean(np.argmax(per_pair, -1) == 1) < 0.9
-    gamma = trajectory_responsibilities(
-        toy_apply, logits, jnp.zeros((101, 1)), jnp.zeros((101, 1)), episode, 1
-    )
+    gamma = trajectory_responsibilities(jax.nn.log_softmax(logits), episode, 1)
     assert np.all(np.isfinite(gamma))
     np.testing.assert_allclose(gamma, np.tile([0.0, 1.0], (101, 1)), atol=1e-6)

@@ -122,6 +122,31 @@ def test_an_unlabelled_file_is_accepted(driver, tmp_path):
     assert len(problem.demos) == 1000
 
 
+def test_actions_outside_the_range_are_clipped_as_the_env_executes_them(driver, tmp_path):
+    """A --demos file may hold raw actions (e.g. a policy's unclipped means); the problem holds
+    what the env executed, clipped to its action range."""
+    raw = np.where(np.arange(len(driver.demos))[:, None] % 2 == 0, 3.0, -0.5).astype(np.float32)
+    path = str(tmp_path / "raw.npz")
+    Demonstrations(
+        driver.demos.observations,
+        raw,
+        driver.demos.episode_starts,
+        driver.demos.intentions,
+        driver.demos.expert_returns,
+    ).save(path)
+    problem = make_problem("driver", demos_path=path)
+    np.testing.assert_array_equal(problem.demos.actions, np.clip(raw, -1.0, 1.0))
+    assert problem.demos.actions.dtype == np.float32
+    # The file itself is left as it is.
+    np.testing.assert_array_equal(demos_lib.load(path).actions, raw)
+
+
+@pytest.mark.parametrize("env_name", ["swimmer", "hopper", "halfcheetah", "reacher"])
+def test_shipped_demonstrations_hold_executed_actions(env_name):
+    demos = demos_lib.load(shipped_demos_path(env_name))
+    assert np.abs(demos.actions).max() <= 1.0
+
+
 def test_unknown_env_is_an_env_error():
     with pytest.raises(envs.EnvError, match="unknown env 'nope'"):
         make_problem("nope", 2)

@@ -49,6 +49,9 @@ def test_summary_follows_the_run_contract(runs, algo):
     final = summary["final"]
     assert len(final["erd"]) == SEEDS and all(0.0 <= e < 5.0 for e in final["erd"])
     assert np.asarray(final["returns"]).shape == (SEEDS, 2)
+    per_intention = np.asarray(final["erd_per_intention"])
+    assert per_intention.shape == (SEEDS, 2)
+    np.testing.assert_allclose(per_intention.mean(1), final["erd"], rtol=1e-5)
     assert len(final["expert_returns"]) == 2 and len(final["random_returns"]) == 2
     # The expert is far better than random actions on every intention.
     assert all(
@@ -62,6 +65,31 @@ def test_summary_follows_the_run_contract(runs, algo):
         assert final[key] > 0
     # K intentions x (2 envs x 20 steps + 1 eval episode x 100 steps) x iterations x seeds.
     assert final["env_steps"] == 2 * (2 * 20 + 100) * ITERATIONS * SEEDS
+    counts = summary["parameters"]
+    assert counts["total"] == sum(
+        counts[n] for n in ("policy", "value", "discriminator", "posterior")
+    )
+
+
+def test_parameter_counts_hand_computed(runs):
+    """The driver (obs 10, action 1, K = 2), 64-64 tanh MLPs: GAIL's policy has 10*64 + 64 +
+    64*64 + 64 + 64*1 + 1 = 4929 weights and one log-std, its value and discriminator
+    (11 inputs) 4993 each; EM-GAIL's policy, value and discriminator have a head per intention
+    and its posterior (11 -> 64 -> 64 -> 2) 768 + 4160 + 130 = 5058."""
+    counts = {
+        algo: json.loads((runs[algo] / "summary.json").read_text())["parameters"]
+        for algo in ("gail", "emgail")
+    }
+    assert counts["gail"] == {
+        "policy": 4930, "value": 4993, "discriminator": 4993, "posterior": 0, "total": 14916
+    }  # fmt: skip
+    assert counts["emgail"] == {
+        "policy": 2 * 4929 + 1,
+        "value": 2 * 4993,
+        "discriminator": 2 * 4993,
+        "posterior": 5058,
+        "total": 9859 + 9986 + 9986 + 5058,
+    }
 
 
 @pytest.mark.parametrize("algo", ["emgail", "infogail", "gail"])
@@ -106,6 +134,7 @@ def _error(capsys):
         (["--radius", "0.1"], "tighter than the car can turn"),
         (["--seeds", "0"], "--seeds and --iterations must be at least 1"),
         (["--seed-batch", "0"], "--seed-batch must be at least 1"),
+        (["--eval-every", "0"], "--eval-every must be at least 1"),
     ],
 )
 def test_bad_input_gives_one_line_and_exit_code_2(tmp_path, capsys, extra, message):
@@ -129,6 +158,27 @@ def test_existing_run_is_kept_unless_overwrite(runs, capsys):
     assert code == 2
     assert "--overwrite" in _error(capsys)
     assert (runs["gail"] / "summary.json").read_text() == before
+
+
+def test_out_naming_a_file_is_a_one_line_error(tmp_path, capsys):
+    path = tmp_path / "taken"
+    path.write_text("keep me")
+    assert run.main([*TINY, "--out", str(path)]) == 2
+    assert "is a file, not a directory" in _error(capsys)
+    assert path.read_text() == "keep me"
+
+
+def test_a_failed_write_is_a_one_line_error(tmp_path, capsys, monkeypatch):
+    from emgail_jax import records
+
+    def full_disk(path, data):
+        raise OSError(28, "No space left on device", path)
+
+    monkeypatch.setattr(records, "write_json", full_disk)
+    code, _ = _run(tmp_path, "full")
+    assert code == 2
+    err = _error(capsys)
+    assert "No space left on device" in err and "summary.json" in err
 
 
 def test_demonstrations_without_labels_or_returns(tmp_path, capsys):

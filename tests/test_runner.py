@@ -8,9 +8,18 @@ import pytest
 from jax.sharding import PartitionSpec
 
 from emgail_jax import runner as runner_lib
-from emgail_jax.runner import Runner, chunk_length, concat_history, final_metrics, seed_sharding
+from emgail_jax.runner import (
+    Runner,
+    chunk_length,
+    chunks,
+    concat_history,
+    evaluation_plan,
+    final_metrics,
+    seed_sharding,
+)
 
 CHUNK = 3
+INPUTS = np.array([True, False, True])
 
 
 def toy_init(key):
@@ -23,13 +32,15 @@ def toy_init(key):
     }
 
 
-def toy_update(state):
-    """x <- x / 2 + noise, with a fresh key per iteration; metrics: a scalar, a [3] vector and
-    the iteration."""
+def toy_update(state, flag):
+    """x <- x / 2 + noise, with a fresh key per iteration; metrics: a scalar, a [3] vector, the
+    iteration, and, when the per-iteration ``flag`` is set, the norm of x (NaN otherwise, the
+    way an iteration without evaluation logs)."""
     key_next, key_noise = jax.random.split(state["key"])
     x = 0.5 * state["x"] + jax.random.normal(key_noise, (3,))
     iteration = state["iteration"] + 1
-    metrics = {"x/sum": x.sum(), "x": x, "iteration": iteration}
+    norm = jax.lax.cond(flag, lambda: jnp.linalg.norm(x), lambda: jnp.float32(jnp.nan))
+    metrics = {"x/sum": x.sum(), "x": x, "iteration": iteration, "x/norm": norm}
     return {"key": key_next, "x": x, "iteration": iteration}, metrics
 
 
@@ -38,8 +49,8 @@ def reference(seed_key, iterations):
     state = jax.jit(toy_init)(seed_key)
     update = jax.jit(toy_update)
     out = []
-    for _ in range(iterations):
-        state, metrics = update(state)
+    for i in range(iterations):
+        state, metrics = update(state, INPUTS[i % CHUNK])
         out.append(jax.device_get(metrics))
     return {k: np.stack([m[k] for m in out]) for k in out[0]}
 
@@ -49,13 +60,13 @@ def run_chunks(runner, chunks, key=0):
     state = runner.init(jax.random.PRNGKey(key))
     history = None
     for _ in range(chunks):
-        state, metrics = runner.step(state)
+        state, metrics = runner.step(state, INPUTS)
         history = concat_history(history, metrics)
     return state, history
 
 
 def run(seeds, chunks, key=0):
-    runner = Runner(toy_init, toy_update, seeds, CHUNK)
+    runner = Runner(toy_init, toy_update, seeds)
     return runner, *run_chunks(runner, chunks, key)
 
 
@@ -75,6 +86,29 @@ def three_seeds():
 )
 def test_chunk_length_is_the_largest_divisor_up_to_chunk_size(iterations, chunk_size, expected):
     assert chunk_length(iterations, chunk_size) == expected
+
+
+def test_chunks_are_full_chunks_and_one_remainder():
+    assert chunks(0, 400, 10) == [(i, 10) for i in range(0, 400, 10)]
+    # A resume from 10 to 397: 38 chunks of 10 and one of 7, two programs.
+    plan = chunks(10, 397, 10)
+    assert plan[0] == (10, 10) and plan[-1] == (390, 7) and len(plan) == 39
+    assert {length for _, length in plan} == {10, 7}
+    assert sum(length for _, length in plan) == 387
+    assert chunks(5, 5, 10) == []
+    assert chunks(0, 3, 10) == [(0, 3)]
+
+
+def test_evaluation_plan_every_n_and_the_last_ten():
+    # Iterations 1..30 of 30, every 10: 10, 20, and the last ten 21..30.
+    plan = np.concatenate([evaluation_plan(first, 10, 30, 10) for first in (0, 10, 20)])
+    np.testing.assert_array_equal(np.flatnonzero(plan) + 1, [10, 20, *range(21, 31)])
+    # Every iteration with every=1; a short run evaluates throughout.
+    assert evaluation_plan(0, 7, 400, 1).all()
+    assert evaluation_plan(0, 5, 5, 10).all()
+    # Iterations 391..397 of 397: 388..397 are the last ten, so all of them.
+    assert evaluation_plan(390, 7, 397, 10).all()
+    np.testing.assert_array_equal(np.flatnonzero(evaluation_plan(370, 10, 397, 10)) + 371, [380])
 
 
 def test_seed_sharding_uses_as_many_devices_as_divide_the_seeds():
@@ -130,7 +164,7 @@ def test_results_do_not_depend_on_the_number_of_devices(four_seeds, monkeypatch)
     one_device = jax.devices()[:1]
     with monkeypatch.context() as patch:
         patch.setattr(runner_lib.jax, "devices", lambda *args: one_device)
-        runner = Runner(toy_init, toy_update, 4, CHUNK)
+        runner = Runner(toy_init, toy_update, 4)
     assert runner.sharding.mesh.devices.size == 1
     _, history = run_chunks(runner, 2)
     _, _, two_devices = four_seeds
@@ -139,12 +173,33 @@ def test_results_do_not_depend_on_the_number_of_devices(four_seeds, monkeypatch)
 
 
 def test_explicit_compile_then_step():
-    runner = Runner(toy_init, toy_update, 2, CHUNK)
+    runner = Runner(toy_init, toy_update, 2)
     state = runner.init(jax.random.PRNGKey(1))
-    runner.compile(state)
-    state, metrics = runner.step(state)
+    runner.compile(state, INPUTS)
+    state, metrics = runner.step(state, INPUTS)
     np.testing.assert_array_equal(metrics["iteration"], [[1, 2, 3], [1, 2, 3]])
     assert runner.timings.iterations == CHUNK
+    assert runner.programs == 1
+
+
+def test_per_iteration_inputs_reach_every_seed_and_a_remainder_compiles_once(four_seeds):
+    """The flags select, for every seed alike, which iterations measure x/norm; chunks of 3,
+    3 and a remainder of 1 compile two programs and give the same history as 3 + 3 + 1 steps
+    of one seed without the runner."""
+    runner = Runner(toy_init, toy_update, 4)
+    state = runner.init(jax.random.PRNGKey(0))
+    history = None
+    for inputs in (INPUTS, INPUTS, INPUTS[:1]):
+        state, metrics = runner.step(state, inputs)
+        history = concat_history(history, metrics)
+    assert runner.programs == 2
+    measured = ~np.isnan(history["x/norm"])
+    np.testing.assert_array_equal(measured, np.tile([1, 0, 1, 1, 0, 1, 1], (4, 1)).astype(bool))
+    np.testing.assert_allclose(
+        history["x/norm"][measured], np.linalg.norm(history["x"], axis=-1)[measured], rtol=1e-5
+    )
+    _, _, six = four_seeds
+    np.testing.assert_allclose(history["x"][:, :6], six["x"], rtol=1e-6, atol=1e-6)
 
 
 def test_final_metrics_mean_of_the_last_iterations():
@@ -161,6 +216,19 @@ def test_final_metrics_mean_of_the_last_iterations():
     np.testing.assert_allclose(final_metrics(history, last=3)["erd"], [10.0, 100.0])
     short = {"erd": np.array([[1.0, 2.0, 6.0]])}
     np.testing.assert_allclose(final_metrics(short)["erd"], [3.0])
+
+
+def test_final_metrics_average_the_last_measured_iterations():
+    """Iterations without evaluation log NaN; the final value is the mean of the last ten that
+    were measured, per seed."""
+    erd = np.full((2, 40), np.nan)
+    erd[:, 9::10] = 100.0  # iterations 10, 20, 30, 40
+    erd[0, 28:] = np.arange(12.0)  # seed 0 measured in each of its last 12 iterations
+    returns = np.repeat(erd[..., None], 3, -1)
+    final = final_metrics({"erd": erd, "returns": returns})
+    # Seed 0: the last ten measured are 2..11 -> 6.5; seed 1: 100 at 10, 20, 30, 40 -> 100.
+    np.testing.assert_allclose(final["erd"], [6.5, 100.0])
+    np.testing.assert_allclose(final["returns"], [[6.5] * 3, [100.0] * 3])
 
 
 def test_final_metrics_keep_nan_for_missing_accuracy():
@@ -182,7 +250,7 @@ def test_concat_history_appends_along_iterations():
 def test_default_seed_batch_is_one_on_cpu():
     assert jax.default_backend() == "cpu"
     assert runner_lib.default_seed_batch() == 1
-    assert Runner(toy_init, toy_update, 4, CHUNK).seed_batch == 1
+    assert Runner(toy_init, toy_update, 4).seed_batch == 1
 
 
 @pytest.mark.parametrize("batch", [1, 2, 3, None])
@@ -201,7 +269,7 @@ def test_map_in_batches_equals_vmap_and_keeps_zero_size_leaves(batch):
 @pytest.mark.parametrize("seed_batch", [2, None])
 def test_vmapped_seed_batches_give_the_sequential_results(four_seeds, seed_batch):
     """Two seeds per device, vmapped together or (the CPU default) one after the other."""
-    runner = Runner(toy_init, toy_update, 4, CHUNK, seed_batch=seed_batch)
+    runner = Runner(toy_init, toy_update, 4, seed_batch=seed_batch)
     _, history = run_chunks(runner, 2)
     _, _, sequential = four_seeds
     for name in history:

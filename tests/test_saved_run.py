@@ -50,10 +50,29 @@ def test_load_reward_is_minus_log_one_minus_d(tiny_run, saved):
     np.testing.assert_allclose(jax.jit(reward)(obs, act, 1), reward(obs, act, 1), rtol=1e-6)
 
 
+def test_load_reward_judges_the_executed_action(tiny_run):
+    """The discriminator learned on actions clipped to the range, so an action beyond it gets
+    the reward of the clipped action."""
+    reward = emgail_jax.load_reward(str(tiny_run))
+    obs = np.zeros((2, 10), np.float32)
+    far = reward(obs, np.array([[5.0], [-7.0]], np.float32), 0)
+    edge = reward(obs, np.array([[1.0], [-1.0]], np.float32), 0)
+    np.testing.assert_array_equal(far, edge)
+
+
 def test_responsibilities_are_distributions(saved):
-    gamma = saved.responsibilities(0)
-    assert gamma.shape == (len(saved.problem.demos), 2)
-    np.testing.assert_allclose(gamma.sum(-1), 1.0, rtol=1e-5)
+    result = saved.responsibilities(0)
+    assert result.gamma.shape == (len(saved.problem.demos), 2)
+    np.testing.assert_allclose(result.gamma.sum(-1), 1.0, rtol=1e-5)
+    np.testing.assert_array_equal(result.pair_labels, np.argmax(result.gamma, -1))
+
+
+def test_clustering_equals_what_training_logged_last(saved):
+    """Same posterior, same normaliser, same pairs, same function: the accuracy of the saved
+    run is the one training logged at its last iteration, exactly."""
+    for seed in range(2):
+        logged = saved.history["eval/cluster_accuracy"][seed, -1]
+        assert saved.clustering(seed) == {"cluster_accuracy": float(logged)}
 
 
 def test_unknown_seed_is_refused(saved):

@@ -27,6 +27,7 @@ CONFIG = Config(
 )
 COMMON_KEYS = {
     "eval/erd",
+    "eval/erd_per_intention",
     "eval/cluster_accuracy",
     "eval/returns",
     "eval/matching",
@@ -58,20 +59,22 @@ def expert(demos):
     return ExpertData.create(demos, RANDOM_RETURNS, K)
 
 
-def _train(config, env, expert, iterations):
-    """``(state_0, [(state_i, metrics_i)] for i = 1..iterations)`` with jitted init/update."""
+def _train(config, env, expert, iterations, evaluating=(True, False)):
+    """``(state_0, [(state_i, metrics_i)] for i = 1..iterations)`` with jitted init/update;
+    iteration i evaluates if ``evaluating[i]``."""
     init, update = make_train(config, env, expert)
     state = jax.jit(init)(jax.random.PRNGKey(0))
     step = jax.jit(update)
     steps = []
-    for _ in range(iterations):
-        state_next, metrics = step(steps[-1][0] if steps else state)
+    for i in range(iterations):
+        state_next, metrics = step(steps[-1][0] if steps else state, jnp.bool_(evaluating[i]))
         steps.append((state_next, jax.device_get(metrics)))
     return state, steps, (init, update)
 
 
 @pytest.fixture(scope="module")
 def emgail(env, expert):
+    """Two iterations, the first with the evaluation episodes and the second without."""
     return _train(CONFIG, env, expert, 2)
 
 
@@ -116,11 +119,13 @@ def test_expert_data_from_labelled_demos(demos, expert):
     np.testing.assert_allclose(expert.random_returns, RANDOM_RETURNS)
     # Host arrays, compiled into the update as constants (see ExpertData).
     assert isinstance(expert.observations, np.ndarray)
+    assert expert.episodes == 2 * K and expert.has_labels
 
 
 def test_expert_data_from_unlabelled_demos(demos):
     bare = Demonstrations(demos.observations, demos.actions, demos.episode_starts)
     expert = ExpertData.create(bare, RANDOM_RETURNS, K)
+    assert not expert.has_labels
     np.testing.assert_array_equal(expert.labels, np.full(len(demos), -1))
     assert expert.expert_returns.shape == (K,) and np.all(np.isnan(expert.expert_returns))
     labels_only = Demonstrations(
@@ -186,15 +191,29 @@ def test_init_depends_on_the_key(emgail):
 # ---- update -----------------------------------------------------------------------------
 
 
+EVAL_KEYS = {"eval/erd", "eval/erd_per_intention", "eval/returns", "eval/matching"}
+
+
 def test_update_metrics_have_the_documented_keys_and_shapes(emgail):
     _, steps, _ = emgail
     for _, metrics in steps:
         assert set(metrics) >= COMMON_KEYS | POSTERIOR_KEYS
         for name, value in metrics.items():
-            expected = (K,) if name in ("eval/returns", "eval/matching") else ()
+            per_intention = ("eval/returns", "eval/matching", "eval/erd_per_intention")
+            expected = (K,) if name in per_intention else ()
             assert np.shape(value) == expected, name
+    evaluated, skipped = (metrics for _, metrics in steps)
+    for name, value in evaluated.items():
+        assert np.all(np.isfinite(value)), name
+    assert sorted(evaluated["eval/matching"]) == list(range(K))
+    # Without evaluation: NaN (matching -1), never stale values; the rest is measured.
+    for name, value in skipped.items():
+        if name == "eval/matching":
+            np.testing.assert_array_equal(value, [-1] * K)
+        elif name in EVAL_KEYS:
+            assert np.all(np.isnan(value)), name
+        else:
             assert np.all(np.isfinite(value)), name
-        assert sorted(metrics["eval/matching"]) == list(range(K))
 
 
 def test_update_respects_the_trust_region(emgail):
@@ -203,14 +222,14 @@ def test_update_respects_the_trust_region(emgail):
         assert 0.0 <= metrics["policy/kl"] <= CONFIG.trpo.max_kl * (1 + 1e-3)
 
 
-def test_erd_is_the_normalised_gap_of_the_matched_returns(emgail, expert):
-    _, steps, _ = emgail
-    for _, metrics in steps:
-        gap = np.abs(expert.expert_returns - metrics["eval/returns"]).sum()
-        scale = np.abs(expert.expert_returns - expert.random_returns).sum()
-        assert metrics["eval/erd"] == pytest.approx(gap / scale, rel=1e-5)
-        # A driver return is minus a distance summed over 100 steps.
-        assert np.all(metrics["eval/returns"] < 0)
+def test_erd_is_the_mean_normalised_gap_of_the_matched_returns(emgail, expert):
+    _, [(_, metrics), _], _ = emgail
+    gaps = np.abs(expert.expert_returns - metrics["eval/returns"])
+    scales = np.abs(expert.expert_returns - expert.random_returns)
+    np.testing.assert_allclose(metrics["eval/erd_per_intention"], gaps / scales, rtol=1e-5)
+    assert metrics["eval/erd"] == pytest.approx(np.mean(gaps / scales), rel=1e-5)
+    # A driver return is minus a distance summed over 100 steps.
+    assert np.all(metrics["eval/returns"] < 0)
 
 
 def test_cluster_accuracy_is_a_fraction_of_the_expert_pairs(emgail, expert):
@@ -221,6 +240,37 @@ def test_cluster_accuracy_is_a_fraction_of_the_expert_pairs(emgail, expert):
         # With K = 2 the better of the two matchings gets at least half the pairs right.
         assert 0.5 <= accuracy <= 1.0
         assert accuracy * n == pytest.approx(round(accuracy * n), abs=1e-3)
+
+
+def test_discriminator_and_posterior_see_the_executed_actions(env, expert, monkeypatch):
+    """With a policy std of e^2, nearly every raw sample lies outside the action range [-1, 1];
+    the posterior and the discriminator must see them clipped, as the env executed them."""
+    from emgail_jax import training
+
+    seen = {}
+    record = lambda name, actions: jax.debug.callback(
+        lambda x: seen.setdefault(name, []).append(float(x)), jnp.max(jnp.abs(actions))
+    )
+
+    def posterior_update(*args):
+        record("posterior", args[5])
+        return original_posterior(*args)
+
+    def discriminator_update(*args, **batch):
+        record("discriminator", batch["policy_actions"])
+        record("expert", batch["expert_actions"])
+        return original_discriminator(*args, **batch)
+
+    original_posterior = training.posterior_update
+    original_discriminator = training.discriminator_update
+    monkeypatch.setattr(training, "posterior_update", posterior_update)
+    monkeypatch.setattr(training, "discriminator_update", discriminator_update)
+    _, [(_, metrics)], _ = _train(CONFIG.replace(init_log_std=2.0), env, expert, 1, (False,))
+    jax.effects_barrier()
+    assert seen["posterior"] == [1.0] and seen["discriminator"] == [1.0]
+    assert seen["expert"][0] <= 1.0
+    # TRPO saw the raw samples: their entropy is that of the wide Gaussian.
+    assert metrics["policy/entropy"] > 2.0
 
 
 def test_update_advances_the_state(emgail):
@@ -263,7 +313,7 @@ def test_vmapped_update_over_seeds_equals_one_seed_at_a_time(env, expert, emgail
     _, [(_, metrics), _], (init, update) = emgail
     keys = jnp.stack([jax.random.PRNGKey(0), jax.random.PRNGKey(1)])
     states = jax.jit(jax.vmap(init))(keys)
-    _, batched = jax.jit(jax.vmap(update))(states)
+    _, batched = jax.jit(jax.vmap(update, in_axes=(0, None)))(states, jnp.bool_(True))
     for name in metrics:
         assert batched[name].shape == (2, *np.shape(metrics[name])), name
         np.testing.assert_allclose(batched[name][0], metrics[name], rtol=1e-4, atol=1e-5)
@@ -274,7 +324,7 @@ def test_vmapped_update_over_seeds_equals_one_seed_at_a_time(env, expert, emgail
 def test_update_without_jit_equals_the_jitted_update(env, expert, gail):
     state0, [(state1, metrics)], _ = gail
     _, update = make_train(CONFIG.replace(algo="gail"), env, expert)
-    eager_state, eager_metrics = update(state0)
+    eager_state, eager_metrics = update(state0, jnp.bool_(True))
     assert set(eager_metrics) == set(metrics)
     for name in metrics:
         np.testing.assert_allclose(
@@ -298,9 +348,19 @@ def test_unlabelled_demos_give_nan_erd_and_accuracy(env, demos):
 
 def test_trajectory_responsibilities_label_whole_demonstrations(emgail_trajectory, expert):
     """With trajectory responsibilities every demonstration's pairs fall into one cluster, so
-    the clustering accuracy is a multiple of one demonstration's share of the pairs."""
+    the trajectory accuracy is a multiple of one demonstration's share of the pairs; the
+    paper's accuracy (eq. 29) is still the posterior's own per-pair argmax."""
     _, steps, _ = emgail_trajectory
     _, metrics = steps[0]
-    episodes = int(expert.episode.max()) + 1
-    accuracy = float(metrics["eval/cluster_accuracy"])
+    episodes = expert.episodes
+    assert episodes == int(expert.episode.max()) + 1
+    accuracy = float(metrics["eval/trajectory_cluster_accuracy"])
     assert accuracy * episodes == pytest.approx(round(accuracy * episodes), abs=1e-4)
+    n = len(expert.labels)
+    per_pair = float(metrics["eval/cluster_accuracy"])
+    assert per_pair * n == pytest.approx(round(per_pair * n), abs=1e-3)
+
+
+def test_pair_mode_logs_no_trajectory_accuracy(emgail):
+    _, [(_, metrics), _], _ = emgail
+    assert "eval/trajectory_cluster_accuracy" not in metrics
