@@ -35,8 +35,10 @@ format: $(STAMP)
 	$(VENV)/bin/ruff format .
 	$(VENV)/bin/ruff check --fix .
 
+# Where the time goes (driver-2 and halfcheetah-3): per seed-iteration, per piece, compile
+# (cold and warm cache), memory, and against native MuJoCo and the reference implementation.
 bench: $(STAMP)
-	$(PY) experiments/bench_driver.py
+	$(PY) experiments/bench.py
 
 # Env-steps/s of every env, batched, against native MuJoCo on both cores, as ratios.
 bench-envs: $(STAMP)

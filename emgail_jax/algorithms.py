@@ -31,7 +31,10 @@ class Algorithm:
     conditional_policy: bool
     learns_posterior: bool
     conditional_discriminator: bool
-    info_weight: float = 0.0  # lambda of eq. 23; only Info/IntentionGAIL uses it
+    info_reward: bool = False  # the reward adds lambda log P(i | s, a) (eq. 23)
+    # lambda of eq. 23: a float, or a traced scalar when the program takes it as an argument
+    # (runs that differ only in lambda then share one compiled program).
+    info_weight: float | jax.Array = 0.0
 
     def policy_condition(self, intentions: jax.Array, num_intentions: int) -> jax.Array:
         """``[..., K]`` one-hot of ``intentions [...]``; ``[..., 0]`` if unconditioned."""
@@ -56,7 +59,7 @@ class Algorithm:
         """The B-step reward of a policy sample from its discriminator logit (under its own
         condition) and log P(i | s, a) of the intention that generated it."""
         reward = imitation_reward(logit)
-        if self.info_weight:
+        if self.info_reward:
             reward = reward + self.info_weight * posterior_log_prob
         return reward
 
@@ -74,7 +77,7 @@ def make_algorithm(name: str, info_weight: float = 1.0) -> Algorithm:
     if name == "emgail":
         return Algorithm("emgail", True, True, True)
     if name == "infogail":
-        return Algorithm("infogail", True, True, False, info_weight=info_weight)
+        return Algorithm("infogail", True, True, False, info_reward=True, info_weight=info_weight)
     if name == "gail":
         return Algorithm("gail", False, False, False)
     raise ValueError(f"unknown algorithm '{name}': choose one of {', '.join(NAMES)}")

@@ -3,13 +3,17 @@
 Orbax writes each checkpoint to a temporary directory and renames it into place once complete,
 so an interrupted save never replaces the last complete checkpoint. A checkpoint holds:
 
-- ``state``: the ``TrainState`` pytree with the seeds as leading axis (sharded as in training);
+- ``state``: the ``TrainState`` pytree with the seeds as leading axis, as host arrays (the
+  caller gathers the seeds from their devices, and places them back after a restore);
 - ``history``: every metric so far, ``{name: [S, iterations, ...]}`` (exact, unlike the CSV);
 - ``meta``: ``{"iteration": n}``.
 
 Orbax refuses zero-size arrays, which MJX states hold (``physics.act`` of a model without
 actuator activations, ``mocap_pos`` of one without mocap bodies); they carry no values, so they
 are left out of the checkpoint and rebuilt from the restore target's shapes.
+
+In a run of several processes, process 0 alone writes checkpoints; every process reads them
+(the run directory is on a file system they share).
 """
 
 from __future__ import annotations
@@ -39,11 +43,9 @@ def _with_empty(restored, target):
     filled = iter(jax.tree.leaves(restored))
 
     def leaf(template):
-        if not _is_empty(template):
-            return next(filled)
-        empty = np.zeros(template.shape, template.dtype)
-        sharding = getattr(template, "sharding", None)
-        return jax.device_put(empty, sharding) if sharding is not None else jax.numpy.asarray(empty)
+        if _is_empty(template):
+            return np.zeros(template.shape, template.dtype)
+        return np.asarray(next(filled))
 
     return jax.tree.map(leaf, target)
 
@@ -53,14 +55,23 @@ def directory(run_dir: str) -> str:
 
 
 def _manager(run_dir: str, keep: int = 2) -> ocp.CheckpointManager:
+    # Each process acts alone: no barrier waits for processes that never call in.
+    me = jax.process_index()
+    alone = ocp.options.MultiprocessingOptions(primary_host=me, active_processes={me})
     options = ocp.CheckpointManagerOptions(
-        max_to_keep=keep, enable_async_checkpointing=False, create=True
+        max_to_keep=keep,
+        enable_async_checkpointing=False,
+        create=False,  # save creates the directory (orbax cannot with active_processes)
+        multiprocessing_options=(
+            alone if jax.process_count() > 1 else ocp.options.MultiprocessingOptions()
+        ),
     )
     return ocp.CheckpointManager(directory(run_dir), options=options)
 
 
 def save(run_dir: str, iteration: int, state, history: dict[str, np.ndarray]) -> None:
-    """Writes the checkpoint of ``iteration`` (keeps the two newest)."""
+    """Writes the checkpoint of ``iteration`` (keeps the two newest); ``state`` is host arrays."""
+    os.makedirs(directory(run_dir), exist_ok=True)
     with _manager(run_dir) as manager:
         manager.save(
             iteration,
@@ -81,7 +92,8 @@ def latest_iteration(run_dir: str) -> int | None:
 
 
 def restore(run_dir: str, target_state, iteration: int | None = None):
-    """Restores ``(state, history, iteration)``; ``target_state`` gives structure and sharding.
+    """Restores ``(state, history, iteration)``, the state as host arrays; ``target_state``
+    (arrays or shape-dtype structs) gives its structure.
 
     Raises:
       CheckpointError: no checkpoint, or one that cannot be read into ``target_state``.
@@ -89,6 +101,7 @@ def restore(run_dir: str, target_state, iteration: int | None = None):
     iteration = latest_iteration(run_dir) if iteration is None else iteration
     if iteration is None:
         raise CheckpointError(f"'{run_dir}' holds no checkpoint to resume or evaluate")
+    target_state = jax.tree.map(lambda x: np.zeros(x.shape, x.dtype), target_state)
     try:
         with _manager(run_dir) as manager:
             restored = manager.restore(

@@ -21,10 +21,10 @@ class Config:
     # None takes the env's default (DRIVER_DEFAULTS / ROBOTICS_DEFAULTS below).
     num_envs: int | None = None
     rollout_length: int | None = None
-    eval_episodes: int = 5  # deterministic evaluation episodes per learned intention
-    # The evaluation episodes (as many env steps as the training rollouts) run every
-    # `eval_every` iterations and in each of the last 10, which the final metrics average;
-    # the clustering accuracy is measured every iteration.
+    # Evaluation: deterministic episodes of every learned intention, one per env of the rollout
+    # (`num_envs`, 5 by default; the reacher's 50), every `eval_every` iterations and in each of
+    # the last 10, which the final metrics average; the clustering accuracy is measured every
+    # iteration.
     eval_every: int = 10
     hidden: tuple[int, ...] = (64, 64)
     # How the intention enters the policy, value and EM-GAIL's discriminator: "heads" (one
@@ -106,6 +106,7 @@ class Config:
         values.setdefault("seed_batch", None)
         values.setdefault("responsibilities", "pair")
         values.setdefault("eval_every", 1)
+        values.pop("eval_episodes", None)  # runs written before evaluation used num_envs
         values["hidden"] = tuple(values["hidden"])
         values["trpo"] = TRPOConfig(**values["trpo"])
         return cls(**values)

@@ -72,7 +72,6 @@ def _config(spec: ExpertSpec):
         rollout_length=spec.rollout_length,
         gamma=spec.gamma,
         init_log_std=spec.init_log_std,
-        eval_episodes=spec.eval_episodes,
         trpo=TRPOConfig(max_kl=spec.max_kl),
     )
 
@@ -80,7 +79,7 @@ def _config(spec: ExpertSpec):
 def _trainer(env, spec: ExpertSpec):
     from emgail_jax.rl import make_rl_train
 
-    return make_rl_train(_config(spec), env)
+    return make_rl_train(_config(spec), env, eval_episodes=spec.eval_episodes)
 
 
 def train(env, spec: ExpertSpec, seeds: int, key, progress: bool = True, intentions=None):
@@ -97,8 +96,8 @@ def train(env, spec: ExpertSpec, seeds: int, key, progress: bool = True, intenti
     trainer = _trainer(env, spec)
     intentions = jnp.arange(env.num_intentions) if intentions is None else jnp.asarray(intentions)
     k = len(intentions)
-    init = lambda seed_key: jax.vmap(trainer.init)(jax.random.split(seed_key, k))
-    update = lambda states, _: jax.vmap(trainer.update)(states, intentions)
+    init = lambda seed_key, _: jax.vmap(trainer.init)(jax.random.split(seed_key, k))
+    update = lambda states, _, __: jax.vmap(trainer.update)(states, intentions)
     chunk = chunk_length(spec.iterations, 10)
     inputs = np.zeros(chunk, bool)  # the update takes no per-iteration input
     runner = Runner(init, update, seeds)

@@ -65,7 +65,9 @@ def cluster_accuracy(predicted: jax.Array, labels: jax.Array, k: int) -> jax.Arr
     counts = confusion_matrix(predicted, labels, k)
     perms = jnp.asarray(permutations(k))
     matched = counts[perms, jnp.arange(k)].sum(-1)
-    return matched.max() / predicted.shape[0]
+    # A product with the reciprocal, written out: XLA turns a division by a constant into one
+    # when compiling but not eagerly, and the accuracy must not depend on which ran it.
+    return matched.max() * (1.0 / predicted.shape[0])
 
 
 def hungarian_accuracy(predicted: np.ndarray, labels: np.ndarray, k: int | None = None) -> float:

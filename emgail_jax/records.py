@@ -31,15 +31,23 @@ def flatten_metrics(metrics: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
 class MetricsLog:
     """Appends one row per iteration and seed to ``metrics.csv`` and to TensorBoard."""
 
-    def __init__(self, out_dir: str, tensorboard: bool = True, keep_until: int | None = None):
+    def __init__(
+        self,
+        out_dir: str,
+        tensorboard: bool = True,
+        keep_until: int | None = None,
+        enabled: bool = True,
+    ):
         """``keep_until``: continue an existing log, first dropping its rows after that
-        iteration (written after the checkpoint a resumed run restarts from)."""
+        iteration (written after the checkpoint a resumed run restarts from). A log that is not
+        ``enabled`` writes nothing (the processes of a multi-process run other than 0)."""
         self.csv_path = os.path.join(out_dir, "metrics.csv")
         self.tensorboard_dir = os.path.join(out_dir, "tensorboard")
         self._columns: list[str] | None = None
         self._writers = {}
         self._tensorboard = tensorboard
-        if keep_until is not None and os.path.exists(self.csv_path):
+        self.enabled = enabled
+        if enabled and keep_until is not None and os.path.exists(self.csv_path):
             self._truncate(keep_until)
 
     def _truncate(self, keep_until: int) -> None:
@@ -53,6 +61,8 @@ class MetricsLog:
         self._columns = header[2:]
 
     def write(self, first_iteration: int, metrics: dict[str, np.ndarray]) -> None:
+        if not self.enabled:
+            return
         columns = flatten_metrics(metrics)
         seeds, length = next(iter(columns.values())).shape
         if self._columns is None:

@@ -47,9 +47,12 @@ class RLState:
     iteration: jax.Array
 
 
-def make_rl_train(config: Config, env: envs.Env, reward_fn: RewardFn = true_reward):
+def make_rl_train(
+    config: Config, env: envs.Env, reward_fn: RewardFn = true_reward, eval_episodes: int = 5
+):
     """Builds ``init(key) -> RLState``, ``update(state, intention) -> (state, metrics)`` and
-    ``policy(state, deterministic) -> (obs, key) -> action``."""
+    ``policy(state, deterministic) -> (obs, key) -> action``; every update scores the new policy
+    on ``eval_episodes`` deterministic episodes."""
     config = config.resolved(env)
     b, t = config.num_envs, config.rollout_length
     train_env = envs.wrap_for_training(env)
@@ -113,7 +116,7 @@ def make_rl_train(config: Config, env: envs.Env, reward_fn: RewardFn = true_rewa
             key_value,
         )
         greedy = act(policy, normalizer, deterministic=True)
-        returns = episode_returns(eval_env, greedy, key_eval, 1, config.eval_episodes)[0]
+        returns = episode_returns(eval_env, greedy, key_eval, 1, eval_episodes)[0]
         metrics = {
             **metrics,
             "eval/returns": returns,  # [K] under every true intention

@@ -28,6 +28,16 @@ class Transitions:
     done: jax.Array  # [T, K, B] 1.0 where the episode ended with this transition
     true_reward: jax.Array  # [T, K, B, K] true reward of every intention (evaluation only)
 
+    @classmethod
+    def zeros(cls, t: int, k: int, b: int, obs_size: int, action_size: int) -> Transitions:
+        return cls(
+            obs=jnp.zeros((t, k, b, obs_size)),
+            action=jnp.zeros((t, k, b, action_size)),
+            time=jnp.zeros((t, k, b)),
+            done=jnp.zeros((t, k, b)),
+            true_reward=jnp.zeros((t, k, b, k)),
+        )
+
 
 def intention_major(x: jax.Array) -> jax.Array:
     """``[T, K, B, ...] -> [K, T * B, ...]``: a rollout's samples grouped by intention, the
@@ -84,6 +94,42 @@ def rollout(
         return next_state, transition
 
     return jax.lax.scan(body, state, jax.random.split(key, length))
+
+
+def tree_where(condition: jax.Array, a, b):
+    """``a`` where ``condition`` (a scalar, or batch dims leading every leaf), else ``b``."""
+
+    def pick(x, y):
+        c = jnp.reshape(condition, jnp.shape(condition) + (1,) * (x.ndim - jnp.ndim(condition)))
+        return jnp.where(c, x, y)
+
+    return jax.tree.map(pick, a, b)
+
+
+def fresh_starts(state: envs.State) -> envs.State:
+    """The ``next_start`` states an auto-resetting env drew (see :meth:`AutoResetWrapper.refresh`),
+    as states of their own: fresh episodes."""
+    start = state.info["next_start"]
+    return start.replace(info={**start.info, "next_start": start})
+
+
+def episode_totals(transitions: Transitions, alive: jax.Array):
+    """Sums of the true rewards of ``transitions`` over the steps still in the first episode.
+
+    Args:
+      alive: ``[K, B]`` 1.0 for an env whose episode had not ended before these transitions.
+
+    Returns ``(totals [K, B, K], alive [K, B])``: the reward of the step that ends an episode
+    counts, later ones do not (an auto-reset env has started another episode by then).
+    """
+
+    def body(alive, step):
+        reward, done = step
+        total = jnp.where(alive[..., None] > 0, reward, 0.0)
+        return alive * (1.0 - done), total
+
+    alive, totals = jax.lax.scan(body, alive, (transitions.true_reward, transitions.done))
+    return totals.sum(0), alive
 
 
 def episodes(

@@ -66,7 +66,6 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     parser.add_argument("--num-envs", type=int, default=None, help="envs per intention")
     parser.add_argument("--rollout-length", type=int, default=None, help="steps per rollout")
-    parser.add_argument("--eval-episodes", type=int, default=None)
     parser.add_argument(
         "--eval-every",
         type=int,
@@ -87,6 +86,14 @@ def parse_args(argv=None) -> argparse.Namespace:
         help=f"iterations between checkpoints (default {DEFAULT_CHECKPOINT_EVERY})",
     )
     parser.add_argument("--overwrite", action="store_true", help="replace an earlier run")
+    parser.add_argument(
+        "--coordinator",
+        default=None,
+        metavar="HOST:PORT",
+        help="a run over several processes or hosts: process 0's address (jax.distributed)",
+    )
+    parser.add_argument("--num-processes", type=int, default=None, help="with --coordinator")
+    parser.add_argument("--process-id", type=int, default=None, help="with --coordinator")
     parser.add_argument("--quiet", action="store_true", help="no progress bar or table")
     return parser.parse_args(argv)
 
@@ -106,7 +113,6 @@ _RUN_OPTIONS = (
     "responsibilities",
     "num_envs",
     "rollout_length",
-    "eval_episodes",
     "eval_every",
     "chunk_size",
     "seed_batch",
@@ -134,7 +140,7 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         args.iterations is not None and args.iterations < 1
     ):
         raise RunError("--seeds and --iterations must be at least 1")
-    for name in ("seed_batch", "eval_every", "eval_episodes", "chunk_size"):
+    for name in ("seed_batch", "eval_every", "chunk_size"):
         value = getattr(args, name)
         if value is not None and value < 1:
             raise RunError(f"--{name.replace('_', '-')} must be at least 1")
@@ -151,7 +157,6 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         "responsibilities": args.responsibilities,
         "num_envs": args.num_envs,
         "rollout_length": args.rollout_length,
-        "eval_episodes": args.eval_episodes,
         "eval_every": args.eval_every,
         "chunk_size": args.chunk_size,
         "seed_batch": args.seed_batch,
@@ -230,49 +235,54 @@ def train(
     """Trains (or, with ``resume``, continues) the run ``spec`` and writes its outputs to ``out``.
 
     Returns the summary as written to ``summary.json``; its ``status`` is ``"completed"`` or
-    ``"interrupted"``.
+    ``"interrupted"``. In a run of several processes (``jax.distributed``), every process trains
+    its share of the seeds and process 0 alone writes the outputs.
     """
     import jax
 
     from emgail_jax import checkpoints, records
     from emgail_jax.progress import ProgressBar
-    from emgail_jax.runner import (
-        Runner,
-        chunks,
-        concat_history,
-        evaluation_plan,
-    )
-    from emgail_jax.training import ExpertData, make_train
+    from emgail_jax.runner import Runner, chunks, concat_history, evaluation_plan, gather
+    from emgail_jax.training import ExpertData, RunData, make_train
 
     env = problem.env
     config = spec.config.resolved(env)
     expert = ExpertData.create(problem.demos, problem.random_returns, env.num_intentions)
-    init, update = make_train(config, env, expert)
+    data = RunData.create(expert, env, config)
+    init, update, _ = make_train(config, env)
     summary_path = os.path.join(out, "summary.json")
+    writes = jax.process_index() == 0
+    write_json = records.write_json if writes else lambda path, data: None
     summary = _summary_header(spec, problem, config)
     timings = {"compile_time_s": 0.0, "train_time_s": 0.0, "iterations": 0}
     done = checkpoints.latest_iteration(out) if resume else 0
     if resume:
         timings = read_summary(out).get("timings", timings)
 
-    runner = Runner(init, update, spec.seeds, config.seed_batch)
+    runner = Runner(init, update, spec.seeds, data, config.seed_batch)
     summary["devices"] = [str(d) for d in runner.sharding.mesh.devices.flat]
-    summary["parameters"] = parameter_counts(init)
+    summary["processes"] = jax.process_count()
+    summary["parameters"] = parameter_counts(init, data)
     key = jax.random.PRNGKey(spec.first_seed)
     if resume:
-        state, history, done = checkpoints.restore(out, runner.abstract_state(key))
+        host_state, history, done = checkpoints.restore(out, runner.abstract_state(key))
+        state = runner.place_state(host_state)
     else:
         state, history = runner.init(key), None
-    records.write_json(summary_path, {**summary, "status": "running", "timings": timings})
+    write_json(summary_path, {**summary, "status": "running", "timings": timings})
 
     # Chunks only group iterations into compiled calls; they do not change the results.
     plan = chunks(done, config.iterations, config.chunk_size)
     stop = _StopRequest()
     iteration = last_saved = done
     if plan:
-        log = records.MetricsLog(out, keep_until=done if resume else None)
+        log = records.MetricsLog(out, keep_until=done if resume else None, enabled=writes)
         bar = ProgressBar(
-            "training", config.iterations, {"ERD": "-", "acc": "-"}, done, enabled=progress
+            "training",
+            config.iterations,
+            {"ERD": "-", "acc": "-"},
+            done,
+            enabled=progress and writes,
         )
         try:
             with stop:
@@ -289,7 +299,9 @@ def train(
                     bar.update(length, **_progress_fields(history))
                     finished = iteration >= config.iterations or stop.signal is not None
                     if finished or iteration - last_saved >= checkpoint_every:
-                        checkpoints.save(out, iteration, state, history)
+                        host_state = gather(state)  # every process takes part
+                        if writes:
+                            checkpoints.save(out, iteration, host_state, history)
                         last_saved = iteration
         finally:
             bar.close()
@@ -308,7 +320,7 @@ def train(
     else:
         summary["status"] = "completed"
     summary["final"] = _final_summary(problem, config, history, timings, spec)
-    records.write_json(summary_path, summary)
+    write_json(summary_path, summary)
     return records.to_json_value(summary)
 
 
@@ -336,13 +348,15 @@ def _summary_header(spec: RunSpec, problem, config) -> dict:
 
 def _final_summary(problem, config, history, timings, spec) -> dict:
     from emgail_jax.runner import final_metrics
+    from emgail_jax.training import evaluation_phases
 
     env = problem.env
     k, b, t = env.num_intentions, config.num_envs, config.rollout_length
     final = final_metrics(history)
     iterations = history["eval/returns"].shape[1]
     evaluated = int(np.sum(~np.isnan(history["eval/returns"][0, :, 0])))
-    env_steps = k * (b * t * iterations + config.eval_episodes * env.episode_length * evaluated)
+    eval_steps = b * t * evaluation_phases(config, env)  # per intention and evaluation
+    env_steps = k * (b * t * iterations + eval_steps * evaluated)
     no_accuracy = config.algo == "gail" or problem.demos.intentions is None
     no_erd = problem.demos.expert_returns is None
     summary = {
@@ -374,12 +388,12 @@ def _progress_fields(history: dict[str, np.ndarray]) -> dict[str, str]:
     return fields
 
 
-def parameter_counts(init) -> dict[str, int]:
+def parameter_counts(init, data) -> dict[str, int]:
     """Learnable parameters of each network of one seed, and their total (the paper's Table 2
     "#LP" counts policy, value, discriminator and posterior)."""
     import jax
 
-    state = jax.eval_shape(init, jax.random.PRNGKey(0))
+    state = jax.eval_shape(init, jax.random.PRNGKey(0), data)
     networks = ("policy", "value", "discriminator", "posterior")
     counts = {
         name: sum(int(np.prod(leaf.shape)) for leaf in jax.tree.leaves(getattr(state, name)))
@@ -435,7 +449,15 @@ def print_summary(summary: dict) -> None:
 
 def main(argv=None) -> int:
     args = parse_args(argv)
-    runtime.setup()
+    try:
+        distributed = runtime.Distributed.from_options(
+            args.coordinator, args.num_processes, args.process_id
+        )
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    runtime.setup(distributed=distributed)
+    import jax
 
     import envs
     from emgail_jax.checkpoints import CheckpointError, latest_iteration
@@ -447,8 +469,10 @@ def main(argv=None) -> int:
         if args.resume is not None and latest_iteration(out) is None:
             raise CheckpointError(f"'{out}' holds no checkpoint to resume from")
         problem = spec.problem()
+        primary = jax.process_index() == 0
         if args.resume is None:
-            prepare_output(out, args.overwrite)
+            if primary:
+                prepare_output(out, args.overwrite)
         else:
             print(f"resuming '{out}' from iteration {latest_iteration(out)}")
         if problem.demos.expert_returns is None:
@@ -474,9 +498,10 @@ def main(argv=None) -> int:
             file=sys.stderr,
         )
         return 2
-    if not args.quiet:
-        print_summary(summary)
-    print(f"wrote {os.path.join(out, 'summary.json')} ({summary['status']})")
+    if jax.process_index() == 0:
+        if not args.quiet:
+            print_summary(summary)
+        print(f"wrote {os.path.join(out, 'summary.json')} ({summary['status']})")
     return 130 if summary["status"] == "interrupted" else 0
 
 

@@ -69,10 +69,13 @@ def map_in_batches(f: Callable, batch: int | None) -> Callable:
 class Runner:
     """Compiles ``init`` and chunks of ``update`` for ``seeds`` seeds, then steps chunks.
 
-    ``update(state, x) -> (state, metrics)`` takes, besides one seed's state, one element of a
-    per-iteration input that every seed shares (e.g. whether to evaluate): it is not batched
-    over seeds, so a ``lax.cond`` on it really skips the branch not taken. Seeds are sharded
-    over the devices; on each device, ``seed_batch`` of them are vmapped together (default:
+    ``init(key, data)`` builds one seed's state; ``update(state, x, data) -> (state, metrics)``
+    takes, besides one seed's state, one element ``x`` of a per-iteration input that every seed
+    shares (e.g. whether to evaluate) and the run's ``data`` (a pytree of arrays, e.g. the
+    demonstrations). Neither is batched over seeds: a ``lax.cond`` on ``x`` really skips the
+    branch not taken, and ``data`` is an argument of the compiled program, not constants in it,
+    so runs that differ only in their data share one program. Seeds are sharded over the
+    devices; on each device, ``seed_batch`` of them are vmapped together (default:
     :func:`default_seed_batch`). ``step`` returns host numpy metrics ``[S, L, ...]``; a program
     is compiled for every chunk length used (a run uses at most two: its chunk and a remainder).
     """
@@ -82,24 +85,32 @@ class Runner:
         init: Callable,
         update: Callable,
         seeds: int,
+        data=None,
         seed_batch: int | None = None,
     ):
         self.seeds = seeds
         self.sharding = seed_sharding(seeds)
         self.seed_batch = seed_batch or default_seed_batch()
         mesh, spec = self.sharding.mesh, self.sharding.spec
+        # One copy of the data on every device, placed before the first call: a program fed
+        # from another device's memory deadlocks XLA:CPU when seeds are sharded over devices.
+        self.data = place(data, NamedSharding(mesh, PartitionSpec()))
 
-        def scan_chunk(state: TrainState, inputs: jax.Array):
-            per_seed = lambda s: jax.lax.scan(update, s, inputs)
+        def init_seeds(keys, data):
+            return map_in_batches(lambda key: init(key, data), self.seed_batch)(keys)
+
+        def scan_chunk(state: TrainState, inputs: jax.Array, data):
+            per_seed = lambda s: jax.lax.scan(lambda s, x: update(s, x, data), s, inputs)
             return map_in_batches(per_seed, self.seed_batch)(state)
 
         # shard_map runs each device's share of the seeds as its own program: seeds never
         # interact, so no cross-device communication is compiled in.
+        replicated = PartitionSpec()
         self._init = jax.jit(
             jax.shard_map(
-                map_in_batches(init, self.seed_batch),
+                init_seeds,
                 mesh=mesh,
-                in_specs=spec,
+                in_specs=(spec, replicated),
                 out_specs=spec,
                 check_vma=False,
             )
@@ -108,7 +119,7 @@ class Runner:
             jax.shard_map(
                 scan_chunk,
                 mesh=mesh,
-                in_specs=(spec, PartitionSpec()),
+                in_specs=(spec, replicated, replicated),
                 out_specs=spec,
                 check_vma=False,
             )
@@ -117,9 +128,9 @@ class Runner:
         self.timings = Timings()
 
     def init(self, key: jax.Array) -> TrainState:
-        keys = jax.device_put(jax.random.split(key, self.seeds), self.sharding)
+        keys = place(np.asarray(jax.random.split(key, self.seeds)), self.sharding)
         start = time.perf_counter()
-        state = self._init(keys)
+        state = self._init(keys, self.data)
         jax.block_until_ready(state)
         self.timings.compile_s += time.perf_counter() - start
         return state
@@ -128,15 +139,17 @@ class Runner:
         """Shapes, dtypes and shardings of :meth:`init`'s state, without computing it (the
         target a checkpoint is restored into)."""
         keys = jax.random.split(key, self.seeds)
-        shapes = jax.eval_shape(self._init, keys)
+        shapes = jax.eval_shape(self._init, keys, self.data)
         return jax.tree.map(
             lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=self.sharding), shapes
         )
 
     def _replicated(self, inputs) -> jax.Array:
-        return jax.device_put(
-            np.asarray(inputs), NamedSharding(self.sharding.mesh, PartitionSpec())
-        )
+        return place(np.asarray(inputs), NamedSharding(self.sharding.mesh, PartitionSpec()))
+
+    def place_state(self, host_state) -> TrainState:
+        """A state of host arrays (a restored checkpoint) on the seeds' devices."""
+        return place(host_state, self.sharding)
 
     def compile(self, state: TrainState, inputs) -> None:
         """Compiles the chunk program for ``len(inputs)`` iterations (once per length)."""
@@ -144,7 +157,8 @@ class Runner:
         if length in self._compiled:
             return
         start = time.perf_counter()
-        self._compiled[length] = self._chunk.lower(state, self._replicated(inputs)).compile()
+        lowered = self._chunk.lower(state, self._replicated(inputs), self.data)
+        self._compiled[length] = lowered.compile()
         self.timings.compile_s += time.perf_counter() - start
 
     @property
@@ -157,11 +171,34 @@ class Runner:
         state and host metrics."""
         self.compile(state, inputs)
         start = time.perf_counter()
-        state, metrics = self._compiled[len(inputs)](state, self._replicated(inputs))
-        metrics = jax.device_get(metrics)
+        compiled = self._compiled[len(inputs)]
+        state, metrics = compiled(state, self._replicated(inputs), self.data)
+        metrics = gather(metrics)
         self.timings.train_s += time.perf_counter() - start
         self.timings.iterations += len(inputs)
         return state, metrics
+
+
+def place(tree, sharding: NamedSharding):
+    """Host arrays onto ``sharding``'s devices, also when some of them belong to other processes
+    of a multi-process run (each process places its own devices' shares; every process passes
+    the same values)."""
+
+    def put(x):
+        x = np.asarray(x)
+        return jax.make_array_from_callback(x.shape, sharding, lambda index: x[index])
+
+    return jax.tree.map(put, tree)
+
+
+def gather(tree):
+    """Device arrays back to host numpy arrays, whole, in every process of a run (a
+    multi-process run gathers the other processes' shares)."""
+    if jax.process_count() == 1:
+        return jax.device_get(tree)
+    from jax.experimental import multihost_utils
+
+    return jax.tree.map(np.asarray, multihost_utils.process_allgather(tree, tiled=True))
 
 
 def chunks(done: int, total: int, chunk_size: int) -> list[tuple[int, int]]:

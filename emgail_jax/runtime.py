@@ -1,7 +1,9 @@
-"""Process-wide JAX set-up for the command-line tools: host devices and the compilation cache."""
+"""Process-wide JAX set-up for the command-line tools: host devices, the compilation cache and,
+for a run spread over several processes or hosts, ``jax.distributed``."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 
 from emgail_jax import _add_xla_flags
@@ -9,7 +11,48 @@ from emgail_jax import _add_xla_flags
 DEFAULT_CACHE = os.path.join(os.path.expanduser("~"), ".cache", "emgail_jax", "xla")
 
 
-def setup(host_devices: int | None = None, cache_dir: str | None = DEFAULT_CACHE) -> None:
+@dataclasses.dataclass(frozen=True)
+class Distributed:
+    """Where a process of a multi-process run finds the others (``jax.distributed``)."""
+
+    coordinator: str  # HOST:PORT of process 0
+    num_processes: int
+    process_id: int
+
+    @classmethod
+    def from_options(
+        cls, coordinator: str | None, num_processes: int | None, process_id: int | None
+    ) -> Distributed | None:
+        """From command-line options, else JAX's standard environment variables
+        (``JAX_COORDINATOR_ADDRESS``, ``JAX_NUM_PROCESSES``, ``JAX_PROCESS_ID``); ``None`` for a
+        single-process run. Raises ``ValueError`` (one line) for an incomplete set."""
+        env = os.environ
+        coordinator = coordinator or env.get("JAX_COORDINATOR_ADDRESS")
+        if num_processes is None and env.get("JAX_NUM_PROCESSES"):
+            num_processes = int(env["JAX_NUM_PROCESSES"])
+        if process_id is None and env.get("JAX_PROCESS_ID"):
+            process_id = int(env["JAX_PROCESS_ID"])
+        given = (coordinator, num_processes, process_id)
+        if all(value is None for value in given):
+            return None
+        if any(value is None for value in given):
+            raise ValueError(
+                "a multi-process run needs --coordinator HOST:PORT, --num-processes N and "
+                "--process-id I (or JAX_COORDINATOR_ADDRESS, JAX_NUM_PROCESSES, JAX_PROCESS_ID)"
+            )
+        if ":" not in coordinator or not 0 <= process_id < num_processes:
+            raise ValueError(
+                f"--coordinator must be HOST:PORT and 0 <= --process-id < --num-processes; got "
+                f"{coordinator}, {process_id}, {num_processes}"
+            )
+        return cls(coordinator, num_processes, process_id)
+
+
+def setup(
+    host_devices: int | None = None,
+    cache_dir: str | None = DEFAULT_CACHE,
+    distributed: Distributed | None = None,
+) -> None:
     """Call before the first JAX computation.
 
     Args:
@@ -18,10 +61,23 @@ def setup(host_devices: int | None = None, cache_dir: str | None = DEFAULT_CACHE
         device per core. Has no effect once JAX's backend exists or on GPU/TPU.
       cache_dir: JAX's persistent compilation cache, which removes repeated compiles across
         processes; ``None`` disables it.
+      distributed: join a run of several processes (``jax.distributed``): ``jax.devices()``
+        then lists every process's devices, and seeds are sharded over all of them.
     """
     devices = host_devices or os.cpu_count() or 1
     _add_xla_flags(f"--xla_force_host_platform_device_count={devices}")
     import jax
+
+    if distributed is not None:
+        jax.distributed.initialize(
+            distributed.coordinator, distributed.num_processes, distributed.process_id
+        )
+        # The CPU collectives (gloo) set up their connections on first use and give up after
+        # 30 s; right after `initialize` every process is here at once, later (after compiles
+        # that take each process its own time) not.
+        from jax.experimental import multihost_utils
+
+        multihost_utils.sync_global_devices("emgail_jax: processes connected")
 
     # A cache chosen earlier (JAX_COMPILATION_CACHE_DIR, or a caller's config) wins.
     if cache_dir and not jax.config.jax_compilation_cache_dir:

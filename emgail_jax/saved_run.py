@@ -30,6 +30,7 @@ from emgail_jax.runs import RunError, RunSpec, read_summary
 from emgail_jax.training import (
     ExpertData,
     Networks,
+    RunData,
     TrainState,
     clustering_metrics,
     make_networks,
@@ -67,8 +68,8 @@ class SavedRun:
         expert = ExpertData.create(
             problem.demos, np.full(env.num_intentions, np.nan), env.num_intentions
         )
-        init, update = make_train(config, env, expert)
-        runner = Runner(init, update, spec.seeds)
+        init, update, _ = make_train(config, env)
+        runner = Runner(init, update, spec.seeds, RunData.create(expert, env, config))
         target = runner.abstract_state(jax.random.PRNGKey(spec.first_seed))
         state, history, iteration = checkpoints.restore(run_dir, target)
         return cls(

@@ -106,6 +106,16 @@ class Env(abc.ABC):
         """The options this instance was made with (stored in run summaries)."""
         return {}
 
+    def data(self) -> Any:
+        """The arrays of this instance that runs of the same env may differ in (the driver's
+        path curvatures): a compiled program takes them as an argument and reads them through
+        :meth:`bind`, so that such runs share one program. ``None`` when there are none."""
+        return None
+
+    def bind(self, data: Any) -> Env:
+        """This env reading ``data`` (the structure :meth:`data` returns, possibly traced)."""
+        return self
+
     @property
     def unwrapped(self) -> Env:
         return self

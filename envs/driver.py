@@ -32,6 +32,7 @@ the closest point of its path. Demonstrations use it with Gaussian steering nois
 
 from __future__ import annotations
 
+import copy
 import math
 
 import jax
@@ -118,6 +119,16 @@ class DriverEnv(Env):
             "init_heading_noise": self.init_heading_noise,
             "expert_noise": self.expert_noise,
         }
+
+    def data(self) -> dict[str, np.ndarray]:
+        """The path curvatures, which the ``radius`` option sets: runs at different radii
+        differ only here."""
+        return {"curvatures": self.curvatures}
+
+    def bind(self, data) -> DriverEnv:
+        bound = copy.copy(self)
+        bound.curvatures = data["curvatures"]
+        return bound
 
     def trace(self, state: State) -> dict[str, jax.Array]:
         position = state.physics.history[-1]

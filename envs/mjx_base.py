@@ -234,10 +234,16 @@ class MjxEnv(Env):
         return {"x": state.physics.qpos[0]}
 
     def physics_reset(self, qpos: jax.Array, qvel: jax.Array, **fields: jax.Array) -> mjx.Data:
-        """Fresh data at ``qpos [nq]``, ``qvel [nv]`` (and e.g. ``mocap_pos``), with positions,
-        velocities and forces computed (``mjx.forward``)."""
-        data = mjx.make_data(self.mjx_model).replace(qpos=qpos, qvel=qvel, **fields)
-        return mjx.forward(self.mjx_model, data)
+        """Fresh data at ``qpos [nq]``, ``qvel [nv]`` (and e.g. ``mocap_pos``).
+
+        No ``mjx.forward``: a step recomputes every derived quantity from ``qpos`` and ``qvel``
+        (and MJX's forward pass leaves the solver's warm start at zero), so the next state is the
+        same to the bit with or without it (``tests/test_envs_mjx.py``), and leaving it out keeps
+        a second copy of the forward dynamics out of every compiled program that resets an env.
+        An env whose first observation needs positions of bodies computes them itself
+        (:meth:`physics_kinematics`).
+        """
+        return mjx.make_data(self.mjx_model).replace(qpos=qpos, qvel=qvel, **fields)
 
     def physics_step(self, data: mjx.Data, ctrl: jax.Array) -> mjx.Data:
         """``frame_skip`` physics steps holding ``ctrl [nu]``.

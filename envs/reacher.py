@@ -104,7 +104,8 @@ class ReacherEnv(MjxEnv):
         key_arm, key_balls = jax.random.split(key)
         qpos, qvel = self.reset_qpos_qvel(key_arm, self.reset_qpos_noise, self.reset_qvel_noise)
         data = self.physics_reset(qpos, qvel, mocap_pos=self.sample_balls(key_balls))
-        return self.initial_state(data)
+        # The observation holds the fingertip's position: the kinematics give it.
+        return self.initial_state(self.physics_kinematics(data))
 
     def step(self, state: State, action: jax.Array) -> State:
         action = self.clip_action(action)

@@ -20,7 +20,7 @@ def tiny_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("tiny") / "emgail"
     args = [
         *("--env", "driver", "--seeds", "2", "--iterations", "4", "--num-envs", "2"),
-        *("--rollout-length", "20", "--eval-episodes", "1", "--quiet", "--out", str(out)),
+        *("--rollout-length", "20", "--quiet", "--out", str(out)),
     ]
     assert run.main(args) == 0
     return out

@@ -1,5 +1,5 @@
-"""Checkpoints: a round trip of a state with zero-size arrays (as MJX states have), sharded as
-in training, and the error for a run without checkpoints."""
+"""Checkpoints: a round trip of a state with zero-size arrays (as MJX states have) through the
+host, and the error for a run without checkpoints."""
 
 import jax
 import jax.numpy as jnp
@@ -22,10 +22,12 @@ def _state():
     return jax.device_put(state, sharding), sharding
 
 
-def test_round_trip_keeps_zero_size_arrays_and_sharding(tmp_path):
+def test_round_trip_keeps_zero_size_arrays(tmp_path):
+    """Saved from the host (the runner gathers a sharded state first), restored to the host
+    (the runner places it back on its devices)."""
     state, sharding = _state()
     history = {"erd": np.linspace(0, 1, 8).reshape(2, 4)}
-    checkpoints.save(str(tmp_path), 4, state, history)
+    checkpoints.save(str(tmp_path), 4, jax.device_get(state), history)
     abstract = lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=sharding)
     target = jax.tree.map(abstract, state)
     restored, restored_history, iteration = checkpoints.restore(str(tmp_path), target)
@@ -33,7 +35,7 @@ def test_round_trip_keeps_zero_size_arrays_and_sharding(tmp_path):
     assert jax.tree.structure(restored) == jax.tree.structure(state)
     for saved, loaded in zip(jax.tree.leaves(state), jax.tree.leaves(restored), strict=True):
         assert loaded.shape == saved.shape and loaded.dtype == saved.dtype
-        assert loaded.sharding == sharding
+        assert isinstance(loaded, np.ndarray)
         np.testing.assert_array_equal(loaded, saved)
     np.testing.assert_array_equal(restored_history["erd"], history["erd"])
 

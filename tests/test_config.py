@@ -24,7 +24,8 @@ def test_paper_defaults():
     assert config.trpo.max_kl == 0.01 and config.trpo.cg_iterations == 10
     assert config.discriminator_learning_rate == config.posterior_learning_rate == 1e-3
     assert config.hidden == (64, 64) and config.obs_clip == 5.0
-    assert config.eval_episodes >= 5  # DESIGN §6: ERD from at least 5 episodes
+    # ERD from at least 5 deterministic episodes: one per env of the rollout.
+    assert config.resolved(envs.make("driver")).num_envs >= 5
     assert config.num_envs is None and config.rollout_length is None
 
 

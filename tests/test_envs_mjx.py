@@ -49,6 +49,32 @@ def set_physics(state: envs.State, **fields) -> envs.State:
 # ---- shapes, jit, finite values -----------------------------------------------------------
 
 
+def _reset_without_forward_steps_like_with_it(compiled, name):
+    c = compiled(name)
+    state = c.reset(jax.random.PRNGKey(7))
+    forward = jax.jit(lambda s: s.replace(physics=mjx.forward(c.env.mjx_model, s.physics)))
+    action = 0.7 * jnp.ones(c.env.action_size)
+    a, b = state, forward(state)
+    for _ in range(5):
+        a, b = c.step(a, action), c.step(b, action)
+    np.testing.assert_array_equal(a.physics.qpos, b.physics.qpos)
+    np.testing.assert_array_equal(a.obs, b.obs)
+    np.testing.assert_array_equal(a.reward, b.reward)
+
+
+@pytest.mark.parametrize("name", ["swimmer", "reacher"])
+def test_reset_without_forward_steps_like_with_it(compiled, name):
+    """The reset leaves out mjx.forward (see MjxEnv.physics_reset): stepping from it gives the
+    same states, observations and rewards, to the bit, as stepping from a forwarded reset."""
+    _reset_without_forward_steps_like_with_it(compiled, name)
+
+
+@pytest.mark.slow  # two more compiles of the larger models
+@pytest.mark.parametrize("name", ["hopper", "halfcheetah"])
+def test_reset_without_forward_steps_like_with_it_slow(compiled, name):
+    _reset_without_forward_steps_like_with_it(compiled, name)
+
+
 @pytest.mark.parametrize("name", MJX_ENVS)
 def test_reset_and_step_shapes(compiled, name):
     c = compiled(name)

@@ -37,7 +37,7 @@ def trajectory_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("trajectory") / "emgail"
     args = [
         *("--env", "driver", "--seeds", "2", "--iterations", "3", "--num-envs", "2"),
-        *("--rollout-length", "20", "--eval-episodes", "1", "--quiet", "--out", str(out)),
+        *("--rollout-length", "20", "--quiet", "--out", str(out)),
         *("--responsibilities", "trajectory"),
     ]
     assert run.main(args) == 0

@@ -16,7 +16,6 @@ TINY = [
     "--seeds", "2",
     "--num-envs", "2",
     "--rollout-length", "20",
-    "--eval-episodes", "1",
     "--chunk-size", "2",
     "--checkpoint-every", "2",
     "--quiet",

@@ -15,7 +15,6 @@ TINY = [
     "--iterations", str(ITERATIONS),
     "--num-envs", "2",
     "--rollout-length", "20",
-    "--eval-episodes", "1",
     "--quiet",
 ]  # fmt: skip
 
@@ -63,8 +62,9 @@ def test_summary_follows_the_run_contract(runs, algo):
         assert all(0.5 <= a <= 1.0 for a in final["cluster_accuracy"])
     for key in ("compile_time_s", "train_time_s", "iteration_time_s"):
         assert final[key] > 0
-    # K intentions x (2 envs x 20 steps + 1 eval episode x 100 steps) x iterations x seeds.
-    assert final["env_steps"] == 2 * (2 * 20 + 100) * ITERATIONS * SEEDS
+    # K intentions x (2 envs x 20 steps of training + 2 evaluation episodes x 100 steps) x
+    # iterations x seeds.
+    assert final["env_steps"] == 2 * (2 * 20 + 2 * 100) * ITERATIONS * SEEDS
     counts = summary["parameters"]
     assert counts["total"] == sum(
         counts[n] for n in ("policy", "value", "discriminator", "posterior")

@@ -14,7 +14,6 @@ TINY = [
     "--seeds", "2",
     "--num-envs", "2",
     "--rollout-length", "10",
-    "--eval-episodes", "1",
     "--chunk-size", "1",
     "--checkpoint-every", "1",
     "--quiet",

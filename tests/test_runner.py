@@ -22,7 +22,7 @@ CHUNK = 3
 INPUTS = np.array([True, False, True])
 
 
-def toy_init(key):
+def toy_init(key, data=None):
     """A seed's state: its own key, a random vector and an iteration counter."""
     key_x, key_next = jax.random.split(key)
     return {
@@ -32,12 +32,14 @@ def toy_init(key):
     }
 
 
-def toy_update(state, flag):
-    """x <- x / 2 + noise, with a fresh key per iteration; metrics: a scalar, a [3] vector, the
-    iteration, and, when the per-iteration ``flag`` is set, the norm of x (NaN otherwise, the
-    way an iteration without evaluation logs)."""
+def toy_update(state, flag, data=None):
+    """x <- x / 2 + noise (+ ``data["shift"]`` when given), with a fresh key per iteration;
+    metrics: a scalar, a [3] vector, the iteration, and, when the per-iteration ``flag`` is set,
+    the norm of x (NaN otherwise, the way an iteration without evaluation logs)."""
     key_next, key_noise = jax.random.split(state["key"])
     x = 0.5 * state["x"] + jax.random.normal(key_noise, (3,))
+    if data is not None:
+        x = x + data["shift"]
     iteration = state["iteration"] + 1
     norm = jax.lax.cond(flag, lambda: jnp.linalg.norm(x), lambda: jnp.float32(jnp.nan))
     metrics = {"x/sum": x.sum(), "x": x, "iteration": iteration, "x/norm": norm}
@@ -170,6 +172,19 @@ def test_results_do_not_depend_on_the_number_of_devices(four_seeds, monkeypatch)
     _, _, two_devices = four_seeds
     for name in history:
         np.testing.assert_allclose(history[name], two_devices[name], rtol=1e-6, atol=1e-6)
+
+
+def test_data_is_an_argument_of_one_program(four_seeds):
+    """Two data values: one lowered program (the same text), and the data takes effect."""
+    shift = lambda value: {"shift": np.full(3, value, np.float32)}
+    runners = [Runner(toy_init, toy_update, 4, shift(v)) for v in (0.0, 1.0)]
+    state = runners[0].init(jax.random.PRNGKey(0))
+    texts = [r._chunk.lower(state, r._replicated(INPUTS), r.data).as_text() for r in runners]
+    assert texts[0] == texts[1]
+    (_, zero), (_, one) = (r.step(state, INPUTS) for r in runners)
+    _, _, plain = four_seeds
+    np.testing.assert_allclose(zero["x"], plain["x"][:, :CHUNK], rtol=1e-6, atol=1e-6)
+    assert not np.allclose(one["x"], zero["x"])
 
 
 def test_explicit_compile_then_step():

@@ -11,14 +11,13 @@ import envs
 from emgail_jax import demos as demos_lib
 from emgail_jax.config import Config
 from emgail_jax.demos import Demonstrations
-from emgail_jax.training import ExpertData, TrainState, make_train
+from emgail_jax.training import ExpertData, RunData, TrainState, make_train
 
 K, B, T = 2, 2, 10
 RANDOM_RETURNS = np.array([-300.0, -250.0])
 CONFIG = Config(
     num_envs=B,
     rollout_length=T,
-    eval_episodes=1,
     hidden=(8,),
     discriminator_steps=2,
     posterior_steps=2,
@@ -62,14 +61,16 @@ def expert(demos):
 def _train(config, env, expert, iterations, evaluating=(True, False)):
     """``(state_0, [(state_i, metrics_i)] for i = 1..iterations)`` with jitted init/update;
     iteration i evaluates if ``evaluating[i]``."""
-    init, update = make_train(config, env, expert)
-    state = jax.jit(init)(jax.random.PRNGKey(0))
+    init, update, _ = make_train(config, env)
+    data = RunData.create(expert, env, config)
+    state = jax.jit(init)(jax.random.PRNGKey(0), data)
     step = jax.jit(update)
     steps = []
     for i in range(iterations):
-        state_next, metrics = step(steps[-1][0] if steps else state, jnp.bool_(evaluating[i]))
+        previous = steps[-1][0] if steps else state
+        state_next, metrics = step(previous, jnp.bool_(evaluating[i]), data)
         steps.append((state_next, jax.device_get(metrics)))
-    return state, steps, (init, update)
+    return state, steps, (init, update, data)
 
 
 @pytest.fixture(scope="module")
@@ -179,9 +180,9 @@ def test_one_hot_intention_input_trains_too(emgail_onehot):
 
 
 def test_init_depends_on_the_key(emgail):
-    state, _, (init, _) = emgail
-    again = jax.jit(init)(jax.random.PRNGKey(0))
-    other = jax.jit(init)(jax.random.PRNGKey(1))
+    state, _, (init, _, data) = emgail
+    again = jax.jit(init)(jax.random.PRNGKey(0), data)
+    other = jax.jit(init)(jax.random.PRNGKey(1), data)
     for a, b in zip(_leaves(state), _leaves(again), strict=True):
         np.testing.assert_array_equal(a, b)
     assert not np.allclose(_first_kernel(state.policy), _first_kernel(other.policy))
@@ -310,10 +311,11 @@ def test_gail_has_no_posterior_and_no_accuracy(gail):
 def test_vmapped_update_over_seeds_equals_one_seed_at_a_time(env, expert, emgail):
     """The runner's form, vmap over seeds: seeds do not interact, so seed 0 of a batch of two
     is the single-seed run with the same key."""
-    _, [(_, metrics), _], (init, update) = emgail
+    _, [(_, metrics), _], (init, update, data) = emgail
     keys = jnp.stack([jax.random.PRNGKey(0), jax.random.PRNGKey(1)])
-    states = jax.jit(jax.vmap(init))(keys)
-    _, batched = jax.jit(jax.vmap(update, in_axes=(0, None)))(states, jnp.bool_(True))
+    states = jax.jit(jax.vmap(init, in_axes=(0, None)))(keys, data)
+    vmapped = jax.vmap(update, in_axes=(0, None, None))
+    _, batched = jax.jit(vmapped)(states, jnp.bool_(True), data)
     for name in metrics:
         assert batched[name].shape == (2, *np.shape(metrics[name])), name
         np.testing.assert_allclose(batched[name][0], metrics[name], rtol=1e-4, atol=1e-5)
@@ -323,8 +325,10 @@ def test_vmapped_update_over_seeds_equals_one_seed_at_a_time(env, expert, emgail
 @pytest.mark.slow  # op-by-op execution of a whole update takes about half a minute
 def test_update_without_jit_equals_the_jitted_update(env, expert, gail):
     state0, [(state1, metrics)], _ = gail
-    _, update = make_train(CONFIG.replace(algo="gail"), env, expert)
-    eager_state, eager_metrics = update(state0, jnp.bool_(True))
+    config = CONFIG.replace(algo="gail")
+    _, update, _ = make_train(config, env)
+    data = RunData.create(expert, env, config)
+    eager_state, eager_metrics = update(state0, jnp.bool_(True), data)
     assert set(eager_metrics) == set(metrics)
     for name in metrics:
         np.testing.assert_allclose(
@@ -359,6 +363,21 @@ def test_trajectory_responsibilities_label_whole_demonstrations(emgail_trajector
     n = len(expert.labels)
     per_pair = float(metrics["eval/cluster_accuracy"])
     assert per_pair * n == pytest.approx(round(per_pair * n), abs=1e-3)
+
+
+def test_runs_that_differ_only_in_data_share_one_program(expert):
+    """The driver's radius and Info/IntentionGAIL's lambda are data: the lowered update is the
+    same program at another radius and another lambda (so the compilation cache serves both)."""
+    config = CONFIG.replace(algo="infogail")
+
+    def lowered(radius, info_weight):
+        env = envs.make("driver", intentions=K, radius=radius)
+        init, update, _ = make_train(config, env)
+        data = RunData.create(expert, env, config.replace(info_weight=info_weight))
+        state = jax.eval_shape(init, jax.random.PRNGKey(0), data)
+        return jax.jit(update).lower(state, jnp.bool_(True), data).as_text()
+
+    assert lowered(20.0, 1.0) == lowered(5.0, 0.3)
 
 
 def test_pair_mode_logs_no_trajectory_accuracy(emgail):
