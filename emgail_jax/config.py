@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import ast
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from emgail_jax.trpo import TRPOConfig
@@ -86,6 +88,17 @@ class Config:
     def replace(self, **changes) -> Config:
         return dataclasses.replace(self, **changes)
 
+    def with_settings(self, settings: Sequence[str]) -> Config:
+        """A copy with ``KEY=VALUE`` settings applied, e.g. ``["discriminator_steps=5",
+        "trpo.cg_damping=0"]`` (``run --set``): any hyper-parameter, typed like its default."""
+        config = self
+        for setting in settings:
+            key, sep, text = setting.partition("=")
+            if not sep or not key.strip():
+                raise ValueError(f"a setting is KEY=VALUE, e.g. trpo.max_kl=0.02; got '{setting}'")
+            config = _with_setting(config, key.strip().split("."), text.strip(), key.strip())
+        return config
+
     def resolved(self, env) -> Config:
         """Fills the env-dependent defaults from ``env``."""
         defaults = rollout_defaults(env.name, env.episode_length)
@@ -110,6 +123,46 @@ class Config:
         values["hidden"] = tuple(values["hidden"])
         values["trpo"] = TRPOConfig(**values["trpo"])
         return cls(**values)
+
+
+def _with_setting(node, path: list[str], text: str, key: str):
+    """``node`` (a frozen dataclass) with the field at ``path`` parsed from ``text``."""
+    names = [f.name for f in dataclasses.fields(node)]
+    if path[0] not in names:
+        raise ValueError(f"unknown setting '{key}'; choose one of {', '.join(names)}")
+    current = getattr(node, path[0])
+    if len(path) > 1:
+        if not dataclasses.is_dataclass(current):
+            raise ValueError(f"'{'.'.join(path[:1])}' of '{key}' has no fields")
+        value = _with_setting(current, path[1:], text, key)
+    else:
+        value = _parse_setting(text, current, key)
+    return dataclasses.replace(node, **{path[0]: value})
+
+
+def _parse_setting(text: str, current, key: str):
+    """``text`` as a value of the type of ``current`` (the default it replaces)."""
+    if isinstance(current, str):
+        return text
+    if dataclasses.is_dataclass(current):
+        raise ValueError(f"'{key}' has fields: set one of them, e.g. {key}.<field>=...")
+    try:
+        value = ast.literal_eval(text)
+    except (ValueError, SyntaxError):
+        raise ValueError(f"'{key}={text}': '{text}' is not a number, tuple or boolean") from None
+    if isinstance(current, bool) or current is None:
+        return value
+    if isinstance(current, tuple):
+        return tuple(value) if isinstance(value, (list, tuple)) else (value,)
+    if (
+        isinstance(current, float)
+        and isinstance(value, (int, float))
+        and not isinstance(value, bool)
+    ):
+        return float(value)
+    if isinstance(current, int) and isinstance(value, int) and not isinstance(value, bool):
+        return value
+    raise ValueError(f"'{key}' takes a value like its default {current!r}; got '{text}'")
 
 
 def rollout_defaults(env_name: str, episode_length: int) -> dict:

@@ -74,6 +74,15 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     parser.add_argument("--chunk-size", type=int, default=None, help="iterations per call")
     parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        dest="set",
+        help="any other hyper-parameter of emgail_jax.config.Config, e.g. --set "
+        "discriminator_steps=5 --set trpo.cg_damping=0 (repeatable)",
+    )
+    parser.add_argument(
         "--seed-batch",
         type=int,
         default=None,
@@ -111,6 +120,7 @@ _RUN_OPTIONS = (
     "info_weight",
     "intention_input",
     "responsibilities",
+    "set",
     "num_envs",
     "rollout_length",
     "eval_every",
@@ -162,6 +172,10 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         "seed_batch": args.seed_batch,
     }
     config = Config().replace(**{k: v for k, v in overrides.items() if v is not None})
+    try:
+        config = config.with_settings(args.set)
+    except ValueError as error:
+        raise RunError(f"--set: {error}") from None
     return RunSpec(
         env=env,
         intentions=args.intentions,

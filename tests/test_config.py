@@ -114,3 +114,33 @@ def test_from_dict_round_trip_and_older_runs_without_the_intention_input():
     assert Config.from_dict(json.loads(json.dumps(config.to_dict()))) == config
     older = {k: v for k, v in Config().to_dict().items() if k != "intention_input"}
     assert Config.from_dict(older).intention_input == "onehot"
+
+
+def test_with_settings_parses_each_value_as_the_type_of_its_default():
+    config = Config().with_settings(
+        ["discriminator_steps=5", "trpo.cg_damping=0", "hidden=(32, 32)", "algo=gail"]
+    )
+    assert config.discriminator_steps == 5
+    assert config.trpo.cg_damping == 0.0 and isinstance(config.trpo.cg_damping, float)
+    assert config.hidden == (32, 32)
+    assert config.algo == "gail"
+    assert config.trpo.max_kl == Config().trpo.max_kl  # the rest untouched
+    assert Config().with_settings([]) == Config()
+
+
+@pytest.mark.parametrize(
+    "setting, message",
+    [
+        ("discriminator_step=5", "unknown setting 'discriminator_step'"),
+        ("trpo.damping=0", "unknown setting 'trpo.damping'"),
+        ("discriminator_steps=0.5", "like its default 10"),
+        ("gamma=fast", "not a number"),
+        ("trpo=1", "has fields"),
+        ("gamma", "KEY=VALUE"),
+        ("eval_every=0", "eval_every must be at least 1"),
+    ],
+)
+def test_with_settings_rejects_what_it_cannot_apply_in_one_line(setting, message):
+    with pytest.raises(ValueError, match=message) as error:
+        Config().with_settings([setting])
+    assert "\n" not in str(error.value)

@@ -62,16 +62,11 @@ def _reset_without_forward_steps_like_with_it(compiled, name):
     np.testing.assert_array_equal(a.reward, b.reward)
 
 
-@pytest.mark.parametrize("name", ["swimmer", "reacher"])
+@pytest.mark.slow  # a compile of MJX's forward pass per env, 30-40 s each
+@pytest.mark.parametrize("name", MJX_ENVS)
 def test_reset_without_forward_steps_like_with_it(compiled, name):
     """The reset leaves out mjx.forward (see MjxEnv.physics_reset): stepping from it gives the
     same states, observations and rewards, to the bit, as stepping from a forwarded reset."""
-    _reset_without_forward_steps_like_with_it(compiled, name)
-
-
-@pytest.mark.slow  # two more compiles of the larger models
-@pytest.mark.parametrize("name", ["hopper", "halfcheetah"])
-def test_reset_without_forward_steps_like_with_it_slow(compiled, name):
     _reset_without_forward_steps_like_with_it(compiled, name)
 
 

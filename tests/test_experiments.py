@@ -16,6 +16,7 @@ def _load(name):
     return module
 
 
+@pytest.mark.slow  # a child process with a cold compilation cache: 60-100 s
 def test_bench_measures_the_driver(capsys):
     """The benchmark's child process on the driver with few seeds and chunks: every number it
     reports is there and positive."""

@@ -111,7 +111,10 @@ def test_shipped_experts_meta_records_their_quality(name):
     )
 
 
-@pytest.mark.parametrize("name", MJX_ENVS)
+# The swimmer in every run; the other envs' replays (40-70 s each) with `make test-slow`.
+@pytest.mark.parametrize(
+    "name", [n if n == "swimmer" else pytest.param(n, marks=pytest.mark.slow) for n in MJX_ENVS]
+)
 def test_replayed_experts_reproduce_the_shipped_returns(name):
     """A fresh replay of the shipped checkpoints, with other start states than the demos."""
     env = envs.make(name)

@@ -135,6 +135,7 @@ def _error(capsys):
         (["--seeds", "0"], "--seeds and --iterations must be at least 1"),
         (["--seed-batch", "0"], "--seed-batch must be at least 1"),
         (["--eval-every", "0"], "--eval-every must be at least 1"),
+        (["--set", "trpo.dampng=0"], "--set: unknown setting 'trpo.dampng'"),
     ],
 )
 def test_bad_input_gives_one_line_and_exit_code_2(tmp_path, capsys, extra, message):
@@ -208,3 +209,12 @@ def test_without_out_a_run_takes_the_first_free_directory(tmp_path):
     (tmp_path / "halfcheetah-emgail").mkdir()
     (tmp_path / "halfcheetah-emgail-2").mkdir()
     assert run.default_output("halfcheetah", "emgail", root) == f"{root}/halfcheetah-emgail-3"
+
+
+def test_set_reaches_the_config_and_a_resume_refuses_it(tmp_path):
+    spec = run.spec_from_args(
+        run.parse_args(["--set", "discriminator_steps=3", "--set", "trpo.max_kl=0.02"])
+    )
+    assert spec.config.discriminator_steps == 3 and spec.config.trpo.max_kl == 0.02
+    with pytest.raises(run.RunError, match="drop --set"):
+        run.spec_from_args(run.parse_args(["--resume", str(tmp_path), "--set", "gamma=0.99"]))

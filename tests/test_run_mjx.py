@@ -39,6 +39,7 @@ def test_an_mjx_run_checkpoints_and_resumes(resumed_run):
     assert len(rows) == 1 + 3 * 2  # header, then 3 iterations x 2 seeds
 
 
+@pytest.mark.slow  # evaluate compiles its own episodes of the reacher: 50-100 s
 def test_evaluate_draws_the_distance_to_every_ball(resumed_run):
     assert evaluate.main([str(resumed_run), "--episodes", "1"]) == 0
     figures = sorted(p.name for p in (resumed_run / "figures").glob("*.png"))
