@@ -11,6 +11,7 @@ from emgail_jax.trpo import TRPOConfig
 
 INTENTION_INPUTS = ("onehot", "heads")
 RESPONSIBILITIES = ("pair", "trajectory")
+REWARD_FROM = ("updated", "previous")
 
 
 @dataclass(frozen=True)
@@ -61,6 +62,11 @@ class Config:
     discriminator_steps: int = 10
     posterior_learning_rate: float = 1e-3
     posterior_steps: int = 20
+    # Which discriminator (and, for Info/IntentionGAIL, posterior) scores the B-step's reward:
+    # "updated", after this iteration's E- and M-step (Algorithm 1), or "previous", before them,
+    # as the paper's public code does (it computes the reward during the rollout), so that the
+    # reward comes from networks that have not yet been fitted to the samples they score.
+    reward_from: str = "updated"
     # Info/IntentionGAIL's lambda (eq. 23). 1.0 weighs log P(i|s,a) like the discriminator term:
     # at a perfectly imitated pair shared by two intentions, the penalty lambda*log 2 then equals
     # the discriminator reward log 2 itself, the regime Theorem 2 is about.
@@ -78,6 +84,7 @@ class Config:
         for name, choices in (
             ("intention_input", INTENTION_INPUTS),
             ("responsibilities", RESPONSIBILITIES),
+            ("reward_from", REWARD_FROM),
         ):
             if getattr(self, name) not in choices:
                 raise ValueError(
@@ -119,6 +126,7 @@ class Config:
         values.setdefault("seed_batch", None)
         values.setdefault("responsibilities", "pair")
         values.setdefault("eval_every", 1)
+        values.setdefault("reward_from", "updated")
         values.pop("eval_episodes", None)  # runs written before evaluation used num_envs
         values["hidden"] = tuple(values["hidden"])
         values["trpo"] = TRPOConfig(**values["trpo"])

@@ -316,8 +316,9 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
             expert.episodes,
             config.responsibilities,
         )
+        rewarding = posterior if config.reward_from == "updated" else state.posterior
         own_log_posterior = jnp.take_along_axis(
-            log_posterior(networks.posterior.apply, posterior, seen.obs, seen.executed),
+            log_posterior(networks.posterior.apply, rewarding, seen.obs, seen.executed),
             intention_rows[..., None],
             -1,
         )[..., 0]
@@ -390,8 +391,9 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
         seen = judged(state, batch, data)
         e = e_step(state, seen, data)
         discriminator, discriminator_opt_state, m_metrics = m_step(state, seen, e.gamma, data)
+        rewarding = discriminator if config.reward_from == "updated" else state.discriminator
         policy, value, value_opt_state, b_metrics = improve(
-            state, batch, seen, discriminator, e.own_log_posterior, data, key_value
+            state, batch, seen, rewarding, e.own_log_posterior, data, key_value
         )
         learned = state.replace(
             policy=policy,

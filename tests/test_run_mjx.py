@@ -1,5 +1,6 @@
-"""An MJX env through the whole tool: a tiny EM-GAIL run on the reacher's shipped
-demonstrations, checkpointed, resumed and evaluated (the driver covers the rest in detail)."""
+"""An MJX env through the whole tool: a tiny EM-GAIL run on the swimmer's shipped
+demonstrations (the MJX env that compiles fastest), checkpointed, resumed and evaluated (the
+driver covers the rest in detail)."""
 
 import json
 import math
@@ -9,7 +10,7 @@ import pytest
 from emgail_jax import checkpoints, evaluate, run
 
 TINY = [
-    "--env", "reacher",
+    "--env", "swimmer",
     "--intentions", "2",
     "--seeds", "2",
     "--num-envs", "2",
@@ -22,7 +23,7 @@ TINY = [
 
 @pytest.fixture(scope="module")
 def resumed_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("reacher") / "emgail"
+    out = tmp_path_factory.mktemp("swimmer") / "emgail"
     assert run.main([*TINY, "--iterations", "2", "--out", str(out)]) == 0
     assert run.main(["--resume", str(out), "--iterations", "3", "--quiet"]) == 0
     return out
@@ -39,8 +40,8 @@ def test_an_mjx_run_checkpoints_and_resumes(resumed_run):
     assert len(rows) == 1 + 3 * 2  # header, then 3 iterations x 2 seeds
 
 
-@pytest.mark.slow  # evaluate compiles its own episodes of the reacher: 50-100 s
-def test_evaluate_draws_the_distance_to_every_ball(resumed_run):
+@pytest.mark.slow  # evaluate compiles its own episodes of the swimmer: 50-100 s
+def test_evaluate_draws_the_x_position_over_time(resumed_run):
     assert evaluate.main([str(resumed_run), "--episodes", "1"]) == 0
     figures = sorted(p.name for p in (resumed_run / "figures").glob("*.png"))
     assert "learning_curves.png" in figures and len(figures) >= 2, figures

@@ -383,3 +383,18 @@ def test_runs_that_differ_only_in_data_share_one_program(expert):
 def test_pair_mode_logs_no_trajectory_accuracy(emgail):
     _, [(_, metrics), _], _ = emgail
     assert "eval/trajectory_cluster_accuracy" not in metrics
+
+
+def test_reward_from_previous_changes_only_which_networks_score_the_reward(env, expert, emgail):
+    """The M-step is the same either way; only the B-step's reward (and so the policy) differs:
+    it comes from the discriminator and posterior before this iteration's E- and M-step."""
+    _, updated, _ = emgail
+    _, previous, _ = _train(CONFIG.replace(reward_from="previous"), env, expert, 1)
+    (state_updated, metrics_updated), (state_previous, metrics_previous) = updated[0], previous[0]
+    for a, b in zip(
+        _leaves(state_updated.discriminator), _leaves(state_previous.discriminator), strict=True
+    ):
+        np.testing.assert_array_equal(a, b)
+    assert metrics_updated["discriminator/loss"] == metrics_previous["discriminator/loss"]
+    assert metrics_updated["train/pseudo_reward"] != metrics_previous["train/pseudo_reward"]
+    assert not np.array_equal(_leaves(state_updated.policy)[0], _leaves(state_previous.policy)[0])
