@@ -35,6 +35,7 @@ class Algorithm:
     # lambda of eq. 23: a float, or a traced scalar when the program takes it as an argument
     # (runs that differ only in lambda then share one compiled program).
     info_weight: float | jax.Array = 0.0
+    reward_form: str = "gail"  # see discriminator.imitation_reward
 
     def policy_condition(self, intentions: jax.Array, num_intentions: int) -> jax.Array:
         """``[..., K]`` one-hot of ``intentions [...]``; ``[..., 0]`` if unconditioned."""
@@ -58,7 +59,7 @@ class Algorithm:
     def pseudo_reward(self, logit: jax.Array, posterior_log_prob: jax.Array) -> jax.Array:
         """The B-step reward of a policy sample from its discriminator logit (under its own
         condition) and log P(i | s, a) of the intention that generated it."""
-        reward = imitation_reward(logit)
+        reward = imitation_reward(logit, self.reward_form)
         if self.info_reward:
             reward = reward + self.info_weight * posterior_log_prob
         return reward
@@ -73,11 +74,11 @@ def _condition(intentions: jax.Array, num_intentions: int, conditional: bool) ->
 NAMES = ("emgail", "infogail", "gail")
 
 
-def make_algorithm(name: str, info_weight: float = 1.0) -> Algorithm:
+def make_algorithm(name: str, info_weight: float = 1.0, reward_form: str = "gail") -> Algorithm:
     if name == "emgail":
-        return Algorithm("emgail", True, True, True)
+        return Algorithm("emgail", True, True, True, reward_form=reward_form)
     if name == "infogail":
-        return Algorithm("infogail", True, True, False, info_reward=True, info_weight=info_weight)
+        return Algorithm("infogail", True, True, False, True, info_weight, reward_form=reward_form)
     if name == "gail":
-        return Algorithm("gail", False, False, False)
+        return Algorithm("gail", False, False, False, reward_form=reward_form)
     raise ValueError(f"unknown algorithm '{name}': choose one of {', '.join(NAMES)}")

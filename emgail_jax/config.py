@@ -7,6 +7,7 @@ import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+from emgail_jax.discriminator import REWARD_FORMS
 from emgail_jax.trpo import TRPOConfig
 
 INTENTION_INPUTS = ("onehot", "heads")
@@ -67,6 +68,9 @@ class Config:
     # as the paper's public code does (it computes the reward during the rollout), so that the
     # reward comes from networks that have not yet been fitted to the samples they score.
     reward_from: str = "updated"
+    # The B-step reward of a discriminator logit f: "gail", -log(1 - D) = softplus(f), the
+    # paper's, or "logit", f itself (AIRL's form), which pays nothing for merely staying alive.
+    reward_form: str = "gail"
     # Info/IntentionGAIL's lambda (eq. 23). 1.0 weighs log P(i|s,a) like the discriminator term:
     # at a perfectly imitated pair shared by two intentions, the penalty lambda*log 2 then equals
     # the discriminator reward log 2 itself, the regime Theorem 2 is about.
@@ -85,6 +89,7 @@ class Config:
             ("intention_input", INTENTION_INPUTS),
             ("responsibilities", RESPONSIBILITIES),
             ("reward_from", REWARD_FROM),
+            ("reward_form", REWARD_FORMS),
         ):
             if getattr(self, name) not in choices:
                 raise ValueError(
@@ -127,6 +132,7 @@ class Config:
         values.setdefault("responsibilities", "pair")
         values.setdefault("eval_every", 1)
         values.setdefault("reward_from", "updated")
+        values.setdefault("reward_form", "gail")
         values.pop("eval_episodes", None)  # runs written before evaluation used num_envs
         values["hidden"] = tuple(values["hidden"])
         values["trpo"] = TRPOConfig(**values["trpo"])

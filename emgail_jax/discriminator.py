@@ -74,6 +74,14 @@ def discriminator_update(
     return minimize(loss, optimizer, params, opt_state, steps)
 
 
-def imitation_reward(logit: jax.Array) -> jax.Array:
-    """-log(1 - D) = softplus(f): high where the discriminator takes the pair for the expert's."""
+REWARD_FORMS = ("gail", "logit")
+
+
+def imitation_reward(logit: jax.Array, form: str = "gail") -> jax.Array:
+    """The reward of a pair the discriminator scores ``logit``, high where D takes it for the
+    expert's. "gail": -log(1 - D) = softplus(f), the paper's; positive everywhere, so where
+    episodes can end early it also pays for staying alive. "logit": log D - log(1 - D) = f
+    (AIRL's form), negative where D rejects the pair, so survival alone earns nothing."""
+    if form == "logit":
+        return logit
     return jax.nn.softplus(logit)

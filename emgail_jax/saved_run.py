@@ -78,7 +78,7 @@ class SavedRun:
             spec=spec,
             problem=problem,
             config=config,
-            algorithm=make_algorithm(config.algo, config.info_weight),
+            algorithm=make_algorithm(config.algo, config.info_weight, config.reward_form),
             networks=make_networks(config, env),
             state=state,
             history=history,

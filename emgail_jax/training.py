@@ -234,7 +234,7 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
     sample_intention = intention_rows.reshape(-1)
 
     def algorithm_of(data: RunData) -> Algorithm:
-        return make_algorithm(config.algo, data.info_weight)
+        return make_algorithm(config.algo, data.info_weight, config.reward_form)
 
     def init(key: jax.Array, data: RunData) -> TrainState:
         algorithm = algorithm_of(data)

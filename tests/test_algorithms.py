@@ -173,3 +173,19 @@ def test_emgail_with_one_intention_is_gail():
     np.testing.assert_allclose(
         emgail.pseudo_reward(logits, jnp.zeros(3)), gail.pseudo_reward(logits, jnp.zeros(3))
     )
+
+
+def test_logit_reward_form_is_the_logit_and_keeps_the_info_term():
+    logits = jnp.array([-1.0, 0.0, 2.0])
+    log_posterior = jnp.log(jnp.array([0.5, 0.25, 1.0]))
+    np.testing.assert_array_equal(
+        make_algorithm("gail", reward_form="logit").pseudo_reward(logits, log_posterior), logits
+    )
+    np.testing.assert_allclose(
+        make_algorithm("infogail", 0.5, "logit").pseudo_reward(logits, log_posterior),
+        logits + 0.5 * np.log([0.5, 0.25, 1.0]),
+        rtol=1e-6,
+    )
+    # log D - log(1 - D): the GAIL reward minus -log D, negative where D < 1/2.
+    gail = make_algorithm("emgail").pseudo_reward(logits, log_posterior)
+    np.testing.assert_allclose(gail - jax.nn.softplus(-logits), logits, rtol=1e-5, atol=1e-6)

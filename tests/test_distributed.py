@@ -14,7 +14,8 @@ from emgail_jax import run, runtime
 TINY = [
     "--env", "driver",
     "--seeds", "2",
-    "--iterations", "3",
+    "--iterations", "4",
+    "--chunk-size", "2",
     "--num-envs", "2",
     "--rollout-length", "20",
     "--quiet",

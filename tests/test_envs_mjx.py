@@ -232,6 +232,7 @@ def test_k_sets_the_reward_shape(name):
     assert jax.eval_shape(env.step, state, jnp.zeros(env.action_size)).reward.shape == (1,)
 
 
+@pytest.mark.slow  # a compile of the reacher with K = 2: 20-25 s
 def test_k_rewards_are_the_first_k_of_all(compiled):
     full = compiled("reacher")
     two = envs.make("reacher", intentions=2)
@@ -270,6 +271,7 @@ def test_short_open_loop_run_matches_native_mujoco(compiled, name):
 # ---- with the training wrappers --------------------------------------------------------------
 
 
+@pytest.mark.slow  # a compile of the wrapped hopper: 25-30 s (the falling itself is checked above)
 def test_wrapped_hopper_falls_and_starts_a_new_episode():
     env = envs.wrap_for_training(envs.make("hopper"))
     reset, step = jax.jit(env.reset), jax.jit(env.step)
