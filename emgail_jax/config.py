@@ -11,7 +11,7 @@ from emgail_jax.discriminator import REWARD_FORMS
 from emgail_jax.trpo import TRPOConfig
 
 INTENTION_INPUTS = ("onehot", "heads")
-RESPONSIBILITIES = ("pair", "trajectory")
+RESPONSIBILITIES = ("pair", "trajectory", "labels")
 REWARD_FROM = ("updated", "previous")
 
 
@@ -41,6 +41,8 @@ class Config:
     # The E-step's responsibilities: "pair" (gamma = P(i | s, a) of each pair, eq. 18) or
     # "trajectory" (each pair takes the posterior of its whole demonstration, from the product
     # of its pairs' P; an extension, see emgail_jax.posterior.trajectory_responsibilities).
+    # "labels" takes the demonstrations' hidden labels instead: an oracle, for diagnosis only
+    # (how well the rest of the method does when the E-step is perfect).
     responsibilities: str = "pair"
     # The policy's initial log-std, 0 as in the paper's public code. A wide start lets the E-step
     # separate the intentions before the policies commit: on the swimmer (8 seeds x 300

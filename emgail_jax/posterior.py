@@ -89,15 +89,24 @@ def expert_responsibilities(
     episode: jax.Array,
     episodes: int,
     mode: str,
+    labels: jax.Array | None = None,
 ) -> Responsibilities:
     """The E-step's responsibilities of the expert pairs ``obs [N, D]`` (normalised),
     ``actions [N, A]`` (executed) under the posterior ``params``; ``mode`` is ``"pair"``
-    (eq. 18) or ``"trajectory"`` (see :func:`trajectory_responsibilities`)."""
+    (eq. 18), ``"trajectory"`` (see :func:`trajectory_responsibilities`) or ``"labels"``: the
+    hidden ``labels [N]`` themselves, an oracle E-step that bounds what any E-step can give
+    (not the paper's method; the pair labels are still the posterior's, for eq. 29)."""
     log_p = log_posterior(apply, params, obs, actions)
     pair_labels = jnp.argmax(log_p, -1)
+    if mode == "labels":
+        if labels is None:
+            raise ValueError("the labels E-step needs demonstrations with hidden labels")
+        return Responsibilities(jax.nn.one_hot(labels, log_p.shape[-1]), pair_labels, labels)
     if mode == "trajectory":
         gamma = trajectory_responsibilities(log_p, episode, episodes)
         return Responsibilities(gamma, pair_labels, jnp.argmax(gamma, -1))
     if mode != "pair":
-        raise ValueError(f"unknown responsibilities mode '{mode}': choose pair or trajectory")
+        raise ValueError(
+            f"unknown responsibilities mode '{mode}': choose pair, trajectory or labels"
+        )
     return Responsibilities(jnp.exp(log_p), pair_labels, pair_labels)

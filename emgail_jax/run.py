@@ -483,6 +483,8 @@ def main(argv=None) -> int:
         if args.resume is not None and latest_iteration(out) is None:
             raise CheckpointError(f"'{out}' holds no checkpoint to resume from")
         problem = spec.problem()
+        if spec.config.responsibilities == "labels" and problem.demos.intentions is None:
+            raise RunError("--responsibilities labels needs demonstrations with hidden labels")
         primary = jax.process_index() == 0
         if args.resume is None:
             if primary:

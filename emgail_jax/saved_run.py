@@ -153,6 +153,7 @@ class SavedRun:
             expert.episode,
             expert.episodes,
             self.config.responsibilities,
+            expert.labels if expert.has_labels else None,
         )
         return jax.device_get(result)
 

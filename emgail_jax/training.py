@@ -315,6 +315,7 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
             expert.episode,
             expert.episodes,
             config.responsibilities,
+            expert.labels if expert.has_labels else None,
         )
         rewarding = posterior if config.reward_from == "updated" else state.posterior
         own_log_posterior = jnp.take_along_axis(

@@ -72,8 +72,21 @@ def test_responsibilities_are_the_posterior_probabilities():
 
 
 def test_unknown_mode_is_refused():
-    with pytest.raises(ValueError, match="pair or trajectory"):
+    with pytest.raises(ValueError, match="pair, trajectory or labels"):
         pair_mode(jnp.zeros((2, 2)), mode="episode")
+
+
+def test_labels_mode_is_the_one_hot_labels_and_keeps_the_posterior_pair_labels():
+    logits = jnp.array([[0.0, LN3], [LN3, 0.0], [0.0, 0.1]])
+    zeros = jnp.zeros((3, 1))
+    episode = jnp.zeros(3, jnp.int32)
+    labels = jnp.array([0, 0, 1])
+    result = expert_responsibilities(toy_apply, logits, zeros, zeros, episode, 1, "labels", labels)
+    np.testing.assert_array_equal(result.gamma, [[1, 0], [1, 0], [0, 1]])
+    np.testing.assert_array_equal(result.pair_labels, [1, 0, 1])  # eq. 29: the posterior's
+    np.testing.assert_array_equal(result.trajectory_labels, labels)
+    with pytest.raises(ValueError, match="hidden labels"):
+        pair_mode(logits, mode="labels")
 
 
 @pytest.fixture(scope="module")
