@@ -1,4 +1,5 @@
-"""Expert demonstrations: the file format (DESIGN §5), its validation, and generation.
+"""Expert demonstrations: the file format (README, "Demonstrations format"), its validation
+and generation.
 
 A dataset is one ``.npz`` with
 

@@ -1,5 +1,5 @@
 """Experts for the MJX envs: one TRPO policy per intention, trained on its true reward, and the
-demonstrations they write (DESIGN §5).
+demonstrations they write (format: README, "Demonstrations format").
 
     python -m emgail_jax.experts --env ENV               # train, checkpoint, score, write demos
     python -m emgail_jax.experts --env ENV --evaluate    # score the shipped experts only
@@ -292,7 +292,8 @@ def quality(env, policy, key, episodes: int = 10) -> list[dict]:
 
 
 def write_demos(env, policy, key, episodes: int, path: str):
-    """The experts' deterministic episodes as a labelled demonstrations file (DESIGN §5)."""
+    """The experts' deterministic episodes as a labelled demonstrations file (format: README,
+    "Demonstrations format")."""
     from emgail_jax import demos as demos_lib
 
     expert = lambda state, intention, _: policy(state.obs, intention)

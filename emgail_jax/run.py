@@ -4,7 +4,8 @@
     python -m emgail_jax.run --resume DIR [--iterations TOTAL]
 
 writes ``DIR/summary.json``, ``DIR/metrics.csv`` (one row per iteration and seed), TensorBoard
-events under ``DIR/tensorboard`` and orbax checkpoints under ``DIR/checkpoints`` (DESIGN §6).
+events under ``DIR/tensorboard`` and orbax checkpoints under ``DIR/checkpoints`` (README,
+"Running").
 ``--iterations`` is the run's total: a resumed run continues from its last checkpoint up to it.
 SIGINT or SIGTERM stops a run after the iteration chunk in progress, checkpoints it and marks
 ``summary.json`` ``"status": "interrupted"``; ``--resume`` continues it exactly.
@@ -47,7 +48,9 @@ def parse_args(argv=None) -> argparse.Namespace:
         "--out", default=None, help="output directory (default: a new runs/ENV-ALGO[-N])"
     )
     parser.add_argument("--resume", default=None, metavar="DIR", help="continue the run in DIR")
-    parser.add_argument("--demos", default=None, help="demonstrations .npz (DESIGN §5)")
+    parser.add_argument(
+        "--demos", default=None, help="demonstrations .npz (README, Demonstrations format)"
+    )
     parser.add_argument("--radius", type=float, default=None, help="driver: radius of path 2")
     parser.add_argument("--seed", type=int, default=None, help="first training seed")
     parser.add_argument("--demo-seed", type=int, default=None, help="driver: demonstration seed")

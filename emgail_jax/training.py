@@ -59,6 +59,7 @@ from emgail_jax.rollout import (
     episode_totals,
     fresh_starts,
     intention_major,
+    rollout,
     time_major,
     tree_where,
 )
@@ -416,28 +417,10 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
 
     def collect(env_state: envs.State, policy, key, explore, data: RunData):
         """1. T steps of the [K, B] auto-resetting envs from ``env_state`` with ``policy``
-        (the starts of the episodes that begin meanwhile are drawn first, see
-        envs.AutoResetWrapper). Returns ``(end_state, transitions [T, K, B, ...])``."""
+        (see rollout.rollout). Returns ``(end_state, transitions [T, K, B, ...])``."""
         train_env = envs.wrap_for_training(env.bind(data.env))
-        step_envs = jax.vmap(jax.vmap(train_env.step))
-        key_starts, key_steps = jax.random.split(key)
-        env_state = jax.vmap(jax.vmap(train_env.refresh))(
-            env_state, jax.random.split(key_starts, (k, b))
-        )
-
-        def body(env_state, step_key):
-            action = policy(env_state.obs, step_key, explore)
-            next_state = step_envs(env_state, action)
-            transition = Transitions(
-                obs=env_state.obs,
-                action=action,
-                time=env_state.info["steps"] / env.episode_length,
-                done=next_state.done,
-                true_reward=next_state.reward,
-            )
-            return next_state, transition
-
-        return jax.lax.scan(body, env_state, jax.random.split(key_steps, t))
+        act = lambda obs, step_key: policy(obs, step_key, explore)
+        return rollout(train_env, act, env_state, key, t)
 
     def acting(state: TrainState, data: RunData):
         """The policy of ``state`` as ``collect`` drives it."""

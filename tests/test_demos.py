@@ -1,5 +1,5 @@
 """Demonstrations: generation with the driver's analytic expert, the file format and its
-validation (DESIGN §5)."""
+validation (README, "Demonstrations format")."""
 
 import jax
 import jax.numpy as jnp
