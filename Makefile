@@ -9,7 +9,7 @@ OUT ?= runs/driver-emgail
 SEEDS ?= 4
 ITERATIONS ?= 400
 
-.PHONY: run test test-slow lint format bench bench-envs check-envs separability experts clean
+.PHONY: run test test-slow lint format bench bench-envs check-envs separability sweep experts clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -52,6 +52,14 @@ check-envs: $(STAMP)
 
 separability: $(STAMP)
 	$(PY) experiments/driver_separability.py
+
+# The paper's Tables 2-3 and Figures 4-6, cell by cell into OUT/runs; stop and start at
+# will: finished cells are skipped, an interrupted one resumed. ONLY=fig5a, ONLY=hopper-3, ...
+# OUT defaults to results here (given on the command line, it wins).
+SWEEP_OUT := $(if $(filter command line environment,$(origin OUT)),$(OUT),results)
+sweep: $(STAMP)
+	$(PY) experiments/sweep.py --seeds $(SEEDS) --iterations $(ITERATIONS) --out $(SWEEP_OUT) \
+		$(if $(ONLY),--only '$(ONLY)')
 
 # Retrains every MJX env's experts and rewrites the shipped demonstrations (emgail_jax/data).
 experts: $(STAMP)

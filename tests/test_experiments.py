@@ -1,9 +1,13 @@
 """Smoke runs of the experiment scripts under experiments/ on tiny settings: they are not part
 of the package, so nothing else would notice when one of them no longer runs."""
 
+import csv
 import importlib.util
+import json
 import pathlib
+import sys
 
+import numpy as np
 import pytest
 
 EXPERIMENTS = pathlib.Path(__file__).resolve().parents[1] / "experiments"
@@ -12,6 +16,7 @@ EXPERIMENTS = pathlib.Path(__file__).resolve().parents[1] / "experiments"
 def _load(name):
     spec = importlib.util.spec_from_file_location(name, EXPERIMENTS / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses look their module up while it executes
     spec.loader.exec_module(module)
     return module
 
@@ -38,3 +43,85 @@ def test_driver_separability_writes_its_table(tmp_path, capsys):
     # More overlap at the smaller radius.
     separabilities = [float(row.split(",")[2]) for row in rows[1:]]
     assert separabilities[0] < separabilities[1]
+
+
+# ---- the sweep (make sweep) --------------------------------------------------------------------
+
+
+def test_sweep_cells_are_the_papers_experiments():
+    sweep = _load("sweep")
+    cells = sweep.all_cells()
+    names = [cell.name for cell in cells]
+    assert len(names) == len(set(names)) == 60
+    for name in ("reacher-2-emgail", "hopper-3-emgail-onehot", "swimmer-1-gail", "driver-r20-gail"):
+        assert name in names, name
+    assert len(sweep.select(cells, "fig5a")) == 3 * len(sweep.DRIVER_RADII)
+    # halfcheetah: K = 1 (GAIL) and, for K = 2 and 3, three algorithms and the one-hot EM-GAIL.
+    assert len(sweep.select(cells, "halfcheetah")) == 1 + 2 * 4
+    assert [c.name for c in sweep.select(cells, "reacher-2-e*")] == [
+        "reacher-2-emgail",
+        "reacher-2-emgail-onehot",
+    ]
+    reoptimized = [c.name for c in cells if c.reoptimized]
+    assert reoptimized == [
+        f"{e}-{k}-emgail" for e, ks in sweep.ROBOTICS_INTENTIONS.items() for k in ks
+    ]
+    with pytest.raises(sweep.SweepError, match="matches no cell"):
+        sweep.select(cells, "walker")
+
+
+def test_sweep_cell_status_reads_the_run_directory(tmp_path):
+    sweep = _load("sweep")
+
+    def summary(**fields):
+        (tmp_path / "summary.json").write_text(json.dumps(fields))
+
+    assert sweep.cell_status(str(tmp_path), 4, 400) == "new"
+    summary(seeds=4, status="completed", iterations_done=400)
+    assert sweep.cell_status(str(tmp_path), 4, 400) == "done"
+    summary(seeds=4, status="interrupted", iterations_done=150)
+    assert sweep.cell_status(str(tmp_path), 4, 400) == "new"  # no checkpoint to resume from
+    (tmp_path / "checkpoints").mkdir()
+    assert sweep.cell_status(str(tmp_path), 4, 400) == "resume"
+    summary(seeds=4, status="completed", iterations_done=400)
+    assert sweep.cell_status(str(tmp_path), 4, 600) == "resume"  # a longer sweep continues it
+    with pytest.raises(sweep.SweepError, match="run with 4 seeds, not 2"):
+        sweep.cell_status(str(tmp_path), 2, 400)
+
+
+def test_sweep_runs_skips_and_reports_a_driver_cell(tmp_path, monkeypatch, capsys):
+    """End to end on a tiny driver cell (the sizes of the other tiny driver runs, whose compiled
+    program the child finds in the test cache): trained, reported, then skipped."""
+    sweep = _load("sweep")
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(EXPERIMENTS.parent / ".cache" / "jax"))
+    out = tmp_path / "results"
+    args = [
+        *("--only", "driver-r4-emgail", "--seeds", "2", "--iterations", "4"),
+        *("--set", "num_envs=2", "--set", "rollout_length=20", "--set", "chunk_size=2"),
+        *("--out", str(out)),
+    ]
+    assert sweep.main(args) == 0
+    for name in ("table2.md", "table3.md", "table3.csv", "fig6.csv", "fig4b.png", "fig5a.png"):
+        assert (out / name).exists(), name
+    (row,) = csv.DictReader((out / "fig5a.csv").open())
+    assert (row["algo"], float(row["radius"]), row["seeds"]) == ("emgail", 4.0, "2")
+    summary = json.loads((out / "runs" / "driver-r4-emgail" / "summary.json").read_text())
+    assert summary["config"]["num_envs"] == 2  # --set reached the run
+    assert float(row["erd_mean"]) == pytest.approx(np.mean(summary["final"]["erd"]), abs=1e-4)
+
+    stamp = (out / "runs" / "driver-r4-emgail" / "summary.json").stat().st_mtime_ns
+    capsys.readouterr()
+    assert sweep.main(args) == 0
+    assert "0 cells to run" in capsys.readouterr().out
+    assert (out / "runs" / "driver-r4-emgail" / "summary.json").stat().st_mtime_ns == stamp
+
+
+def test_sweep_separability_of_the_driver_falls_with_the_radius(tmp_path):
+    sweep = _load("sweep")
+    cells = sweep.select(sweep.all_cells(), "driver-r4-gail,driver-r20-gail")
+    table = sweep.separability_table(str(tmp_path), cells)
+    assert table["driver-r4"]["separability"] < 0.2 < 0.9 < table["driver-r20"]["separability"]
+    # Kept in separability.csv and read back rather than recomputed.
+    again = sweep.separability_table(str(tmp_path), cells)
+    for data in ("driver-r4", "driver-r20"):
+        assert again[data] == pytest.approx(table[data], abs=1e-4)

@@ -209,3 +209,13 @@ def test_separability_of_far_apart_blobs_is_one():
 def test_separability_of_identical_distributions_is_near_zero():
     mean, _ = separability(*_blobs(offset=0.0))
     assert 0.0 <= mean < 0.15
+
+
+def test_gaussian_mixture_accuracy_is_the_raw_accuracy_separability_normalises():
+    """Table 3's GMM row is the raw accuracy; separability maps chance (1/K) to 0."""
+    obs, actions, labels = _blobs(offset=1.5)
+    accuracies = metrics.gaussian_mixture_accuracies(obs, actions, labels, seeds=(0, 1, 2))
+    assert accuracies.shape == (3,)
+    assert np.all((accuracies > 0.5) & (accuracies < 1.0))
+    mean, _ = separability(obs, actions, labels)
+    assert mean == pytest.approx(np.mean(2 * accuracies - 1))

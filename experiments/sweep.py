@@ -1,0 +1,676 @@
+"""The paper's experiments in one command: Tables 2-3 and Figures 4-6, cell by cell, resumable.
+
+    python experiments/sweep.py [--seeds 4] [--iterations 400] [--only PATTERN] [--out results]
+    make sweep SEEDS=4 [ONLY=PATTERN] [ITERATIONS=400] [OUT=results]
+
+Every cell is a normal run directory, ``OUT/runs/<cell>`` (``ENV-K-ALGO``, ``-onehot`` for
+EM-GAIL with the paper's one-network architecture, ``driver-rRADIUS-ALGO``), trained by
+``python -m emgail_jax.run`` with the defaults. A finished cell is skipped, an interrupted one
+resumed from its last checkpoint, so the sweep can be stopped (Ctrl-C) and started again at will.
+``--only`` takes comma-separated patterns, each a figure or table (fig4a, fig4b, fig5a, fig5b,
+fig6, table2, table3) or a part of cell names (``halfcheetah``, ``reacher-2``, ``driver-r*-gail``).
+From whatever cells are finished it writes ``OUT/table2.md``, ``OUT/table3.md`` and ``.csv``,
+``OUT/fig5a.csv``, ``OUT/fig6.csv``, ``OUT/separability.csv`` and the figures
+``fig4a.png`` ... ``fig6.png``; ``--report-only`` writes them without training anything.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import fnmatch
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+ROBOTICS_INTENTIONS = {
+    "swimmer": (2,),
+    "hopper": (2, 3),
+    "halfcheetah": (2, 3),
+    "reacher": (2, 3, 4),
+}
+# Separability 0.06 to 0.93 (README, "The driver and its separability").
+DRIVER_RADII = (4.0, 5.0, 6.0, 7.0, 8.0, 10.0, 15.0, 20.0)
+ALGOS = ("emgail", "infogail", "gail")
+ALGO_LABELS = {
+    "emgail": "EM-GAIL",
+    "emgail-onehot": "EM-GAIL (one-hot input)",
+    "infogail": "Info/IntentionGAIL",
+    "gail": "GAIL",
+    "gmm": "GMM",
+}
+FIGURES = ("fig4a", "fig4b", "fig5a", "fig5b", "fig6", "table2", "table3")
+
+# The paper's Table 3 (clustering accuracy, %) and Table 2 (EM-GAIL seconds per iteration on
+# an RTX 2080 Ti; learnable parameters of GAIL / Info/IntentionGAIL / EM-GAIL).
+PAPER_TABLE3 = {
+    "gmm": {"hopper-2": 95.8, "hopper-3": 81.6, "halfcheetah-2": 97.8, "halfcheetah-3": 68.3,
+            "swimmer-2": 82.5, "reacher-2": 88.9, "reacher-3": 62.8, "reacher-4": 52.6},
+    "infogail": {"hopper-2": 99.3, "hopper-3": 96.3, "halfcheetah-2": 99.9,
+                 "halfcheetah-3": 79.5, "swimmer-2": 89.1, "reacher-2": 98.3, "reacher-3": 72.0,
+                 "reacher-4": 52.4},
+    "emgail": {"hopper-2": 99.2, "hopper-3": 98.1, "halfcheetah-2": 99.8, "halfcheetah-3": 96.5,
+               "swimmer-2": 97.3, "reacher-2": 99.2, "reacher-3": 97.1, "reacher-4": 96.8},
+}  # fmt: skip
+PAPER_TABLE2 = {  # env: {algo: (parameters, seconds per iteration)}
+    "swimmer": {"gail": ("14.6K", 8.5), "infogail": ("19.9K", 10.2), "emgail": ("20.0K", 10.3)},
+    "hopper": {"gail": ("15.3K", 12.4), "infogail": ("21.1K", 15.3), "emgail": ("21.2K", 15.6)},
+    "halfcheetah": {"gail": ("16.9K", 13.3), "infogail": ("23.2K", 16.1),
+                    "emgail": ("23.4K", 16.5)},
+    "reacher": {"gail": ("18.1K", 5.5), "infogail": ("24.9K", 8.4), "emgail": ("25.1K", 8.7)},
+}  # fmt: skip
+
+# For the time estimate before any cell of an env has finished: seconds per seed, iteration
+# and intention with the seeds on both cores, and seconds to compile (warm cache), measured
+# here with `python -m emgail_jax.run` at the defaults.
+MEASURED_SECONDS = {  # env: (per seed-iteration-intention, compile)
+    "driver": (0.020, 10.0),
+    "swimmer": (0.21, 60.0),
+    "hopper": (0.28, 80.0),
+    "halfcheetah": (0.35, 100.0),
+    "reacher": (0.29, 80.0),
+}
+
+
+class SweepError(RuntimeError):
+    """The sweep cannot go on; the message says what to change."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Cell:
+    """One run of the sweep and the figures and tables it feeds."""
+
+    env: str
+    intentions: int
+    algo: str  # "emgail" | "infogail" | "gail"
+    groups: tuple[str, ...]
+    radius: float | None = None  # the driver's path-2 radius
+    onehot: bool = False  # EM-GAIL with --intention-input onehot
+
+    @property
+    def name(self) -> str:
+        where = f"r{self.radius:g}" if self.radius is not None else str(self.intentions)
+        return f"{self.env}-{where}-{self.algo}" + ("-onehot" if self.onehot else "")
+
+    @property
+    def method(self) -> str:
+        return self.algo + ("-onehot" if self.onehot else "")
+
+    @property
+    def reoptimized(self) -> bool:
+        """The paper's reward check (§5.2) runs on every default EM-GAIL cell of Table 3."""
+        return self.algo == "emgail" and not self.onehot and "table3" in self.groups
+
+    def run_args(self, settings: tuple[str, ...] = ()) -> list[str]:
+        """``python -m emgail_jax.run`` options of a new run; ``settings`` go to ``--set``."""
+        args = ["--env", self.env, "--intentions", str(self.intentions), "--algo", self.algo]
+        for setting in settings:
+            args += ["--set", setting]
+        if self.radius is not None:
+            args += ["--radius", f"{self.radius:g}"]
+        if self.onehot:
+            args += ["--intention-input", "onehot"]
+        return args
+
+
+def all_cells() -> list[Cell]:
+    cells = []
+    for env, ks in ROBOTICS_INTENTIONS.items():
+        # K = 1: the three algorithms are GAIL on one expert, the floor each env allows.
+        cells.append(Cell(env, 1, "gail", ("fig6",)))
+        for k in ks:
+            for algo in ALGOS:
+                groups = ("fig4a", "fig6", "fig5b") + (("table3",) if algo != "gail" else ())
+                groups += ("table2",) if k == 2 else ()
+                cells.append(Cell(env, k, algo, groups))
+            cells.append(Cell(env, k, "emgail", ("table3",), onehot=True))
+    for radius in DRIVER_RADII:
+        for algo in ALGOS:
+            cells.append(Cell("driver", 2, algo, ("fig4b", "fig5a"), radius=radius))
+    return cells
+
+
+def select(cells: list[Cell], only: str | None) -> list[Cell]:
+    """The cells matching any comma-separated pattern: a figure/table name or part of a name."""
+    if not only:
+        return cells
+    patterns = [p.strip() for p in only.split(",") if p.strip()]
+    chosen = [
+        cell
+        for cell in cells
+        if any(p in cell.groups or fnmatch.fnmatch(cell.name, f"*{p}*") for p in patterns)
+    ]
+    if not chosen:
+        raise SweepError(
+            f"--only {only!r} matches no cell: use a figure or table ({', '.join(FIGURES)}) "
+            f"or part of a cell name, e.g. hopper-3 or driver-r10"
+        )
+    return chosen
+
+
+# ---- running cells -----------------------------------------------------------------------------
+
+
+def read_summary(run_dir: str) -> dict | None:
+    try:
+        with open(os.path.join(run_dir, "summary.json")) as f:
+            return json.load(f)
+    except (OSError, json.JSONDecodeError):
+        return None
+
+
+def cell_status(run_dir: str, seeds: int, iterations: int) -> str:
+    """ "done", "resume" (a checkpointed run short of ``iterations``) or "new"."""
+    summary = read_summary(run_dir)
+    if summary is None:
+        return "new"
+    if summary.get("seeds") != seeds:
+        raise SweepError(
+            f"{run_dir} was run with {summary.get('seeds')} seeds, not {seeds}: pass the same "
+            f"SEEDS, or another OUT for a new sweep"
+        )
+    done = summary.get("iterations_done", 0)
+    if summary.get("status") == "completed" and done >= iterations:
+        return "done"
+    has_checkpoint = os.path.isdir(os.path.join(run_dir, "checkpoints")) and done > 0
+    return "resume" if has_checkpoint else "new"
+
+
+def estimate_seconds(cell: Cell, seeds: int, iterations: int, measured: dict) -> float:
+    per_unit, compile_s = measured.get(cell.env, MEASURED_SECONDS[cell.env])
+    seconds = compile_s + per_unit * seeds * iterations * cell.intentions
+    if cell.reoptimized:  # plain TRPO on one seed's K learned rewards, no discriminator
+        seconds += compile_s + 0.5 * per_unit * iterations * cell.intentions
+    return seconds
+
+
+def measured_seconds(runs_dir: str) -> dict:
+    """Per env, from finished cells' own timings: seconds per seed-iteration-intention (the
+    median over cells) and seconds to compile."""
+    units, compiles = {}, {}
+    for name in sorted(os.listdir(runs_dir)) if os.path.isdir(runs_dir) else ():
+        summary = read_summary(os.path.join(runs_dir, name))
+        if not summary or summary.get("status") != "completed":
+            continue
+        timings = summary["timings"]
+        work = timings["iterations"] * summary["seeds"] * summary["intentions"]
+        if work:
+            units.setdefault(summary["env"], []).append(timings["train_time_s"] / work)
+            compiles.setdefault(summary["env"], []).append(timings["compile_time_s"])
+    return {env: (float(np.median(units[env])), float(np.median(compiles[env]))) for env in units}
+
+
+def run_command(command: list[str], log_path: str) -> int:
+    """Runs one child process, its output to ``log_path``; Ctrl-C lets it checkpoint first."""
+    with open(log_path, "a") as log:
+        log.write(f"\n$ {' '.join(command)}\n")
+        log.flush()
+        child = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
+        try:
+            return child.wait()
+        except KeyboardInterrupt:
+            # The child received the same SIGINT: it checkpoints its chunk and exits 130.
+            child.wait()
+            raise
+
+
+def train_cell(
+    cell: Cell, out: str, seeds: int, iterations: int, settings: tuple[str, ...] = ()
+) -> None:
+    """Trains, resumes or skips ``cell``, then re-optimises its reward if the paper does."""
+    run_dir = os.path.join(out, "runs", cell.name)
+    log_path = os.path.join(out, "logs", f"{cell.name}.log")
+    os.makedirs(os.path.dirname(log_path), exist_ok=True)
+    python = [sys.executable, "-m"]
+    status = cell_status(run_dir, seeds, iterations)
+    if status == "resume":
+        command = [*python, "emgail_jax.run", "--resume", run_dir, "--iterations", str(iterations)]
+    elif status == "new":
+        command = [*python, "emgail_jax.run", *cell.run_args(settings), "--seeds", str(seeds)]
+        command += ["--iterations", str(iterations), "--out", run_dir, "--overwrite"]
+    if status != "done":
+        code = run_command([*command, "--quiet"], log_path)
+        if code != 0:
+            raise SweepError(f"cell {cell.name} failed (exit {code}): see {log_path}")
+    if cell.reoptimized and not os.path.exists(os.path.join(run_dir, "reoptimize.json")):
+        command = [*python, "emgail_jax.reoptimize", run_dir, "--seed", "0", "--quiet"]
+        code = run_command(command, log_path)
+        if code != 0:
+            raise SweepError(f"re-optimising {cell.name} failed (exit {code}): see {log_path}")
+
+
+# ---- separability -------------------------------------------------------------------------------
+
+
+def separability_table(out: str, cells: list[Cell]) -> dict:
+    """``{"hopper-3" | "driver-r10": {"separability", "separability_std", "gmm_accuracy",
+    "gmm_accuracy_std"}}`` of the demonstrations the cells train on, computed once and kept in
+    ``OUT/separability.csv``."""
+    from emgail_jax.metrics import gaussian_mixture_accuracies
+    from emgail_jax.problem import make_problem
+
+    path = os.path.join(out, "separability.csv")
+    table = {}
+    if os.path.exists(path):
+        with open(path) as f:
+            table = {
+                row.pop("data"): {k: float(v) for k, v in row.items()} for row in csv.DictReader(f)
+            }
+    wanted = {_data_name(c): c for c in cells if c.intentions >= 2}
+    missing = [name for name in wanted if name not in table]
+    for name in missing:
+        cell = wanted[name]
+        options = {"radius": cell.radius} if cell.radius is not None else {}
+        demos = make_problem(cell.env, cell.intentions, None, options).demos
+        accuracies = gaussian_mixture_accuracies(
+            demos.observations, demos.actions, demos.intentions, cell.intentions
+        )
+        k = cell.intentions
+        normalised = (accuracies - 1.0 / k) / (1.0 - 1.0 / k)
+        table[name] = {
+            "separability": float(normalised.mean()),
+            "separability_std": float(normalised.std()),
+            "gmm_accuracy": float(accuracies.mean()),
+            "gmm_accuracy_std": float(accuracies.std()),
+        }
+    if missing:
+        with open(path, "w") as f:
+            columns = ["separability", "separability_std", "gmm_accuracy", "gmm_accuracy_std"]
+            f.write(",".join(["data", *columns]) + "\n")
+            for name in sorted(table):
+                f.write(",".join([name] + [f"{table[name][c]:.4f}" for c in columns]) + "\n")
+    return table
+
+
+def _data_name(cell: Cell) -> str:
+    return (
+        f"driver-r{cell.radius:g}" if cell.radius is not None else f"{cell.env}-{cell.intentions}"
+    )
+
+
+# ---- tables and figures -------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class CellResult:
+    cell: Cell
+    erd: np.ndarray  # [seeds]
+    accuracy: np.ndarray | None  # [seeds]; None for GAIL
+    parameters: int
+    seconds_per_iteration: float
+    reoptimized_erd: float | None
+
+
+def collect(out: str, cells: list[Cell], seeds: int, iterations: int) -> dict[str, CellResult]:
+    """The finished cells' results, by cell name."""
+    results = {}
+    for cell in cells:
+        run_dir = os.path.join(out, "runs", cell.name)
+        summary = read_summary(run_dir)
+        if summary is None or cell_status(run_dir, seeds, iterations) != "done":
+            continue
+        final = summary["final"]
+        accuracy = final.get("cluster_accuracy")
+        reoptimized = None
+        path = os.path.join(run_dir, "reoptimize.json")
+        if os.path.exists(path):
+            with open(path) as f:
+                reoptimized = json.load(f).get("erd")
+        results[cell.name] = CellResult(
+            cell=cell,
+            erd=np.asarray(final["erd"], float),
+            accuracy=None if accuracy is None else np.asarray(accuracy, float),
+            parameters=int(summary["parameters"]["total"]),
+            seconds_per_iteration=summary["timings"]["train_time_s"]
+            / summary["timings"]["iterations"],
+            reoptimized_erd=reoptimized,
+        )
+    return results
+
+
+def _mean_std(values) -> str:
+    return f"{np.mean(values):.1f} ± {np.std(values):.1f}"
+
+
+def write_table3(out: str, results: dict[str, CellResult], separability: dict) -> None:
+    columns = [f"{env}-{k}" for env, ks in ROBOTICS_INTENTIONS.items() for k in ks]
+    rows = []  # (method, column, accuracies in %)
+    for column in columns:
+        if column in separability:
+            gmm = separability[column]
+            rows.append(
+                ("gmm", column, None, 100 * gmm["gmm_accuracy"], 100 * gmm["gmm_accuracy_std"], 5)
+            )
+        for method in ("infogail", "emgail", "emgail-onehot"):
+            result = results.get(f"{column}-{method}")
+            if result is not None and result.accuracy is not None:
+                acc = 100 * result.accuracy
+                rows.append((method, column, acc, acc.mean(), acc.std(), len(acc)))
+    with open(os.path.join(out, "table3.csv"), "w") as f:
+        f.write("env,intentions,method,accuracy_mean,accuracy_std,seeds\n")
+        for method, column, _, mean, std, n in rows:
+            env, k = column.rsplit("-", 1)
+            f.write(f"{env},{k},{method},{mean / 100:.4f},{std / 100:.4f},{n}\n")
+    found = {(method, column): (mean, std) for method, column, _, mean, std, _ in rows}
+    lines = [
+        "Clustering accuracy (%) of the expert pairs, mean ± std over seeds (GMM: over 5 "
+        "mixture seeds); the paper's value in brackets.",
+        "",
+        "| method | " + " | ".join(columns) + " |",
+        "|---|" + "---:|" * len(columns),
+    ]
+    for method in ("gmm", "infogail", "emgail", "emgail-onehot"):
+        cells = []
+        for column in columns:
+            value = found.get((method, column))
+            text = "—" if value is None else f"{value[0]:.1f} ± {value[1]:.1f}"
+            paper = PAPER_TABLE3.get(method, {}).get(column)
+            cells.append(text + (f" [{paper}]" if paper is not None else ""))
+        lines.append(f"| {ALGO_LABELS[method]} | " + " | ".join(cells) + " |")
+    _write_text(os.path.join(out, "table3.md"), lines)
+
+
+def write_table2(out: str, results: dict[str, CellResult], seeds: int) -> None:
+    lines = [
+        f"Learnable parameters (policy, value, discriminator and posterior, as `summary.json` "
+        f"counts them) and seconds per iteration of the K = 2 cells on this machine's CPU "
+        f"({seeds} seeds over 2 cores; per seed in brackets), beside the paper's (one seed, "
+        f"RTX 2080 Ti).",
+        "",
+        "| env | algorithm | parameters | paper | s / iteration | paper (GPU) |",
+        "|---|---|---:|---:|---:|---:|",
+    ]
+    for env in ROBOTICS_INTENTIONS:
+        for algo in ALGOS:
+            result = results.get(f"{env}-2-{algo}")
+            params, paper_seconds = PAPER_TABLE2[env][algo]
+            if result is None:
+                ours, seconds = "—", "—"
+            else:
+                ours = f"{result.parameters:,}"
+                per_seed = result.seconds_per_iteration / seeds
+                seconds = f"{result.seconds_per_iteration:.2f} ({per_seed:.2f})"
+            lines.append(
+                f"| {env} | {ALGO_LABELS[algo]} | {ours} | {params} | {seconds} | {paper_seconds} |"
+            )
+    _write_text(os.path.join(out, "table2.md"), lines)
+
+
+def write_erd_csvs(out: str, results: dict[str, CellResult], separability: dict) -> None:
+    with open(os.path.join(out, "fig5a.csv"), "w") as f:
+        f.write("algo,radius,separability,erd_mean,erd_std,seeds\n")
+        for result in results.values():
+            cell = result.cell
+            if cell.env == "driver":
+                sep = separability.get(_data_name(cell), {}).get("separability", math.nan)
+                f.write(f"{cell.algo},{cell.radius:g},{sep:.4f},{result.erd.mean():.4f},"
+                        f"{result.erd.std():.4f},{len(result.erd)}\n")  # fmt: skip
+    with open(os.path.join(out, "fig6.csv"), "w") as f:
+        f.write("env,intentions,algo,separability,erd_mean,erd_std,reoptimized_erd,seeds\n")
+        for result in results.values():
+            cell = result.cell
+            if cell.env == "driver" or cell.onehot:
+                continue
+            sep = separability.get(_data_name(cell), {}).get("separability")
+            reopt = result.reoptimized_erd
+            f.write(
+                f"{cell.env},{cell.intentions},{cell.algo},{'' if sep is None else f'{sep:.4f}'},"
+                f"{result.erd.mean():.4f},{result.erd.std():.4f},"
+                f"{'' if reopt is None else f'{reopt:.4f}'},{len(result.erd)}\n"
+            )
+
+
+def _write_text(path: str, lines: list[str]) -> None:
+    with open(path, "w") as f:
+        f.write("\n".join(lines) + "\n")
+
+
+def draw_figures(out: str, results: dict[str, CellResult], separability: dict) -> list[str]:
+    """The paper's Figures 4-6 from what is finished: means as lines, ± std as shading."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    colors = {"emgail": "tab:red", "infogail": "tab:blue", "gail": "tab:green"}
+    written = []
+
+    def save(fig, name):
+        fig.tight_layout()
+        fig.savefig(os.path.join(out, name), dpi=120)
+        plt.close(fig)
+        written.append(name)
+
+    def band(ax, x, mean, std, **style):
+        order = np.argsort(x)
+        x, mean, std = (np.asarray(v)[order] for v in (x, mean, std))
+        ax.plot(x, mean, marker="o", **style)
+        ax.fill_between(x, mean - std, mean + std, alpha=0.2, color=style.get("color"))
+
+    def erd_axis(ax, values):
+        ax.set_ylim(0, max(1.05, max(values, default=0) + 0.05))
+        ax.set_ylabel("normalised ERD")
+
+    # fig4a: separability of the shipped demonstrations against K, per env.
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    drawn = False
+    for env, ks in ROBOTICS_INTENTIONS.items():
+        points = [(k, separability[f"{env}-{k}"]) for k in ks if f"{env}-{k}" in separability]
+        if points:
+            ks_, rows = zip(*points, strict=True)
+            band(
+                ax,
+                ks_,
+                [r["separability"] for r in rows],
+                [r["separability_std"] for r in rows],
+                label=env,
+            )
+            drawn = True
+    ax.set(xlabel="number of intentions", ylabel="separability", ylim=(0, 1.05), xticks=(2, 3, 4))
+    if drawn:
+        ax.legend()
+        save(fig, "fig4a.png")
+    else:
+        plt.close(fig)
+
+    # fig4b: the driver's separability against the radius of path 2.
+    driver = sorted(
+        (float(n.split("-r")[1]), v) for n, v in separability.items() if n.startswith("driver-r")
+    )
+    if driver:
+        fig, ax = plt.subplots(figsize=(5, 3.5))
+        band(ax, [r for r, _ in driver], [v["separability"] for _, v in driver],
+             [v["separability_std"] for _, v in driver], color="black")  # fmt: skip
+        ax.set(xlabel="radius of path 2", ylabel="separability", ylim=(0, 1.05), xscale="log")
+        save(fig, "fig4b.png")
+
+    def erd_against_separability(cells_of, name, title):
+        fig, ax = plt.subplots(figsize=(5, 3.5))
+        plotted = []
+        for algo in ALGOS:
+            points = [
+                (separability[_data_name(r.cell)]["separability"], r.erd.mean(), r.erd.std())
+                for r in cells_of(algo)
+                if _data_name(r.cell) in separability
+            ]
+            if points:
+                x, mean, std = zip(*points, strict=True)
+                band(ax, x, mean, std, color=colors[algo], label=ALGO_LABELS[algo])
+                plotted += list(mean)
+        if plotted:
+            ax.set(xlabel="separability", title=title)
+            erd_axis(ax, plotted)
+            ax.legend()
+            save(fig, name)
+        else:
+            plt.close(fig)
+
+    driver_results = [r for r in results.values() if r.cell.env == "driver"]
+    robotics = [r for r in results.values() if r.cell.env != "driver" and not r.cell.onehot]
+    erd_against_separability(
+        lambda algo: [r for r in driver_results if r.cell.algo == algo], "fig5a.png", "driver"
+    )
+    erd_against_separability(
+        lambda algo: [r for r in robotics if r.cell.algo == algo and r.cell.intentions >= 2],
+        "fig5b.png",
+        "robotics envs",
+    )
+
+    # fig6: ERD against K per env; K = 1 is GAIL on one expert, the start of every line.
+    fig, axes = plt.subplots(1, len(ROBOTICS_INTENTIONS), figsize=(14, 3.5))
+    any_point = False
+    for ax, (env, ks) in zip(axes, ROBOTICS_INTENTIONS.items(), strict=True):
+        floor = results.get(f"{env}-1-gail")
+        values = []
+        for algo in ALGOS:
+            points = [(1, floor.erd)] if floor is not None else []
+            points += [
+                (k, results[f"{env}-{k}-{algo}"].erd) for k in ks if f"{env}-{k}-{algo}" in results
+            ]
+            if points:
+                x, erds = zip(*points, strict=True)
+                band(
+                    ax,
+                    x,
+                    [e.mean() for e in erds],
+                    [e.std() for e in erds],
+                    color=colors[algo],
+                    label=ALGO_LABELS[algo],
+                )
+                values += [e.mean() for e in erds]
+        any_point |= bool(values)
+        ax.set(title=env, xlabel="number of intentions", xticks=(1, *ks))
+        erd_axis(ax, values)
+    if any_point:
+        axes[0].legend()
+        save(fig, "fig6.png")
+    else:
+        plt.close(fig)
+    return written
+
+
+def write_report(out: str, cells: list[Cell], seeds: int, iterations: int) -> list[str]:
+    """Every table, CSV and figure from every finished cell of the sweep (the separability of
+    ``cells``' demonstrations is computed if not yet known); returns what was written."""
+    os.makedirs(out, exist_ok=True)
+    results = collect(out, all_cells(), seeds, iterations)
+    separability = separability_table(out, cells)
+    write_table3(out, results, separability)
+    write_table2(out, results, seeds)
+    write_erd_csvs(out, results, separability)
+    figures = draw_figures(out, results, separability)
+    return [
+        "separability.csv",
+        "table2.md",
+        "table3.md",
+        "table3.csv",
+        "fig5a.csv",
+        "fig6.csv",
+        *figures,
+    ]
+
+
+# ---- command line -------------------------------------------------------------------------------
+
+
+def _format_duration(seconds: float) -> str:
+    hours, rest = divmod(int(seconds), 3600)
+    return f"{hours}h{rest // 60:02d}m" if hours else f"{rest // 60}m{rest % 60:02d}s"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--seeds", type=int, default=4)
+    parser.add_argument("--iterations", type=int, default=400)
+    parser.add_argument("--only", default=None, help="comma-separated figures or cell names")
+    parser.add_argument("--out", default="results")
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a hyper-parameter for every new cell, as `run --set` (repeatable)",
+    )
+    parser.add_argument("--list", action="store_true", help="list the cells and stop")
+    parser.add_argument("--report-only", action="store_true", help="tables and figures only")
+    args = parser.parse_args(argv)
+
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.table import Table
+
+    console = Console()
+    try:
+        if args.seeds < 1 or args.iterations < 1:
+            raise SweepError("--seeds and --iterations must be at least 1")
+        everything = all_cells()
+        cells = select(everything, args.only)
+        runs_dir = os.path.join(args.out, "runs")
+        statuses = {
+            c.name: cell_status(os.path.join(runs_dir, c.name), args.seeds, args.iterations)
+            for c in cells
+        }
+    except SweepError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+
+    measured = measured_seconds(runs_dir)
+    todo = [c for c in cells if statuses[c.name] != "done"]
+    estimates = {c.name: estimate_seconds(c, args.seeds, args.iterations, measured) for c in todo}
+    table = Table(
+        title=f"sweep: {len(cells)} cells, {args.seeds} seeds × {args.iterations} iterations, "
+        f"in {args.out}"
+    )
+    for column in ("cell", "feeds", "status", "estimate"):
+        table.add_column(column)
+    for cell in cells:
+        estimate = _format_duration(estimates[cell.name]) if cell.name in estimates else ""
+        table.add_row(cell.name, ", ".join(cell.groups), statuses[cell.name], estimate)
+    console.print(table)
+    total = sum(estimates.values())
+    console.print(f"{len(todo)} cells to run, estimated {_format_duration(total)} on this machine")
+    if args.list:
+        return 0
+
+    if not args.report_only and todo:
+        columns = (
+            TextColumn("{task.description}"),
+            BarColumn(),
+            TextColumn("{task.completed}/{task.total} cells"),
+            TimeElapsedColumn(),
+        )
+        started = time.monotonic()
+        try:
+            with Progress(*columns, console=console) as progress:
+                task = progress.add_task("", total=len(todo))
+                for cell in todo:
+                    progress.update(task, description=f"{cell.name} ({statuses[cell.name]})")
+                    train_cell(cell, args.out, args.seeds, args.iterations, tuple(args.set))
+                    progress.advance(task)
+        except SweepError as error:
+            print(f"error: {error}", file=sys.stderr)
+            return 1
+        except KeyboardInterrupt:
+            console.print(
+                "interrupted: the cell in progress is checkpointed; run the same command to resume"
+            )
+            return 130
+        console.print(f"ran {len(todo)} cells in {_format_duration(time.monotonic() - started)}")
+
+    try:
+        written = write_report(args.out, cells, args.seeds, args.iterations)
+    except SweepError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    console.print(f"wrote {', '.join(written)} in {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
