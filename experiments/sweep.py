@@ -450,8 +450,8 @@ def draw_figures(out: str, results: dict[str, CellResult], separability: dict) -
     def band(ax, x, mean, std, **style):
         order = np.argsort(x)
         x, mean, std = (np.asarray(v)[order] for v in (x, mean, std))
-        ax.plot(x, mean, marker="o", **style)
-        ax.fill_between(x, mean - std, mean + std, alpha=0.2, color=style.get("color"))
+        (line,) = ax.plot(x, mean, marker="o", **style)
+        ax.fill_between(x, mean - std, mean + std, alpha=0.2, color=line.get_color())
 
     def erd_axis(ax, values):
         ax.set_ylim(0, max(1.05, max(values, default=0) + 0.05))
@@ -487,7 +487,7 @@ def draw_figures(out: str, results: dict[str, CellResult], separability: dict) -
         fig, ax = plt.subplots(figsize=(5, 3.5))
         band(ax, [r for r, _ in driver], [v["separability"] for _, v in driver],
              [v["separability_std"] for _, v in driver], color="black")  # fmt: skip
-        ax.set(xlabel="radius of path 2", ylabel="separability", ylim=(0, 1.05), xscale="log")
+        ax.set(xlabel="radius of path 2", ylabel="separability", ylim=(0, 1.05))
         save(fig, "fig4b.png")
 
     def erd_against_separability(cells_of, name, title):
