@@ -38,12 +38,18 @@ class Config:
     # x 200 iterations, 2 one-hot seeds had not separated the swimmers (accuracy 0.79, 0.81)
     # against 1 with heads (0.81), the others at 0.99-1.00; heads also ran 10 % faster.
     intention_input: str = "heads"
-    # The E-step's responsibilities: "pair" (gamma = P(i | s, a) of each pair, eq. 18) or
-    # "trajectory" (each pair takes the posterior of its whole demonstration, from the product
-    # of its pairs' P; an extension, see emgail_jax.posterior.trajectory_responsibilities).
-    # "labels" takes the demonstrations' hidden labels instead: an oracle, for diagnosis only
-    # (how well the rest of the method does when the E-step is perfect).
-    responsibilities: str = "pair"
+    # The E-step's responsibilities: "trajectory" (each pair takes the posterior of its whole
+    # demonstration, from the product of its pairs' P; see
+    # emgail_jax.posterior.trajectory_responsibilities) or "pair" (gamma = P(i | s, a) of each
+    # pair, the paper's eq. 18). Trajectory by default, a departure from the paper: with the
+    # per-pair gamma every discriminator starts on the mixture of all intentions and hopper-3
+    # and reacher-4 never separate them (accuracy 0.57-0.87 and 0.47-0.52, 2 seeds x 400);
+    # with trajectory gamma both reach 0.96-1.00 with ERD 0.006-0.045, and the driver (4 seeds,
+    # radius 20 and 5), swimmer-2 and halfcheetah-3 do as well or better (docs/
+    # learning-the-mjx-envs.md). "labels" takes the demonstrations' hidden labels instead: an
+    # oracle, for diagnosis only (how well the rest of the method does when the E-step is
+    # perfect).
+    responsibilities: str = "trajectory"
     # The policy's initial log-std, 0 as in the paper's public code. A wide start lets the E-step
     # separate the intentions before the policies commit: on the swimmer (8 seeds x 300
     # iterations) every seed separated the two intentions (accuracy >= 0.999) where with -0.5

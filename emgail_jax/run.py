@@ -65,7 +65,8 @@ def parse_args(argv=None) -> argparse.Namespace:
         "--responsibilities",
         default=None,
         choices=RESPONSIBILITIES,
-        help="E-step posterior of each expert pair (default, eq. 18) or of its whole trajectory",
+        help="E-step: the posterior of each pair's whole demonstration (default) or of each "
+        "pair alone (the paper's eq. 18), or the hidden labels (an oracle, for diagnosis)",
     )
     parser.add_argument("--num-envs", type=int, default=None, help="envs per intention")
     parser.add_argument("--rollout-length", type=int, default=None, help="steps per rollout")
@@ -388,8 +389,8 @@ def _final_summary(problem, config, history, timings, spec) -> dict:
         "iteration_time_s": timings["train_time_s"] / max(timings["iterations"], 1),
         "env_steps": env_steps * spec.seeds,
     }
-    if config.responsibilities == "trajectory":
-        name = "trajectory_cluster_accuracy"
+    name = "trajectory_cluster_accuracy"
+    if f"eval/{name}" in final:  # EM-GAIL and Info/IntentionGAIL in trajectory mode
         summary[name] = None if no_accuracy else final[f"eval/{name}"]
     return summary
 

@@ -4,7 +4,8 @@
     make sweep SEEDS=4 [ONLY=PATTERN] [ITERATIONS=400] [OUT=results]
 
 Every cell is a normal run directory, ``OUT/runs/<cell>`` (``ENV-K-ALGO``, ``-onehot`` for
-EM-GAIL with the paper's one-network architecture, ``driver-rRADIUS-ALGO``), trained by
+EM-GAIL with the paper's one-network architecture, ``-pair`` for EM-GAIL with the paper's
+per-pair E-step, ``driver-rRADIUS-ALGO``), trained by
 ``python -m emgail_jax.run`` with the defaults. A finished cell is skipped, an interrupted one
 resumed from its last checkpoint, so the sweep can be stopped (Ctrl-C) and started again at will.
 ``--only`` takes comma-separated patterns, each a figure or table (fig4a, fig4b, fig5a, fig5b,
@@ -41,10 +42,18 @@ ALGOS = ("emgail", "infogail", "gail")
 ALGO_LABELS = {
     "emgail": "EM-GAIL",
     "emgail-onehot": "EM-GAIL (one-hot input)",
+    "emgail-pair": "EM-GAIL (per-pair E-step)",
     "infogail": "Info/IntentionGAIL",
     "gail": "GAIL",
     "gmm": "GMM",
 }
+# EM-GAIL with one of the paper's own choices where the default departs from it (README,
+# "Departures from the paper"), for Table 3.
+VARIANTS = {
+    "onehot": ("--intention-input", "onehot"),
+    "pair": ("--responsibilities", "pair"),
+}
+TABLE3_METHODS = ("gmm", "infogail", "emgail", "emgail-onehot", "emgail-pair")
 FIGURES = ("fig4a", "fig4b", "fig5a", "fig5b", "fig6", "table2", "table3")
 
 # The paper's Table 3 (clustering accuracy, %) and Table 2 (EM-GAIL seconds per iteration on
@@ -91,21 +100,21 @@ class Cell:
     algo: str  # "emgail" | "infogail" | "gail"
     groups: tuple[str, ...]
     radius: float | None = None  # the driver's path-2 radius
-    onehot: bool = False  # EM-GAIL with --intention-input onehot
+    variant: str = ""  # a key of VARIANTS: one of the paper's choices instead of the default
 
     @property
     def name(self) -> str:
         where = f"r{self.radius:g}" if self.radius is not None else str(self.intentions)
-        return f"{self.env}-{where}-{self.algo}" + ("-onehot" if self.onehot else "")
+        return f"{self.env}-{where}-{self.method}"
 
     @property
     def method(self) -> str:
-        return self.algo + ("-onehot" if self.onehot else "")
+        return self.algo + (f"-{self.variant}" if self.variant else "")
 
     @property
     def reoptimized(self) -> bool:
         """The paper's reward check (§5.2) runs on every default EM-GAIL cell of Table 3."""
-        return self.algo == "emgail" and not self.onehot and "table3" in self.groups
+        return self.method == "emgail" and "table3" in self.groups
 
     def run_args(self, settings: tuple[str, ...] = ()) -> list[str]:
         """``python -m emgail_jax.run`` options of a new run; ``settings`` go to ``--set``."""
@@ -114,9 +123,7 @@ class Cell:
             args += ["--set", setting]
         if self.radius is not None:
             args += ["--radius", f"{self.radius:g}"]
-        if self.onehot:
-            args += ["--intention-input", "onehot"]
-        return args
+        return args + list(VARIANTS.get(self.variant, ()))
 
 
 def all_cells() -> list[Cell]:
@@ -129,10 +136,12 @@ def all_cells() -> list[Cell]:
                 groups = ("fig4a", "fig6", "fig5b") + (("table3",) if algo != "gail" else ())
                 groups += ("table2",) if k == 2 else ()
                 cells.append(Cell(env, k, algo, groups))
-            cells.append(Cell(env, k, "emgail", ("table3",), onehot=True))
+            cells.append(Cell(env, k, "emgail", ("table3",), variant="onehot"))
     for radius in DRIVER_RADII:
         for algo in ALGOS:
             cells.append(Cell("driver", 2, algo, ("fig4b", "fig5a"), radius=radius))
+    for env, ks in ROBOTICS_INTENTIONS.items():  # last: the paper's E-step, for comparison
+        cells += [Cell(env, k, "emgail", ("table3",), variant="pair") for k in ks]
     return cells
 
 
@@ -347,7 +356,7 @@ def write_table3(out: str, results: dict[str, CellResult], separability: dict) -
             rows.append(
                 ("gmm", column, None, 100 * gmm["gmm_accuracy"], 100 * gmm["gmm_accuracy_std"], 5)
             )
-        for method in ("infogail", "emgail", "emgail-onehot"):
+        for method in TABLE3_METHODS[1:]:
             result = results.get(f"{column}-{method}")
             if result is not None and result.accuracy is not None:
                 acc = 100 * result.accuracy
@@ -365,7 +374,7 @@ def write_table3(out: str, results: dict[str, CellResult], separability: dict) -
         "| method | " + " | ".join(columns) + " |",
         "|---|" + "---:|" * len(columns),
     ]
-    for method in ("gmm", "infogail", "emgail", "emgail-onehot"):
+    for method in TABLE3_METHODS:
         cells = []
         for column in columns:
             value = found.get((method, column))
@@ -415,7 +424,7 @@ def write_erd_csvs(out: str, results: dict[str, CellResult], separability: dict)
         f.write("env,intentions,algo,separability,erd_mean,erd_std,reoptimized_erd,seeds\n")
         for result in results.values():
             cell = result.cell
-            if cell.env == "driver" or cell.onehot:
+            if cell.env == "driver" or cell.variant:
                 continue
             sep = separability.get(_data_name(cell), {}).get("separability")
             reopt = result.reoptimized_erd
@@ -512,7 +521,7 @@ def draw_figures(out: str, results: dict[str, CellResult], separability: dict) -
             plt.close(fig)
 
     driver_results = [r for r in results.values() if r.cell.env == "driver"]
-    robotics = [r for r in results.values() if r.cell.env != "driver" and not r.cell.onehot]
+    robotics = [r for r in results.values() if r.cell.env != "driver" and not r.cell.variant]
     erd_against_separability(
         lambda algo: [r for r in driver_results if r.cell.algo == algo], "fig5a.png", "driver"
     )

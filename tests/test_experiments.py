@@ -52,15 +52,17 @@ def test_sweep_cells_are_the_papers_experiments():
     sweep = _load("sweep")
     cells = sweep.all_cells()
     names = [cell.name for cell in cells]
-    assert len(names) == len(set(names)) == 60
-    for name in ("reacher-2-emgail", "hopper-3-emgail-onehot", "swimmer-1-gail", "driver-r20-gail"):
+    assert len(names) == len(set(names)) == 68
+    for name in ("reacher-2-emgail", "hopper-3-emgail-pair", "swimmer-1-gail", "driver-r20-gail"):
         assert name in names, name
     assert len(sweep.select(cells, "fig5a")) == 3 * len(sweep.DRIVER_RADII)
-    # halfcheetah: K = 1 (GAIL) and, for K = 2 and 3, three algorithms and the one-hot EM-GAIL.
-    assert len(sweep.select(cells, "halfcheetah")) == 1 + 2 * 4
+    # halfcheetah: K = 1 (GAIL) and, for K = 2 and 3, three algorithms and EM-GAIL with the
+    # paper's one-hot input and with its per-pair E-step.
+    assert len(sweep.select(cells, "halfcheetah")) == 1 + 2 * 5
     assert [c.name for c in sweep.select(cells, "reacher-2-e*")] == [
         "reacher-2-emgail",
         "reacher-2-emgail-onehot",
+        "reacher-2-emgail-pair",
     ]
     reoptimized = [c.name for c in cells if c.reoptimized]
     assert reoptimized == [

@@ -64,15 +64,22 @@ def test_responsibilities_are_distributions(saved):
     result = saved.responsibilities(0)
     assert result.gamma.shape == (len(saved.problem.demos), 2)
     np.testing.assert_allclose(result.gamma.sum(-1), 1.0, rtol=1e-5)
-    np.testing.assert_array_equal(result.pair_labels, np.argmax(result.gamma, -1))
+    # Trajectory responsibilities (the default): gamma is each demonstration's posterior.
+    np.testing.assert_array_equal(result.trajectory_labels, np.argmax(result.gamma, -1))
+    episode = saved.expert_data.episode
+    for e in np.unique(episode):
+        assert len(np.unique(result.trajectory_labels[episode == e])) == 1
 
 
 def test_clustering_equals_what_training_logged_last(saved):
     """Same posterior, same normaliser, same pairs, same function: the accuracy of the saved
     run is the one training logged at its last iteration, exactly."""
     for seed in range(2):
-        logged = saved.history["eval/cluster_accuracy"][seed, -1]
-        assert saved.clustering(seed) == {"cluster_accuracy": float(logged)}
+        logged = {
+            name: float(saved.history[f"eval/{name}"][seed, -1])
+            for name in ("cluster_accuracy", "trajectory_cluster_accuracy")
+        }
+        assert saved.clustering(seed) == logged
 
 
 def test_unknown_seed_is_refused(saved):
