@@ -146,15 +146,19 @@ def all_cells() -> list[Cell]:
 
 
 def select(cells: list[Cell], only: str | None) -> list[Cell]:
-    """The cells matching any comma-separated pattern: a figure/table name or part of a name."""
+    """The cells matching any comma-separated pattern: a figure/table name, a whole cell name
+    (that cell alone), or part of names (``reacher-2``: every reacher-2 cell)."""
     if not only:
         return cells
     patterns = [p.strip() for p in only.split(",") if p.strip()]
-    chosen = [
-        cell
-        for cell in cells
-        if any(p in cell.groups or fnmatch.fnmatch(cell.name, f"*{p}*") for p in patterns)
-    ]
+    names = {cell.name for cell in cells}
+
+    def matches(cell: Cell, pattern: str) -> bool:
+        if pattern in names:
+            return cell.name == pattern
+        return pattern in cell.groups or fnmatch.fnmatch(cell.name, f"*{pattern}*")
+
+    chosen = [cell for cell in cells if any(matches(cell, p) for p in patterns)]
     if not chosen:
         raise SweepError(
             f"--only {only!r} matches no cell: use a figure or table ({', '.join(FIGURES)}) "

@@ -59,6 +59,7 @@ def test_sweep_cells_are_the_papers_experiments():
     # halfcheetah: K = 1 (GAIL) and, for K = 2 and 3, three algorithms and EM-GAIL with the
     # paper's one-hot input and with its per-pair E-step.
     assert len(sweep.select(cells, "halfcheetah")) == 1 + 2 * 5
+    assert [c.name for c in sweep.select(cells, "reacher-2-emgail")] == ["reacher-2-emgail"]
     assert [c.name for c in sweep.select(cells, "reacher-2-e*")] == [
         "reacher-2-emgail",
         "reacher-2-emgail-onehot",
