@@ -128,3 +128,12 @@ def test_sweep_separability_of_the_driver_falls_with_the_radius(tmp_path):
     again = sweep.separability_table(str(tmp_path), cells)
     for data in ("driver-r4", "driver-r20"):
         assert again[data] == pytest.approx(table[data], abs=1e-4)
+
+
+@pytest.mark.slow  # its own compile of the RL update: 30-90 s
+def test_rl_floor_trains_on_the_true_reward(capsys):
+    rl_floor = _load("rl_floor")
+    args = ["--env", "driver", "--intentions", "2", "--iterations", "10"]
+    assert rl_floor.main([*args, "--set", "num_envs=2", "--set", "hidden=8,"]) == 0
+    (line,) = capsys.readouterr().out.splitlines()
+    assert line.startswith("iteration 10: returns ") and "ERD" in line and "entropy" in line
