@@ -24,6 +24,7 @@ import fnmatch
 import json
 import math
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -220,17 +221,26 @@ def measured_seconds(runs_dir: str) -> dict:
 
 
 def run_command(command: list[str], log_path: str) -> int:
-    """Runs one child process, its output to ``log_path``; Ctrl-C lets it checkpoint first."""
+    """Runs one child process, its output to ``log_path``. Ctrl-C (SIGINT, which the child
+    receives too) or SIGTERM (forwarded to it) lets the child checkpoint its chunk first, then
+    stops the sweep."""
+
+    def forward(signum, frame):
+        child.send_signal(signum)
+        raise KeyboardInterrupt
+
     with open(log_path, "a") as log:
         log.write(f"\n$ {' '.join(command)}\n")
         log.flush()
         child = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
+        previous = signal.signal(signal.SIGTERM, forward)
         try:
             return child.wait()
         except KeyboardInterrupt:
-            # The child received the same SIGINT: it checkpoints its chunk and exits 130.
             child.wait()
             raise
+        finally:
+            signal.signal(signal.SIGTERM, previous)
 
 
 def train_cell(
