@@ -40,6 +40,7 @@ class ExpertSpec:
     gamma: float = 0.995
     max_kl: float = 0.01
     init_log_std: float = -0.5
+    value_epochs: int = 5  # what trained the shipped experts (the IRL default is now 20)
     demo_episodes: int = 5
     eval_episodes: int = 1  # deterministic episodes per iteration for choosing the best seed
 
@@ -72,6 +73,7 @@ def _config(spec: ExpertSpec):
         rollout_length=spec.rollout_length,
         gamma=spec.gamma,
         init_log_std=spec.init_log_std,
+        value_epochs=spec.value_epochs,
         trpo=TRPOConfig(max_kl=spec.max_kl),
     )
 
