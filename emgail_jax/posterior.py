@@ -47,18 +47,29 @@ def log_posterior(apply: Callable, params, obs: jax.Array, actions: jax.Array) -
     return jax.nn.log_softmax(apply(params, obs, actions), axis=-1)
 
 
-def trajectory_responsibilities(log_p: jax.Array, episode: jax.Array, episodes: int) -> jax.Array:
+def trajectory_responsibilities(
+    log_p: jax.Array, episode: jax.Array, episodes: int, centered: bool = False
+) -> jax.Array:
     """gamma of every expert pair from its whole demonstration: ``[N, K]``.
 
     A demonstration has one intention. Treating its pairs as independent given the intention,
     with a uniform prior, the posterior of the intention of episode e is proportional to
     ``prod_t P(i | s_t, a_t)`` over its pairs; every pair takes the posterior of its episode.
+    ``centered`` first subtracts, for every intention, the mean over the demonstrations of
+    their summed ``log P(i | .)``: a lean the posterior network has on every pair (an untrained
+    one always has some) then cancels instead of growing with the episode length and sending
+    every demonstration to one intention, and each demonstration goes where it differs from the
+    others (on the driver at radius 4 the uncentred product did that on 2 of 4 seeds, the
+    centred one on none; on reacher-4 one seed of 2 did worse centred: an option under study,
+    docs/learning-the-mjx-envs.md, experiment 12).
 
     Args:
       log_p: ``[N, K]`` log P(i | s, a) of the expert pairs.
       episode: ``[N]`` index of each pair's episode, in ``[0, episodes)``.
     """
-    per_episode = jax.ops.segment_sum(log_p, episode, num_segments=episodes)
+    per_episode = jax.ops.segment_sum(log_p, episode, num_segments=episodes)  # [E, K]
+    if centered:
+        per_episode = per_episode - per_episode.mean(0, keepdims=True)
     return jax.nn.softmax(per_episode, axis=-1)[episode]
 
 
@@ -93,7 +104,8 @@ def expert_responsibilities(
 ) -> Responsibilities:
     """The E-step's responsibilities of the expert pairs ``obs [N, D]`` (normalised),
     ``actions [N, A]`` (executed) under the posterior ``params``; ``mode`` is ``"pair"``
-    (eq. 18), ``"trajectory"`` (see :func:`trajectory_responsibilities`) or ``"labels"``: the
+    (eq. 18), ``"trajectory"`` or ``"trajectory-centered"`` (see
+    :func:`trajectory_responsibilities`) or ``"labels"``: the
     hidden ``labels [N]`` themselves, an oracle E-step that bounds what any E-step can give
     (not the paper's method; the pair labels are still the posterior's, for eq. 29)."""
     log_p = log_posterior(apply, params, obs, actions)
@@ -102,11 +114,12 @@ def expert_responsibilities(
         if labels is None:
             raise ValueError("the labels E-step needs demonstrations with hidden labels")
         return Responsibilities(jax.nn.one_hot(labels, log_p.shape[-1]), pair_labels, labels)
-    if mode == "trajectory":
-        gamma = trajectory_responsibilities(log_p, episode, episodes)
+    if mode in ("trajectory", "trajectory-centered"):
+        gamma = trajectory_responsibilities(log_p, episode, episodes, mode != "trajectory")
         return Responsibilities(gamma, pair_labels, jnp.argmax(gamma, -1))
     if mode != "pair":
         raise ValueError(
-            f"unknown responsibilities mode '{mode}': choose pair, trajectory or labels"
+            f"unknown responsibilities mode '{mode}': choose trajectory, "
+            f"trajectory-centered, pair or labels"
         )
     return Responsibilities(jnp.exp(log_p), pair_labels, pair_labels)

@@ -65,8 +65,9 @@ def parse_args(argv=None) -> argparse.Namespace:
         "--responsibilities",
         default=None,
         choices=RESPONSIBILITIES,
-        help="E-step: the posterior of each pair's whole demonstration (default) or of each "
-        "pair alone (the paper's eq. 18), or the hidden labels (an oracle, for diagnosis)",
+        help="E-step: the posterior of each pair's whole demonstration (default; centred over "
+        "the demonstrations with trajectory-centered), or of each pair alone (the paper's "
+        "eq. 18), or the hidden labels (an oracle, for diagnosis)",
     )
     parser.add_argument("--num-envs", type=int, default=None, help="envs per intention")
     parser.add_argument("--rollout-length", type=int, default=None, help="steps per rollout")

@@ -178,7 +178,7 @@ def clustering_metrics(
     the E-step works on whole demonstrations, the accuracy of those trajectory labels too; NaN
     without a posterior (GAIL, which has no trajectory labels either) or without hidden labels."""
     names = ["eval/cluster_accuracy"]
-    if mode == "trajectory" and e_step is not None:
+    if mode.startswith("trajectory") and e_step is not None:
         names.append("eval/trajectory_cluster_accuracy")
     if e_step is None or not expert.has_labels:
         return {name: jnp.float32(jnp.nan) for name in names}

@@ -72,7 +72,7 @@ def test_responsibilities_are_the_posterior_probabilities():
 
 
 def test_unknown_mode_is_refused():
-    with pytest.raises(ValueError, match="pair, trajectory or labels"):
+    with pytest.raises(ValueError, match="trajectory-centered, pair or labels"):
         pair_mode(jnp.zeros((2, 2)), mode="episode")
 
 
@@ -129,7 +129,7 @@ def test_trajectory_responsibilities_hand_computed():
     (9/16, 1/16) normalises to (9/10, 1/10), which both pairs take."""
     logits = jnp.array([[LN3, 0.0], [0.0, LN3], [0.0, 0.0], [LN3, 0.0], [LN3, 0.0]])
     episode = jnp.array([0, 0, 0, 1, 1])
-    gamma = trajectory_responsibilities(jax.nn.log_softmax(logits), episode, 2)
+    gamma = trajectory_responsibilities(jax.nn.log_softmax(logits), episode, 2, centered=False)
     expected = [[0.5, 0.5]] * 3 + [[0.9, 0.1]] * 2
     np.testing.assert_allclose(gamma, expected, rtol=1e-6)
     # In trajectory mode gamma is the episode's; the pair labels stay each pair's own argmax.
@@ -149,6 +149,34 @@ def test_trajectory_responsibilities_let_the_majority_of_an_episode_decide():
     episode = jnp.zeros(101, jnp.int32)
     per_pair = pair_mode(logits).gamma
     assert np.mean(np.argmax(per_pair, -1) == 1) < 0.9
-    gamma = trajectory_responsibilities(jax.nn.log_softmax(logits), episode, 1)
+    gamma = trajectory_responsibilities(jax.nn.log_softmax(logits), episode, 1, centered=False)
     assert np.all(np.isfinite(gamma))
     np.testing.assert_allclose(gamma, np.tile([0.0, 1.0], (101, 1)), atol=1e-6)
+
+
+def test_centered_trajectory_responsibilities_hand_computed():
+    """The episodes of the hand-computed case above, centred: the summed log-posteriors are
+    (a, a) for episode 0 and (2 ln 3/4, 2 ln 1/4) for episode 1; minus their mean over the two
+    episodes, episode 0 leans ln 3 towards intention 1 and episode 1 ln 3 towards intention 0:
+    gamma (1/4, 3/4) and (3/4, 1/4). The two demonstrations go to different intentions."""
+    logits = jnp.array([[LN3, 0.0], [0.0, LN3], [0.0, 0.0], [LN3, 0.0], [LN3, 0.0]])
+    episode = jnp.array([0, 0, 0, 1, 1])
+    gamma = trajectory_responsibilities(jax.nn.log_softmax(logits), episode, 2, centered=True)
+    expected = [[0.25, 0.75]] * 3 + [[0.75, 0.25]] * 2
+    np.testing.assert_allclose(gamma, expected, rtol=1e-5)
+    np.testing.assert_allclose(
+        pair_mode(logits, episode, 2, mode="trajectory-centered").gamma, expected, rtol=1e-5
+    )
+
+
+def test_centering_cancels_a_lean_common_to_every_pair():
+    """A posterior that leans to intention 0 on every pair (0.62 / 0.38 on one demonstration's
+    100 pairs, 0.58 / 0.42 on the other's): the uncentred product sends both demonstrations to
+    intention 0; centred, they go where they differ, one to each intention."""
+    p = np.repeat([[0.62, 0.38], [0.58, 0.42]], 100, axis=0)
+    log_p = jnp.log(jnp.asarray(p, jnp.float32))
+    episode = jnp.repeat(jnp.arange(2), 100)
+    raw = trajectory_responsibilities(log_p, episode, 2, centered=False)
+    np.testing.assert_array_equal(np.argmax(raw, -1), np.zeros(200))
+    centered = trajectory_responsibilities(log_p, episode, 2, centered=True)
+    np.testing.assert_array_equal(np.argmax(centered, -1), np.repeat([0, 1], 100))
