@@ -124,6 +124,12 @@ def separability(
     perfect is 1. Returns ``(mean, std)`` over the mixture seeds.
     """
     k = k or int(np.max(labels)) + 1
-    accuracies = gaussian_mixture_accuracies(observations, actions, labels, k, seeds)
-    scores = (accuracies - 1.0 / k) / (1.0 - 1.0 / k)
+    scores = separability_of(
+        gaussian_mixture_accuracies(observations, actions, labels, k, seeds), k
+    )
     return float(np.mean(scores)), float(np.std(scores))
+
+
+def separability_of(accuracies: np.ndarray, k: int) -> np.ndarray:
+    """Clustering accuracies of K intentions rescaled so that chance (1/K) is 0, perfect 1."""
+    return (np.asarray(accuracies) - 1.0 / k) / (1.0 - 1.0 / k)

@@ -275,7 +275,7 @@ def separability_table(out: str, cells: list[Cell]) -> dict:
     """``{"hopper-3" | "driver-r10": {"separability", "separability_std", "gmm_accuracy",
     "gmm_accuracy_std"}}`` of the demonstrations the cells train on, computed once and kept in
     ``OUT/separability.csv``."""
-    from emgail_jax.metrics import gaussian_mixture_accuracies
+    from emgail_jax.metrics import gaussian_mixture_accuracies, separability_of
     from emgail_jax.problem import make_problem
 
     path = os.path.join(out, "separability.csv")
@@ -294,8 +294,7 @@ def separability_table(out: str, cells: list[Cell]) -> dict:
         accuracies = gaussian_mixture_accuracies(
             demos.observations, demos.actions, demos.intentions, cell.intentions
         )
-        k = cell.intentions
-        normalised = (accuracies - 1.0 / k) / (1.0 - 1.0 / k)
+        normalised = separability_of(accuracies, cell.intentions)
         table[name] = {
             "separability": float(normalised.mean()),
             "separability_std": float(normalised.std()),
