@@ -137,6 +137,12 @@ class Config:
             rollout_length=self.rollout_length or defaults["rollout_length"],
         )
 
+    def program_key(self) -> Config:
+        """This config with the fields that do not shape the compiled update cleared: the host's
+        schedule (iterations, evaluation cadence, chunks) and what is passed as data (the info
+        weight, see ``training.RunData``)."""
+        return self.replace(iterations=0, eval_every=1, chunk_size=0, info_weight=0.0)
+
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
 

@@ -278,7 +278,9 @@ def train(
     if resume:
         timings = read_summary(out).get("timings", timings)
 
-    runner = Runner(init, update, spec.seeds, data, config.seed_batch)
+    # Runs of one process that differ only in data (the sweep's driver radii) share programs.
+    program_key = (config.program_key(), problem.env.program_key())
+    runner = Runner(init, update, spec.seeds, data, config.seed_batch, program_key)
     summary["devices"] = [str(d) for d in runner.sharding.mesh.devices.flat]
     summary["processes"] = jax.process_count()
     summary["parameters"] = parameter_counts(init, data)

@@ -8,9 +8,10 @@ only acts between chunks (logs, progress, checkpoints).
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Hashable
 
 import jax
 import numpy as np
@@ -78,6 +79,11 @@ class Runner:
     devices; on each device, ``seed_batch`` of them are vmapped together (default:
     :func:`default_seed_batch`). ``step`` returns host numpy metrics ``[S, L, ...]``; a program
     is compiled for every chunk length used (a run uses at most two: its chunk and a remainder).
+
+    Runners given the same ``program_key`` (which must then identify ``init`` and ``update`` up
+    to their data, e.g. the config and the env without its data) and the same seeds and data
+    shapes share their compiled programs within a process: a second driver radius neither
+    traces nor compiles again (:data:`SHARED_PROGRAMS` are kept).
     """
 
     def __init__(
@@ -87,50 +93,33 @@ class Runner:
         seeds: int,
         data=None,
         seed_batch: int | None = None,
+        program_key: Hashable | None = None,
     ):
         self.seeds = seeds
         self.sharding = seed_sharding(seeds)
         self.seed_batch = seed_batch or default_seed_batch()
-        mesh, spec = self.sharding.mesh, self.sharding.spec
+        mesh = self.sharding.mesh
         # One copy of the data on every device, placed before the first call: a program fed
         # from another device's memory deadlocks XLA:CPU when seeds are sharded over devices.
         self.data = place(data, NamedSharding(mesh, PartitionSpec()))
-
-        def init_seeds(keys, data):
-            return map_in_batches(lambda key: init(key, data), self.seed_batch)(keys)
-
-        def scan_chunk(state: TrainState, inputs: jax.Array, data):
-            per_seed = lambda s: jax.lax.scan(lambda s, x: update(s, x, data), s, inputs)
-            return map_in_batches(per_seed, self.seed_batch)(state)
-
-        # shard_map runs each device's share of the seeds as its own program: seeds never
-        # interact, so no cross-device communication is compiled in.
-        replicated = PartitionSpec()
-        self._init = jax.jit(
-            jax.shard_map(
-                init_seeds,
-                mesh=mesh,
-                in_specs=(spec, replicated),
-                out_specs=spec,
-                check_vma=False,
-            )
-        )
-        self._chunk = jax.jit(
-            jax.shard_map(
-                scan_chunk,
-                mesh=mesh,
-                in_specs=(spec, replicated, replicated),
-                out_specs=spec,
-                check_vma=False,
-            )
-        )
-        self._compiled: dict[int, Callable] = {}
         self.timings = Timings()
+        if program_key is None:
+            self._programs = _Programs.build(init, update, self.sharding, self.seed_batch)
+            return
+        leaves, structure = jax.tree.flatten(self.data)
+        shapes = tuple((x.shape, str(x.dtype)) for x in leaves)
+        key = (program_key, seeds, self.seed_batch, mesh, structure, shapes)
+        if key not in _shared_programs:
+            _shared_programs[key] = _Programs.build(init, update, self.sharding, self.seed_batch)
+        _shared_programs.move_to_end(key)
+        while len(_shared_programs) > SHARED_PROGRAMS:
+            _shared_programs.popitem(last=False)
+        self._programs = _shared_programs[key]
 
     def init(self, key: jax.Array) -> TrainState:
         keys = place(np.asarray(jax.random.split(key, self.seeds)), self.sharding)
         start = time.perf_counter()
-        state = self._init(keys, self.data)
+        state = self._programs.init(keys, self.data)
         jax.block_until_ready(state)
         self.timings.compile_s += time.perf_counter() - start
         return state
@@ -139,7 +128,7 @@ class Runner:
         """Shapes, dtypes and shardings of :meth:`init`'s state, without computing it (the
         target a checkpoint is restored into)."""
         keys = jax.random.split(key, self.seeds)
-        shapes = jax.eval_shape(self._init, keys, self.data)
+        shapes = jax.eval_shape(self._programs.init, keys, self.data)
         return jax.tree.map(
             lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=self.sharding), shapes
         )
@@ -154,29 +143,70 @@ class Runner:
     def compile(self, state: TrainState, inputs) -> None:
         """Compiles the chunk program for ``len(inputs)`` iterations (once per length)."""
         length = len(inputs)
-        if length in self._compiled:
+        if length in self._programs.compiled:
             return
         start = time.perf_counter()
-        lowered = self._chunk.lower(state, self._replicated(inputs), self.data)
-        self._compiled[length] = lowered.compile()
+        lowered = self._programs.chunk.lower(state, self._replicated(inputs), self.data)
+        self._programs.compiled[length] = lowered.compile()
         self.timings.compile_s += time.perf_counter() - start
 
     @property
     def programs(self) -> int:
         """How many chunk programs were compiled."""
-        return len(self._compiled)
+        return len(self._programs.compiled)
 
     def step(self, state: TrainState, inputs) -> tuple[TrainState, dict[str, np.ndarray]]:
         """Runs ``len(inputs)`` iterations, iteration ``l`` with ``inputs[l]``; returns the new
         state and host metrics."""
         self.compile(state, inputs)
         start = time.perf_counter()
-        compiled = self._compiled[len(inputs)]
+        compiled = self._programs.compiled[len(inputs)]
         state, metrics = compiled(state, self._replicated(inputs), self.data)
         metrics = gather(metrics)
         self.timings.train_s += time.perf_counter() - start
         self.timings.iterations += len(inputs)
         return state, metrics
+
+
+@dataclasses.dataclass
+class _Programs:
+    """The jitted init and chunk functions of a :class:`Runner`, and its chunk programs
+    compiled per chunk length."""
+
+    init: Callable
+    chunk: Callable
+    compiled: dict[int, Callable]
+
+    @classmethod
+    def build(cls, init, update, sharding: NamedSharding, seed_batch: int | None) -> _Programs:
+        mesh, spec, replicated = sharding.mesh, sharding.spec, PartitionSpec()
+
+        def init_seeds(keys, data):
+            return map_in_batches(lambda key: init(key, data), seed_batch)(keys)
+
+        def scan_chunk(state: TrainState, inputs: jax.Array, data):
+            per_seed = lambda s: jax.lax.scan(lambda s, x: update(s, x, data), s, inputs)
+            return map_in_batches(per_seed, seed_batch)(state)
+
+        # shard_map runs each device's share of the seeds as its own program: seeds never
+        # interact, so no cross-device communication is compiled in.
+        def sharded(f, in_specs):
+            return jax.jit(
+                jax.shard_map(f, mesh=mesh, in_specs=in_specs, out_specs=spec, check_vma=False)
+            )
+
+        return cls(
+            init=sharded(init_seeds, (spec, replicated)),
+            chunk=sharded(scan_chunk, (spec, replicated, replicated)),
+            compiled={},
+        )
+
+
+# Program sets kept for runners of the same program key, most recently used last: enough for
+# a sweep's runs of one algorithm (one chunk length and a remainder each) without holding every
+# program a long test session compiles.
+SHARED_PROGRAMS = 4
+_shared_programs: collections.OrderedDict[Hashable, _Programs] = collections.OrderedDict()
 
 
 def place(tree, sharding: NamedSharding):

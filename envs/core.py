@@ -12,6 +12,7 @@ the experts that produce demonstrations.
 from __future__ import annotations
 
 import abc
+from collections.abc import Hashable
 from typing import Any, ClassVar
 
 import jax
@@ -115,6 +116,15 @@ class Env(abc.ABC):
     def bind(self, data: Any) -> Env:
         """This env reading ``data`` (the structure :meth:`data` returns, possibly traced)."""
         return self
+
+    # The options that only set :meth:`data` (the driver's radii): programs do not depend on them.
+    data_options: ClassVar[tuple[str, ...]] = ()
+
+    def program_key(self) -> Hashable:
+        """Equal for two instances whose compiled programs are identical once bound to their
+        :meth:`data`: the class, K and every option but the :attr:`data_options`."""
+        options = {k: v for k, v in self.options().items() if k not in self.data_options}
+        return (type(self), self.num_intentions, tuple(sorted(options.items())))
 
     @property
     def unwrapped(self) -> Env:

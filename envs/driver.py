@@ -54,6 +54,7 @@ class DriverPhysics:
 class DriverEnv(Env):
     name = "driver"
     intention_names = ("path1", "path2", "path3", "path4")
+    data_options = ("radius", "path1_radius")
 
     def __init__(
         self,

@@ -33,6 +33,9 @@ class Wrapper(Env):
     def options(self):
         return self.env.options()
 
+    def program_key(self):
+        return (type(self), self.episode_length, self.env.program_key())
+
     def trace(self, state: State):
         return self.env.trace(state)
 

@@ -18,6 +18,7 @@ From whatever cells are finished it writes ``OUT/table2.md``, ``OUT/table3.md`` 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import dataclasses
 import fnmatch
@@ -28,6 +29,7 @@ import signal
 import subprocess
 import sys
 import time
+import traceback
 
 import numpy as np
 
@@ -111,6 +113,12 @@ class Cell:
     @property
     def method(self) -> str:
         return self.algo + (f"-{self.variant}" if self.variant else "")
+
+    @property
+    def shares_programs(self) -> bool:
+        """The driver's cells of one algorithm differ only in data (the radius), so they run in
+        the sweep's own process, where the second compiles nothing (emgail_jax.runner)."""
+        return self.radius is not None
 
     @property
     def reoptimized(self) -> bool:
@@ -243,6 +251,27 @@ def run_command(command: list[str], log_path: str) -> int:
             signal.signal(signal.SIGTERM, previous)
 
 
+def run_in_process(args: list[str], log_path: str) -> int:
+    """``python -m emgail_jax.run ARGS`` in this process, its output to ``log_path``. Ctrl-C or
+    SIGTERM lets the run checkpoint its chunk, then stops the sweep."""
+    from emgail_jax import run
+
+    with (
+        open(log_path, "a") as log,
+        contextlib.redirect_stdout(log),
+        contextlib.redirect_stderr(log),
+    ):
+        print(f"\n$ python -m emgail_jax.run {' '.join(args)}", flush=True)
+        try:
+            code = run.main(args)
+        except Exception:  # a crash fails this cell as a crashed child process would
+            traceback.print_exc()
+            code = 1
+    if code == 130:
+        raise KeyboardInterrupt
+    return code
+
+
 def train_cell(
     cell: Cell, out: str, seeds: int, iterations: int, settings: tuple[str, ...] = ()
 ) -> None:
@@ -253,12 +282,15 @@ def train_cell(
     python = [sys.executable, "-m"]
     status = cell_status(run_dir, seeds, iterations)
     if status == "resume":
-        command = [*python, "emgail_jax.run", "--resume", run_dir, "--iterations", str(iterations)]
+        args = ["--resume", run_dir, "--iterations", str(iterations)]
     elif status == "new":
-        command = [*python, "emgail_jax.run", *cell.run_args(settings), "--seeds", str(seeds)]
-        command += ["--iterations", str(iterations), "--out", run_dir, "--overwrite"]
+        args = [*cell.run_args(settings), "--seeds", str(seeds), "--iterations", str(iterations)]
+        args += ["--out", run_dir, "--overwrite"]
     if status != "done":
-        code = run_command([*command, "--quiet"], log_path)
+        if cell.shares_programs:
+            code = run_in_process([*args, "--quiet"], log_path)
+        else:
+            code = run_command([*python, "emgail_jax.run", *args, "--quiet"], log_path)
         if code != 0:
             raise SweepError(f"cell {cell.name} failed (exit {code}): see {log_path}")
     if cell.reoptimized and not os.path.exists(os.path.join(run_dir, "reoptimize.json")):
@@ -627,7 +659,7 @@ def main(argv=None) -> int:
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
     from rich.table import Table
 
-    console = Console()
+    console = Console(file=sys.stdout)  # not the cell logs that in-process runs print to
     try:
         if args.seeds < 1 or args.iterations < 1:
             raise SweepError("--seeds and --iterations must be at least 1")

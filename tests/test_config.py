@@ -144,3 +144,12 @@ def test_with_settings_rejects_what_it_cannot_apply_in_one_line(setting, message
     with pytest.raises(ValueError, match=message) as error:
         Config().with_settings([setting])
     assert "\n" not in str(error.value)
+
+
+def test_program_key_clears_what_does_not_shape_the_update():
+    base = Config()
+    same = Config(iterations=50, eval_every=7, chunk_size=5, info_weight=0.3)
+    assert same.program_key() == base.program_key()
+    assert hash(same.program_key()) == hash(base.program_key())
+    for changed in (Config(discriminator_steps=3), Config(algo="gail"), Config(seed_batch=2)):
+        assert changed.program_key() != base.program_key()

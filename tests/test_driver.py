@@ -188,3 +188,15 @@ def test_lower_radius_moves_destination_two_towards_one():
 def test_make_errors(name, kwargs, match):
     with pytest.raises(envs.EnvError, match=match):
         envs.make(name, **kwargs)
+
+
+def test_program_key_leaves_out_the_radii_which_are_data():
+    """Radii only set the curvatures, which a program takes as data; any other option, K or a
+    wrapper gives another program."""
+    key = DriverEnv(2, radius=20.0).program_key()
+    assert DriverEnv(2, radius=5.0, path1_radius=4.0).program_key() == key
+    assert hash(key) == hash(DriverEnv(2, radius=7.0).program_key())
+    assert DriverEnv(3).program_key() != key
+    assert DriverEnv(2, speed=0.2).program_key() != key
+    assert envs.wrap_for_training(DriverEnv(2)).program_key() != key
+    assert DriverEnv(2, radius=5.0).data()["curvatures"][1] == pytest.approx(0.2)

@@ -92,25 +92,35 @@ def test_sweep_cell_status_reads_the_run_directory(tmp_path):
         sweep.cell_status(str(tmp_path), 2, 400)
 
 
-def test_sweep_runs_skips_and_reports_a_driver_cell(tmp_path, monkeypatch, capsys):
-    """End to end on a tiny driver cell (the sizes of the other tiny driver runs, whose compiled
-    program the child finds in the test cache): trained, reported, then skipped."""
+def test_sweep_runs_skips_and_reports_driver_cells(tmp_path, monkeypatch, capsys):
+    """End to end on two tiny driver cells (the sizes of the other tiny driver runs): trained in
+    this process, the second radius on the first one's compiled programs, reported, then
+    skipped."""
+    from emgail_jax import runner as runner_lib
+
     sweep = _load("sweep")
-    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(EXPERIMENTS.parent / ".cache" / "jax"))
+    monkeypatch.setattr(runner_lib, "_shared_programs", type(runner_lib._shared_programs)())
     out = tmp_path / "results"
     args = [
-        *("--only", "driver-r4-emgail", "--seeds", "2", "--iterations", "4"),
+        *("--only", "driver-r4-emgail,driver-r20-emgail", "--seeds", "2", "--iterations", "4"),
         *("--set", "num_envs=2", "--set", "rollout_length=20", "--set", "chunk_size=2"),
         *("--out", str(out)),
     ]
     assert sweep.main(args) == 0
+    assert len(runner_lib._shared_programs) == 1  # both radii ran one set of programs
     for name in ("table2.md", "table3.md", "table3.csv", "fig6.csv", "fig4b.png", "fig5a.png"):
         assert (out / name).exists(), name
-    (row,) = csv.DictReader((out / "fig5a.csv").open())
-    assert (row["algo"], float(row["radius"]), row["seeds"]) == ("emgail", 4.0, "2")
-    summary = json.loads((out / "runs" / "driver-r4-emgail" / "summary.json").read_text())
-    assert summary["config"]["num_envs"] == 2  # --set reached the run
-    assert float(row["erd_mean"]) == pytest.approx(np.mean(summary["final"]["erd"]), abs=1e-4)
+    rows = {float(row["radius"]): row for row in csv.DictReader((out / "fig5a.csv").open())}
+    assert sorted(rows) == [4.0, 20.0]
+    assert (rows[4.0]["algo"], rows[4.0]["seeds"]) == ("emgail", "2")
+    for radius in (4, 20):
+        run_dir = out / "runs" / f"driver-r{radius}-emgail"
+        summary = json.loads((run_dir / "summary.json").read_text())
+        assert summary["env_options"]["radius"] == radius
+        assert summary["config"]["num_envs"] == 2  # --set reached the run
+        erd_mean = float(rows[radius]["erd_mean"])
+        assert erd_mean == pytest.approx(np.mean(summary["final"]["erd"]), abs=1e-4)
+        assert "wrote" in (out / "logs" / f"driver-r{radius}-emgail.log").read_text()
 
     stamp = (out / "runs" / "driver-r4-emgail" / "summary.json").stat().st_mtime_ns
     capsys.readouterr()

@@ -71,6 +71,22 @@ def test_summary_follows_the_run_contract(runs, algo):
     )
 
 
+def test_runs_differing_only_in_data_share_one_program(runs, tmp_path, monkeypatch):
+    """After the fixture's radius-20 EM-GAIL run, a radius-10 run of this process reuses its
+    compiled programs (no program is added) and gives what a run compiling afresh gives."""
+    from emgail_jax import runner as runner_lib
+
+    programs = dict(runner_lib._shared_programs)
+    code, shared = _run(tmp_path, "shared", "--radius", "10", "--info-weight", "0.5")
+    assert code == 0 and dict(runner_lib._shared_programs).keys() == programs.keys()
+    monkeypatch.setattr(runner_lib, "_shared_programs", type(runner_lib._shared_programs)())
+    code, fresh = _run(tmp_path, "fresh", "--radius", "10", "--info-weight", "0.5")
+    assert code == 0 and len(runner_lib._shared_programs) == 1
+    assert (shared / "metrics.csv").read_text() == (fresh / "metrics.csv").read_text()
+    radius20 = (runs["emgail"] / "metrics.csv").read_text()
+    assert (shared / "metrics.csv").read_text() != radius20
+
+
 def test_parameter_counts_hand_computed(runs):
     """The driver (obs 10, action 1, K = 2), 64-64 tanh MLPs: GAIL's policy has 10*64 + 64 +
     64*64 + 64 + 64*1 + 1 = 4929 weights and one log-std, its value and discriminator

@@ -179,12 +179,46 @@ def test_data_is_an_argument_of_one_program(four_seeds):
     shift = lambda value: {"shift": np.full(3, value, np.float32)}
     runners = [Runner(toy_init, toy_update, 4, shift(v)) for v in (0.0, 1.0)]
     state = runners[0].init(jax.random.PRNGKey(0))
-    texts = [r._chunk.lower(state, r._replicated(INPUTS), r.data).as_text() for r in runners]
+    lower = lambda r: r._programs.chunk.lower(state, r._replicated(INPUTS), r.data)
+    texts = [lower(r).as_text() for r in runners]
     assert texts[0] == texts[1]
     (_, zero), (_, one) = (r.step(state, INPUTS) for r in runners)
     _, _, plain = four_seeds
     np.testing.assert_allclose(zero["x"], plain["x"][:, :CHUNK], rtol=1e-6, atol=1e-6)
     assert not np.allclose(one["x"], zero["x"])
+
+
+def test_runners_of_one_program_key_share_their_compiled_programs(four_seeds):
+    """A second runner of the same key and data shapes compiles nothing and computes with its
+    own data; another key, seed count or data shape gets its own programs."""
+    shift = lambda value, n=3: {"shift": np.full(n, value, np.float32)}
+    first = Runner(toy_init, toy_update, 4, shift(0.0), program_key="toy")
+    _, zero = first.step(first.init(jax.random.PRNGKey(0)), INPUTS)
+    second = Runner(toy_init, toy_update, 4, shift(1.0), program_key="toy")
+    state = second.init(jax.random.PRNGKey(0))
+    second.compile(state, INPUTS)
+    assert second._programs is first._programs and second.programs == 1
+    _, one = second.step(state, INPUTS)
+    unshared = Runner(toy_init, toy_update, 4, shift(1.0))
+    _, expected = unshared.step(unshared.init(jax.random.PRNGKey(0)), INPUTS)
+    np.testing.assert_array_equal(one["x"], expected["x"])
+    assert not np.allclose(one["x"], zero["x"])
+    others = [
+        Runner(toy_init, toy_update, 4, shift(0.0), program_key="other"),
+        Runner(toy_init, toy_update, 2, shift(0.0), program_key="toy"),
+        Runner(toy_init, toy_update, 4, shift(0.0, n=1), program_key="toy"),
+    ]
+    assert all(r._programs is not first._programs for r in others)
+
+
+def test_shared_programs_keep_the_most_recently_used(monkeypatch):
+    monkeypatch.setattr(runner_lib, "SHARED_PROGRAMS", 2)
+    monkeypatch.setattr(runner_lib, "_shared_programs", type(runner_lib._shared_programs)())
+    a, b = (Runner(toy_init, toy_update, 2, program_key=k) for k in "ab")
+    assert Runner(toy_init, toy_update, 2, program_key="a")._programs is a._programs
+    Runner(toy_init, toy_update, 2, program_key="c")  # drops b, the least recently used
+    assert Runner(toy_init, toy_update, 2, program_key="a")._programs is a._programs
+    assert Runner(toy_init, toy_update, 2, program_key="b")._programs is not b._programs
 
 
 def test_explicit_compile_then_step():
