@@ -137,8 +137,14 @@ class Runner:
         return place(np.asarray(inputs), NamedSharding(self.sharding.mesh, PartitionSpec()))
 
     def place_state(self, host_state) -> TrainState:
-        """A state of host arrays (a restored checkpoint) on the seeds' devices."""
-        return place(host_state, self.sharding)
+        """A state of host arrays (a restored checkpoint) on the seeds' devices, sharded as
+        :meth:`init` and :meth:`step` leave it: by seed, except leaves of size zero (MJX's
+        empty fields), which the compiled programs return replicated. Any other placement
+        makes the chunk program compiled for it reject the state it returns."""
+        replicated = NamedSharding(self.sharding.mesh, PartitionSpec())
+        return jax.tree.map(
+            lambda x: place(x, self.sharding if np.size(x) else replicated), host_state
+        )
 
     def compile(self, state: TrainState, inputs) -> None:
         """Compiles the chunk program for ``len(inputs)`` iterations (once per length)."""

@@ -25,19 +25,20 @@ TINY = [
 def resumed_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("swimmer") / "emgail"
     assert run.main([*TINY, "--iterations", "2", "--out", str(out)]) == 0
-    assert run.main(["--resume", str(out), "--iterations", "3", "--quiet"]) == 0
+    # Two chunks after the resume: the restored state must fit the program the run compiled.
+    assert run.main(["--resume", str(out), "--iterations", "4", "--quiet"]) == 0
     return out
 
 
 def test_an_mjx_run_checkpoints_and_resumes(resumed_run):
     summary = json.loads((resumed_run / "summary.json").read_text())
-    assert summary["status"] == "completed" and summary["iterations_done"] == 3
-    assert checkpoints.latest_iteration(str(resumed_run)) == 3
+    assert summary["status"] == "completed" and summary["iterations_done"] == 4
+    assert checkpoints.latest_iteration(str(resumed_run)) == 4
     final = summary["final"]
     assert len(final["erd"]) == 2 and all(math.isfinite(erd) for erd in final["erd"])
     assert all(0.5 <= accuracy <= 1.0 for accuracy in final["cluster_accuracy"])
     rows = (resumed_run / "metrics.csv").read_text().strip().splitlines()
-    assert len(rows) == 1 + 3 * 2  # header, then 3 iterations x 2 seeds
+    assert len(rows) == 1 + 4 * 2  # header, then 4 iterations x 2 seeds
 
 
 @pytest.mark.slow  # evaluate compiles its own episodes of the swimmer: 50-100 s

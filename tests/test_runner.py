@@ -221,6 +221,31 @@ def test_shared_programs_keep_the_most_recently_used(monkeypatch):
     assert Runner(toy_init, toy_update, 2, program_key="b")._programs is not b._programs
 
 
+def test_a_placed_state_steps_like_an_initial_one_with_empty_leaves():
+    """A restored state (host arrays) with a zero-size leaf, as MJX states have: placed, it runs
+    chunk after chunk on the programs compiled for a fresh state, with the same results."""
+
+    def init(key, data=None):
+        return {**toy_init(key), "empty": jnp.zeros((2, 0))}
+
+    def update(state, flag, data=None):
+        toy_state, metrics = toy_update({k: state[k] for k in ("key", "x", "iteration")}, flag)
+        return {**toy_state, "empty": state["empty"]}, metrics
+
+    fresh = Runner(init, update, 4, program_key="empty-leaves")
+    state = fresh.init(jax.random.PRNGKey(0))
+    state, _ = fresh.step(state, INPUTS)
+    resumed = Runner(init, update, 4, program_key="empty-leaves")
+    placed = resumed.place_state(jax.device_get(state))
+    histories = []
+    for runner, start in ((fresh, state), (resumed, placed)):
+        for _ in range(2):
+            start, metrics = runner.step(start, INPUTS)
+        histories.append(metrics["x"])
+    np.testing.assert_array_equal(*histories)
+    assert resumed.programs == 1
+
+
 def test_explicit_compile_then_step():
     runner = Runner(toy_init, toy_update, 2)
     state = runner.init(jax.random.PRNGKey(1))
