@@ -30,7 +30,9 @@ def _free_port() -> int:
 
 def _environment(devices: int) -> dict:
     cache = os.path.join(os.path.dirname(os.path.dirname(__file__)), ".cache", "jax")
-    flags = f"--xla_force_host_platform_device_count={devices}"
+    count = "--xla_force_host_platform_device_count"
+    inherited = [f for f in os.environ.get("XLA_FLAGS", "").split() if not f.startswith(count)]
+    flags = " ".join([*inherited, f"{count}={devices}"])
     return {**os.environ, "XLA_FLAGS": flags, "JAX_COMPILATION_CACHE_DIR": cache}
 
 
