@@ -56,6 +56,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--demo-seed", type=int, default=None, help="driver: demonstration seed")
     parser.add_argument("--info-weight", type=float, default=None, help="infogail: lambda")
     parser.add_argument(
+        "--random-episodes",
+        type=int,
+        default=None,
+        help="episodes of random actions that set ERD's random reference (default 50)",
+    )
+    parser.add_argument(
         "--intention-input",
         default=None,
         choices=INTENTION_INPUTS,
@@ -123,6 +129,7 @@ _RUN_OPTIONS = (
     "seed",
     "demo_seed",
     "info_weight",
+    "random_episodes",
     "intention_input",
     "responsibilities",
     "set",
@@ -155,7 +162,7 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         args.iterations is not None and args.iterations < 1
     ):
         raise RunError("--seeds and --iterations must be at least 1")
-    for name in ("seed_batch", "eval_every", "chunk_size"):
+    for name in ("seed_batch", "eval_every", "chunk_size", "random_episodes"):
         value = getattr(args, name)
         if value is not None and value < 1:
             raise RunError(f"--{name.replace('_', '-')} must be at least 1")
@@ -191,6 +198,7 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         demos_path=os.path.abspath(args.demos) if args.demos else None,
         demo_seed=args.demo_seed or 0,
         config=config,
+        random_episodes=args.random_episodes or 50,
     )
 
 
@@ -355,6 +363,7 @@ def _summary_header(spec: RunSpec, problem, config) -> dict:
         "seeds": spec.seeds,
         "first_seed": spec.first_seed,
         "iterations": config.iterations,
+        "random_episodes": spec.random_episodes,
         "demonstrations": {
             "source": problem.demos_source,
             "path": spec.demos_path,

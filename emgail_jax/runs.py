@@ -24,6 +24,8 @@ class RunSpec:
     demos_path: str | None
     demo_seed: int
     config: object  # emgail_jax.config.Config
+    # Episodes of uniformly random actions whose mean return is ERD's reference point 1.
+    random_episodes: int = 50
 
     @classmethod
     def from_summary(cls, summary: dict) -> RunSpec:
@@ -41,6 +43,7 @@ class RunSpec:
                 demos_path=demos["path"],
                 demo_seed=demos["seed"],
                 config=Config.from_dict(summary["config"]),
+                random_episodes=summary.get("random_episodes", 50),
             )
         except (KeyError, TypeError) as error:
             raise RunError(f"summary.json does not describe a run (no {error})") from None
@@ -49,7 +52,12 @@ class RunSpec:
         from emgail_jax.problem import make_problem
 
         return make_problem(
-            self.env, self.intentions, self.demos_path, self.env_options, self.demo_seed
+            self.env,
+            self.intentions,
+            self.demos_path,
+            self.env_options,
+            self.demo_seed,
+            self.random_episodes,
         )
 
 

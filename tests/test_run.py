@@ -151,6 +151,7 @@ def _error(capsys):
         (["--seeds", "0"], "--seeds and --iterations must be at least 1"),
         (["--seed-batch", "0"], "--seed-batch must be at least 1"),
         (["--eval-every", "0"], "--eval-every must be at least 1"),
+        (["--random-episodes", "0"], "--random-episodes must be at least 1"),
         (["--set", "trpo.dampng=0"], "--set: unknown setting 'trpo.dampng'"),
     ],
 )

@@ -17,6 +17,7 @@ TINY = [
     "--rollout-length", "10",
     "--chunk-size", "1",
     "--checkpoint-every", "1",
+    "--random-episodes", "2",  # ERD's random reference: 2 swimmer episodes, not 50
     "--quiet",
 ]  # fmt: skip
 
@@ -33,6 +34,7 @@ def resumed_run(tmp_path_factory):
 def test_an_mjx_run_checkpoints_and_resumes(resumed_run):
     summary = json.loads((resumed_run / "summary.json").read_text())
     assert summary["status"] == "completed" and summary["iterations_done"] == 4
+    assert summary["random_episodes"] == 2  # the resumed run kept the run's setting
     assert checkpoints.latest_iteration(str(resumed_run)) == 4
     final = summary["final"]
     assert len(final["erd"]) == 2 and all(math.isfinite(erd) for erd in final["erd"])
