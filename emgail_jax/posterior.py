@@ -16,6 +16,9 @@ from flax import struct
 
 from emgail_jax.optim import minimize
 
+# The E-step modes that give every pair its whole demonstration's posterior.
+TRAJECTORY_MODES = ("trajectory", "trajectory-centered")
+
 
 def posterior_loss(
     apply: Callable, params, obs: jax.Array, actions: jax.Array, intentions: jax.Array
@@ -114,7 +117,7 @@ def expert_responsibilities(
         if labels is None:
             raise ValueError("the labels E-step needs demonstrations with hidden labels")
         return Responsibilities(jax.nn.one_hot(labels, log_p.shape[-1]), pair_labels, labels)
-    if mode in ("trajectory", "trajectory-centered"):
+    if mode in TRAJECTORY_MODES:
         gamma = trajectory_responsibilities(log_p, episode, episodes, mode != "trajectory")
         return Responsibilities(gamma, pair_labels, jnp.argmax(gamma, -1))
     if mode != "pair":

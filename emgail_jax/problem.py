@@ -13,6 +13,7 @@ import numpy as np
 import envs
 from emgail_jax import demos as demos_lib
 from emgail_jax.rollout import episode_returns, uniform_random_policy
+from emgail_jax.runs import DEFAULT_RANDOM_EPISODES
 
 DRIVER_DEMO_EPISODES = 5  # x 100 steps = 500 pairs per intention, as in the paper
 
@@ -23,7 +24,7 @@ class Problem:
     demos: demos_lib.Demonstrations
     demos_source: str
     random_seed: int = 1
-    random_episodes: int = 50
+    random_episodes: int = DEFAULT_RANDOM_EPISODES
 
     @property
     def num_intentions(self) -> int:
@@ -68,7 +69,7 @@ def make_problem(
     demos_path: str | None = None,
     env_options: dict | None = None,
     demo_seed: int = 0,
-    random_episodes: int = 50,
+    random_episodes: int = DEFAULT_RANDOM_EPISODES,
 ) -> Problem:
     """Builds the env and loads (or generates) demonstrations for its first K intentions.
 

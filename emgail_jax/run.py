@@ -24,7 +24,7 @@ import sys
 import numpy as np
 
 from emgail_jax import runtime
-from emgail_jax.runs import RunError, RunSpec, read_summary
+from emgail_jax.runs import DEFAULT_RANDOM_EPISODES, RunError, RunSpec, read_summary
 
 OUTPUTS = ("summary.json", "metrics.csv", "tensorboard", "checkpoints")
 DEFAULT_CHECKPOINT_EVERY = 50
@@ -59,7 +59,8 @@ def parse_args(argv=None) -> argparse.Namespace:
         "--random-episodes",
         type=int,
         default=None,
-        help="episodes of random actions that set ERD's random reference (default 50)",
+        help="episodes of random actions that set ERD's random reference "
+        f"(default {DEFAULT_RANDOM_EPISODES})",
     )
     parser.add_argument(
         "--intention-input",
@@ -198,7 +199,7 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         demos_path=os.path.abspath(args.demos) if args.demos else None,
         demo_seed=args.demo_seed or 0,
         config=config,
-        random_episodes=args.random_episodes or 50,
+        random_episodes=args.random_episodes or DEFAULT_RANDOM_EPISODES,
     )
 
 

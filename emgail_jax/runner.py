@@ -103,18 +103,17 @@ class Runner:
         # from another device's memory deadlocks XLA:CPU when seeds are sharded over devices.
         self.data = place(data, NamedSharding(mesh, PartitionSpec()))
         self.timings = Timings()
+
+        def build() -> _Programs:
+            return _Programs.build(init, update, self.sharding, self.seed_batch)
+
         if program_key is None:
-            self._programs = _Programs.build(init, update, self.sharding, self.seed_batch)
-            return
-        leaves, structure = jax.tree.flatten(self.data)
-        shapes = tuple((x.shape, str(x.dtype)) for x in leaves)
-        key = (program_key, seeds, self.seed_batch, mesh, structure, shapes)
-        if key not in _shared_programs:
-            _shared_programs[key] = _Programs.build(init, update, self.sharding, self.seed_batch)
-        _shared_programs.move_to_end(key)
-        while len(_shared_programs) > SHARED_PROGRAMS:
-            _shared_programs.popitem(last=False)
-        self._programs = _shared_programs[key]
+            self._programs = build()
+        else:
+            leaves, structure = jax.tree.flatten(self.data)
+            shapes = tuple((x.shape, str(x.dtype)) for x in leaves)
+            key = (program_key, seeds, self.seed_batch, mesh, structure, shapes)
+            self._programs = _shared(key, build)
 
     def init(self, key: jax.Array) -> TrainState:
         keys = place(np.asarray(jax.random.split(key, self.seeds)), self.sharding)
@@ -130,21 +129,25 @@ class Runner:
         keys = jax.random.split(key, self.seeds)
         shapes = jax.eval_shape(self._programs.init, keys, self.data)
         return jax.tree.map(
-            lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=self.sharding), shapes
+            lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=self._sharding_of(x)),
+            shapes,
         )
+
+    def _sharding_of(self, leaf) -> NamedSharding:
+        """Where a leaf of the state lives, as the compiled programs leave it: sharded by seed,
+        except leaves of size zero (MJX's empty fields), which they return replicated."""
+        if np.prod(np.shape(leaf)):
+            return self.sharding
+        return NamedSharding(self.sharding.mesh, PartitionSpec())
 
     def _replicated(self, inputs) -> jax.Array:
         return place(np.asarray(inputs), NamedSharding(self.sharding.mesh, PartitionSpec()))
 
     def place_state(self, host_state) -> TrainState:
-        """A state of host arrays (a restored checkpoint) on the seeds' devices, sharded as
-        :meth:`init` and :meth:`step` leave it: by seed, except leaves of size zero (MJX's
-        empty fields), which the compiled programs return replicated. Any other placement
-        makes the chunk program compiled for it reject the state it returns."""
-        replicated = NamedSharding(self.sharding.mesh, PartitionSpec())
-        return jax.tree.map(
-            lambda x: place(x, self.sharding if np.size(x) else replicated), host_state
-        )
+        """A state of host arrays (a restored checkpoint) on the seeds' devices, placed as
+        :meth:`init` and :meth:`step` leave it (any other placement makes the chunk program
+        compiled for it reject the state it returns)."""
+        return jax.tree.map(lambda x: place(x, self._sharding_of(x)), host_state)
 
     def compile(self, state: TrainState, inputs) -> None:
         """Compiles the chunk program for ``len(inputs)`` iterations (once per length)."""
@@ -213,6 +216,17 @@ class _Programs:
 # program a long test session compiles.
 SHARED_PROGRAMS = 4
 _shared_programs: collections.OrderedDict[Hashable, _Programs] = collections.OrderedDict()
+
+
+def _shared(key: Hashable, build: Callable[[], _Programs]) -> _Programs:
+    """The program set kept under ``key``, built on first use; the least recently used beyond
+    :data:`SHARED_PROGRAMS` are dropped."""
+    if key not in _shared_programs:
+        _shared_programs[key] = build()
+    _shared_programs.move_to_end(key)
+    while len(_shared_programs) > SHARED_PROGRAMS:
+        _shared_programs.popitem(last=False)
+    return _shared_programs[key]
 
 
 def place(tree, sharding: NamedSharding):

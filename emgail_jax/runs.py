@@ -6,6 +6,9 @@ import dataclasses
 import json
 import os
 
+# Episodes of uniformly random actions whose mean return is ERD's reference point 1.
+DEFAULT_RANDOM_EPISODES = 50
+
 
 class RunError(ValueError):
     """A run that cannot start; the message says what to change."""
@@ -24,8 +27,7 @@ class RunSpec:
     demos_path: str | None
     demo_seed: int
     config: object  # emgail_jax.config.Config
-    # Episodes of uniformly random actions whose mean return is ERD's reference point 1.
-    random_episodes: int = 50
+    random_episodes: int = DEFAULT_RANDOM_EPISODES
 
     @classmethod
     def from_summary(cls, summary: dict) -> RunSpec:
@@ -43,7 +45,7 @@ class RunSpec:
                 demos_path=demos["path"],
                 demo_seed=demos["seed"],
                 config=Config.from_dict(summary["config"]),
-                random_episodes=summary.get("random_episodes", 50),
+                random_episodes=summary.get("random_episodes", DEFAULT_RANDOM_EPISODES),
             )
         except (KeyError, TypeError) as error:
             raise RunError(f"summary.json does not describe a run (no {error})") from None

@@ -48,6 +48,7 @@ from emgail_jax.discriminator import discriminator_update
 from emgail_jax.metrics import cluster_accuracy, normalized_erd
 from emgail_jax.networks import Discriminator, GaussianPolicy, Posterior, ValueNet
 from emgail_jax.posterior import (
+    TRAJECTORY_MODES,
     Responsibilities,
     expert_responsibilities,
     log_posterior,
@@ -178,7 +179,7 @@ def clustering_metrics(
     the E-step works on whole demonstrations, the accuracy of those trajectory labels too; NaN
     without a posterior (GAIL, which has no trajectory labels either) or without hidden labels."""
     names = ["eval/cluster_accuracy"]
-    if mode.startswith("trajectory") and e_step is not None:
+    if mode in TRAJECTORY_MODES and e_step is not None:
         names.append("eval/trajectory_cluster_accuracy")
     if e_step is None or not expert.has_labels:
         return {name: jnp.float32(jnp.nan) for name in names}
