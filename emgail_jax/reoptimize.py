@@ -5,7 +5,10 @@
 For every learned intention i, a new policy is trained from scratch with TRPO on the frozen
 pseudo-reward R_i(s, a) of the run's ``--seed`` (intentions vmapped), never seeing the true
 reward. Its deterministic episodes are scored under the true rewards; the normalised ERD takes
-the best matching of learned to true intentions. Writes ``RUN_DIR/reoptimize.json``.
+the best matching of learned to true intentions. Beside it, the learned reward per step that
+the fresh policies earn and that the demonstrations the run assigned to each intention earn:
+fresh policies that out-earn the demonstrations yet score far from the experts have optimised a
+reward that pays off the demonstrations' support. Writes ``RUN_DIR/reoptimize.json``.
 """
 
 from __future__ import annotations
@@ -54,13 +57,14 @@ def reoptimize(run, seed: int, iterations: int, chunk: int = 10, progress: bool 
     demos = run.problem.demos
     expert_returns = demos.expert_returns
     random_returns = run.problem.random_returns
-    erds, all_returns = [], []
+    erds, all_returns, earned = [], [], []
     bar = ProgressBar("re-optimising", iterations, {"ERD": "-"}, enabled=progress)
     start = time.perf_counter()
     for _ in range(iterations // chunk):
         states, metrics = compiled(states)
         returns = np.asarray(metrics["eval/returns"])  # [chunk, K learned, K true]
         all_returns.extend(returns)
+        earned.extend(np.asarray(metrics["train/reward"]))  # [chunk, K] learned reward per step
         if expert_returns is not None:
             for r in returns:
                 erds.append(float(normalized_erd(r, expert_returns, random_returns).mean))
@@ -76,6 +80,10 @@ def reoptimize(run, seed: int, iterations: int, chunk: int = 10, progress: bool 
         "random_returns": random_returns,
         "erd": float(np.mean(erds[-10:])) if erds else None,
         "erd_curve": erds,
+        "learned_reward_per_step": {
+            "fresh_policies": np.mean(earned[-10:], axis=0),  # [K], last 10 iterations
+            "demonstrations": demonstrations_reward(run, seed),  # [K]
+        },
         "compile_time_s": compile_s,
         "train_time_s": train_s,
     }
@@ -84,6 +92,25 @@ def reoptimize(run, seed: int, iterations: int, chunk: int = 10, progress: bool 
         result["matching"] = np.asarray(erd.matching)
         result["erd_per_intention"] = np.asarray(erd.per_intention)
     return result
+
+
+def demonstrations_reward(run, seed: int) -> np.ndarray:
+    """``[K]``: learned intention i's reward per step on the demonstration pairs, weighted by
+    the run's responsibilities gamma_i (uniform without a posterior); NaN for an intention the
+    run assigned no demonstration to."""
+    expert = run.expert_data
+    k = run.num_intentions
+    if run.algorithm.learns_posterior:
+        gamma = np.asarray(run.responsibilities(seed).gamma)  # [N, K]
+    else:
+        gamma = np.full((expert.observations.shape[0], k), 1.0 / k)
+    reward = run.reward(seed)
+    per_pair = np.stack(
+        [np.asarray(reward(expert.observations, expert.actions, i)) for i in range(k)], -1
+    )  # [N, K]
+    weight = gamma.sum(0)
+    total = (gamma * per_pair).sum(0)
+    return np.divide(total, weight, out=np.full(k, np.nan), where=weight > 0)
 
 
 def main(argv=None) -> int:
@@ -129,6 +156,14 @@ def main(argv=None) -> int:
             f"re-optimised on the learned reward of seed {args.seed} for {iterations} iterations: "
             f"normalised ERD {result['erd']:.3f} (mean of the last 10) [{matched}]"
         )
+    earned = result["learned_reward_per_step"]
+    print(
+        "learned reward per step, fresh policies / demonstrations: "
+        + ", ".join(
+            f"{a:.2f} / {b:.2f}"
+            for a, b in zip(earned["fresh_policies"], earned["demonstrations"], strict=True)
+        )
+    )
     print(f"wrote {path}")
     return 0
 
