@@ -13,7 +13,8 @@ process of its own (so that its compilation cache starts empty and its peak memo
   evaluation episodes (shown per evaluation and per iteration at the default cadence);
 - compile time of the 2-seed run (``init`` and a chunk of 10 iterations) with an empty
   compilation cache, and again with the cache that compile filled (a new process would see the
-  same: only the cache carries over);
+  same: only the cache carries over); where the cold compile goes: ``init`` alone, each piece
+  compiled alone, and for the MJX envs one physics step alone (``frame_skip`` MJX steps);
 - peak resident memory of the process;
 - two ratios: against the native-MuJoCo floor (the time ``mujoco.rollout``, one thread per
   core, takes for the env steps one iteration takes at the env's solver settings: physics only,
@@ -73,9 +74,11 @@ def child(env_name: str, k: int, seed_counts: list[int], chunks: int, cache: str
     for seeds in seed_counts:
         runner = Runner(trainer.init, trainer.update, seeds, data)
         state = runner.init(jax.random.PRNGKey(0))
+        init_s = runner.timings.compile_s
         runner.compile(state, steady)
         if seeds == 2:
             result["compile_cold_s"] = runner.timings.compile_s
+            result["compile_cold_init_s"] = init_s
             warm = Runner(trainer.init, trainer.update, seeds, data)
             warm.compile(warm.init(jax.random.PRNGKey(0)), steady)
             result["compile_warm_s"] = warm.timings.compile_s
@@ -124,9 +127,19 @@ def child(env_name: str, k: int, seed_counts: list[int], chunks: int, cache: str
         ),
         "evaluation": (evaluation, (state, data)),
     }
-    result["pieces_s"] = {}
+    if hasattr(env, "mj_model"):
+        physics = jax.vmap(env.physics_step)
+        # [K, B] -> [K * B], shapes explicit: some MJX leaves have zero size.
+        flatten = lambda x: x.reshape(x.shape[0] * x.shape[1], *x.shape[2:])
+        flat = jax.tree.map(flatten, state.env_state.physics)
+        pieces["physics step"] = (physics, (flat, flat.ctrl))
+    result["pieces_s"], result["pieces_compile_s"] = {}, {}
     for name, (function, args) in pieces.items():
+        start = time.perf_counter()
         compiled = jax.jit(function).lower(*args).compile()
+        result["pieces_compile_s"][name] = time.perf_counter() - start
+        if name == "physics step":
+            continue
         jax.block_until_ready(compiled(*args))
         repeats = 5 if env_name == "driver" else 3
         start = time.perf_counter()
@@ -181,6 +194,9 @@ def print_table(results: list[dict], seed_counts: list[int]) -> None:
             f"  compile (2 seeds, init + chunk): cold {r['compile_cold_s']:.1f} s, "
             f"warm cache {r['compile_warm_s']:.1f} s"
         )
+        compiles = ", ".join(f"{n} {s:.1f}" for n, s in r["pieces_compile_s"].items())
+        init_s = r["compile_cold_init_s"]
+        print(f"    cold, init alone {init_s:.1f} s; pieces alone (s): {compiles}")
         print(f"  peak resident memory {r['peak_rss_mb']:.0f} MB")
         reference_seconds = per_seed[str(2)] if "2" in per_seed else per_seed[str(seed_counts[0])]
         if "native_s" in r:

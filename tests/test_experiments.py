@@ -29,7 +29,8 @@ def test_bench_measures_the_driver(capsys):
     assert bench.main(["--envs", "driver:2", "--seeds", "2", "--chunks", "1"]) == 0
     out = capsys.readouterr().out
     for line in ("== driver-2", "2 seed(s):", "E-step", "M-step", "B-step", "evaluation",
-                 "compile (2 seeds", "warm cache", "peak resident memory"):  # fmt: skip
+                 "compile (2 seeds", "warm cache", "init alone",
+                 "peak resident memory"):  # fmt: skip
         assert line in out, line
 
 
