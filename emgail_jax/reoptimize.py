@@ -96,14 +96,14 @@ def reoptimize(run, seed: int, iterations: int, chunk: int = 10, progress: bool 
 
 def demonstrations_reward(run, seed: int) -> np.ndarray:
     """``[K]``: learned intention i's reward per step on the demonstration pairs, weighted by
-    the run's responsibilities gamma_i (uniform without a posterior); NaN for an intention the
-    run assigned no demonstration to."""
+    the run's responsibilities gamma_i (every pair alike without a posterior); NaN for an
+    intention the run assigned no demonstration to."""
     expert = run.expert_data
     k = run.num_intentions
     if run.algorithm.learns_posterior:
         gamma = np.asarray(run.responsibilities(seed).gamma)  # [N, K]
     else:
-        gamma = np.full((expert.observations.shape[0], k), 1.0 / k)
+        gamma = np.ones((expert.observations.shape[0], k))
     reward = run.reward(seed)
     per_pair = np.stack(
         [np.asarray(reward(expert.observations, expert.actions, i)) for i in range(k)], -1
