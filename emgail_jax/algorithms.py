@@ -22,7 +22,17 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 
-from emgail_jax.discriminator import imitation_reward
+REWARD_FORMS = ("gail", "logit")
+
+
+def imitation_reward(logit: jax.Array, form: str = "gail") -> jax.Array:
+    """The reward of a pair the discriminator scores ``logit``, high where D takes it for the
+    expert's. "gail": -log(1 - D) = softplus(f), the paper's; positive everywhere, so where
+    episodes can end early it also pays for staying alive. "logit": log D - log(1 - D) = f
+    (AIRL's form), negative where D rejects the pair, so survival alone earns nothing."""
+    if form == "logit":
+        return logit
+    return jax.nn.softplus(logit)
 
 
 @dataclass(frozen=True)
@@ -35,7 +45,7 @@ class Algorithm:
     # lambda of eq. 23: a float, or a traced scalar when the program takes it as an argument
     # (runs that differ only in lambda then share one compiled program).
     info_weight: float | jax.Array = 0.0
-    reward_form: str = "gail"  # see discriminator.imitation_reward
+    reward_form: str = "gail"  # see imitation_reward
 
     def policy_condition(self, intentions: jax.Array, num_intentions: int) -> jax.Array:
         """``[..., K]`` one-hot of ``intentions [...]``; ``[..., 0]`` if unconditioned."""

@@ -9,7 +9,9 @@ baseline.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
+import chex
 import jax
 import optax
 from flax import struct
@@ -17,6 +19,7 @@ from flax import struct
 from emgail_jax.config import Config
 from emgail_jax.gae import generalized_advantages
 from emgail_jax.networks import action_distribution
+from emgail_jax.optim import Learner
 from emgail_jax.rollout import intention_major, time_major
 from emgail_jax.trpo import trpo_step
 from emgail_jax.value import fit_value
@@ -36,56 +39,73 @@ class PolicySamples:
     last_time: jax.Array  # [K, B]
 
 
-def b_step(
+@struct.dataclass
+class BStep:
+    """What the B-step hands on."""
+
+    policy: Any  # the policy's parameters (TRPO keeps no optimiser state)
+    value: Learner
+    metrics: dict
+
+
+def make_b_step(
     policy_apply: Callable,
     value_apply: Callable,
     value_optimizer: optax.GradientTransformation,
     config: Config,
-    policy,
-    value,
-    value_opt_state,
-    samples: PolicySamples,
-    reward: jax.Array,
-    key: jax.Array,
 ):
-    """One policy improvement on ``reward [T, K, B]``.
+    """``b_step(policy, value, samples, reward, key) -> BStep``: one policy improvement of the
+    policy parameters ``policy`` on ``reward [T, K, B]`` for ``samples`` (a
+    :class:`PolicySamples`), and a refit of the value baseline ``value`` (a :class:`Learner`).
 
     The networks see the samples grouped by intention (``[K, T * B]``, see
     :func:`~emgail_jax.rollout.intention_major`), GAE sees them in time order.
-    Returns ``(policy, value, value_opt_state, metrics)``.
     """
-    t = reward.shape[0]
-    obs, action, condition, time = map(
-        intention_major, (samples.obs, samples.action, samples.condition, samples.time)
-    )
-    values = time_major(value_apply(value, obs, condition, time, intention_major=True), t)
-    bootstrap = value_apply(
-        value, samples.last_obs, samples.last_condition, samples.last_time, intention_major=True
-    )
-    advantages, returns = generalized_advantages(
-        reward, values, samples.done, bootstrap, config.gamma, config.gae_lambda
-    )
-    # Each intention's advantages are standardised on their own, so that no intention's reward
-    # scale dominates a shared policy update.
-    advantages = intention_major(advantages)  # [K, T * B]
-    mean = advantages.mean(1, keepdims=True)
-    std = advantages.std(1, keepdims=True)
-    advantages = (advantages - mean) / (std + 1e-8)
 
-    def distribution(params):
-        return action_distribution(*policy_apply(params, obs, condition, intention_major=True))
+    def b_step(
+        policy: Any, value: Learner, samples: PolicySamples, reward: jax.Array, key: jax.Array
+    ) -> BStep:
+        chex.assert_equal_shape((reward, samples.time, samples.done))
+        chex.assert_equal_shape_prefix((samples.obs, samples.action, samples.condition), 3)
+        t = reward.shape[0]
+        obs, action, condition, time = map(
+            intention_major, (samples.obs, samples.action, samples.condition, samples.time)
+        )
+        values = time_major(
+            value_apply(value.params, obs, condition, time, intention_major=True), t
+        )
+        bootstrap = value_apply(
+            value.params,
+            samples.last_obs,
+            samples.last_condition,
+            samples.last_time,
+            intention_major=True,
+        )
+        advantages, returns = generalized_advantages(
+            reward, values, samples.done, bootstrap, config.gamma, config.gae_lambda
+        )
+        # Each intention's advantages are standardised on their own, so that no intention's
+        # reward scale dominates a shared policy update.
+        advantages = intention_major(advantages)  # [K, T * B]
+        mean = advantages.mean(1, keepdims=True)
+        std = advantages.std(1, keepdims=True)
+        advantages = (advantages - mean) / (std + 1e-8)
 
-    policy, policy_metrics = trpo_step(distribution, policy, action, advantages, config.trpo)
-    value_predict = lambda params, *inputs: value_apply(params, *inputs, intention_major=True)
-    value, value_opt_state, value_metrics = fit_value(
-        value_predict,
-        value_optimizer,
-        value,
-        value_opt_state,
-        (obs, condition, time),
-        intention_major(returns),
-        key,
-        config.value_epochs,
-        config.value_minibatches,
-    )
-    return policy, value, value_opt_state, {**policy_metrics, **value_metrics}
+        def distribution(params):
+            return action_distribution(*policy_apply(params, obs, condition, intention_major=True))
+
+        policy, policy_metrics = trpo_step(distribution, policy, action, advantages, config.trpo)
+        value_predict = lambda params, *inputs: value_apply(params, *inputs, intention_major=True)
+        value, value_metrics = fit_value(
+            value_predict,
+            value_optimizer,
+            value,
+            (obs, condition, time),
+            intention_major(returns),
+            key,
+            config.value_epochs,
+            config.value_minibatches,
+        )
+        return BStep(policy, value, {**policy_metrics, **value_metrics})
+
+    return b_step

@@ -7,7 +7,7 @@ import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from emgail_jax.discriminator import REWARD_FORMS
+from emgail_jax.algorithms import REWARD_FORMS
 from emgail_jax.trpo import TRPOConfig
 
 INTENTION_INPUTS = ("onehot", "heads")

@@ -1,4 +1,4 @@
-"""The M-step (paper eq. 19 / 22) and the pseudo-reward the discriminator defines (eq. 20).
+"""The M-step (paper eq. 19 / 22): the discriminator learns the expert pairs against the policy's.
 
 The discriminator outputs the logit f with D = sigmoid(f). Every loss term and the reward are
 written in terms of f with softplus, which never overflows:
@@ -8,17 +8,22 @@ One loss serves both forms of the paper. Each expert pair is scored under every 
 condition c with a weight w[n, c]: EM-GAIL's conditions are the K one-hot intentions and its
 weights are the responsibilities gamma (eq. 19); the baselines' D(s, a) has a single, empty
 condition with weight one (eq. 22). Policy samples are scored under their own condition only.
+The reward the discriminator defines is in :mod:`emgail_jax.algorithms`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 
+import chex
 import jax
 import jax.numpy as jnp
 import optax
+from flax import struct
 
-from emgail_jax.optim import minimize
+from emgail_jax.algorithms import Algorithm
+from emgail_jax.batches import NormalizedBatch
+from emgail_jax.optim import Learner, minimize
 
 
 def expert_logits(apply: Callable, params, obs, actions, conditions: jax.Array) -> jax.Array:
@@ -64,24 +69,71 @@ def discriminator_loss(
 def discriminator_update(
     apply: Callable,
     optimizer: optax.GradientTransformation,
-    params,
-    opt_state,
+    discriminator: Learner,
     steps: int,
     **batch,
-):
+) -> tuple[Learner, dict]:
     """M-step training: ``steps`` full-batch steps of :func:`discriminator_loss` on ``batch``."""
     loss = lambda p: discriminator_loss(apply, p, **batch)
-    return minimize(loss, optimizer, params, opt_state, steps)
+    return minimize(loss, optimizer, discriminator, steps)
 
 
-REWARD_FORMS = ("gail", "logit")
+@struct.dataclass
+class MStep:
+    """What the M-step hands on."""
+
+    discriminator: Learner
+    metrics: dict
 
 
-def imitation_reward(logit: jax.Array, form: str = "gail") -> jax.Array:
-    """The reward of a pair the discriminator scores ``logit``, high where D takes it for the
-    expert's. "gail": -log(1 - D) = softplus(f), the paper's; positive everywhere, so where
-    episodes can end early it also pays for staying alive. "logit": log D - log(1 - D) = f
-    (AIRL's form), negative where D rejects the pair, so survival alone earns nothing."""
-    if form == "logit":
-        return logit
-    return jax.nn.softplus(logit)
+def make_m_step(apply: Callable, optimizer: optax.GradientTransformation, steps: int):
+    """``m_step(discriminator, batch, gamma, algorithm) -> MStep`` (Algorithm 1, M-step): the
+    discriminator (a :class:`Learner`) learns the expert pairs of ``batch`` (a
+    :class:`NormalizedBatch`), weighted over intentions by ``gamma [N, K]`` as ``algorithm``
+    says (eq. 19 or 22), against the policy samples under their own intention; ``steps``
+    full-batch steps."""
+
+    def m_step(
+        discriminator: Learner, batch: NormalizedBatch, gamma: jax.Array, algorithm: Algorithm
+    ) -> MStep:
+        k, m = batch.obs.shape[:2]
+        chex.assert_shape(gamma, (batch.expert_obs.shape[0], k))
+        own_intention = jnp.broadcast_to(jnp.arange(k)[:, None], (k, m))
+        trained, metrics = discriminator_update(
+            apply,
+            optimizer,
+            discriminator,
+            steps,
+            expert_obs=batch.expert_obs,
+            expert_actions=batch.expert_actions,
+            expert_weights=algorithm.expert_weights(gamma),
+            conditions=algorithm.discriminator_conditions(k),
+            policy_obs=batch.obs,
+            policy_actions=batch.executed,
+            policy_conditions=algorithm.discriminator_condition(own_intention, k),
+        )
+        return MStep(trained, metrics)
+
+    return m_step
+
+
+def learned_reward(
+    apply: Callable,
+    params,
+    algorithm: Algorithm,
+    num_intentions: int,
+    obs: jax.Array,
+    executed: jax.Array,
+    intention: jax.Array,
+    own_log_posterior: jax.Array,
+    intention_major: bool = False,
+) -> jax.Array:
+    """The learned reward ``[...]`` of pairs (normalised ``obs [..., D]``, ``executed [..., A]``)
+    under their ``intention [...]``: -log(1 - D(s, a, i)) for EM-GAIL (eq. 20), plus lambda
+    log P(i | s, a) (``own_log_posterior [...]``) for Info/IntentionGAIL (eq. 23), and
+    -log(1 - D(s, a)) for GAIL. ``intention_major``: the leading axis of the inputs is the
+    intention (the rollouts' layout ``[K, ...]``, see :func:`~emgail_jax.networks.conditioned_mlp`).
+    """
+    condition = algorithm.discriminator_condition(intention, num_intentions)
+    logit = apply(params, obs, executed, condition, intention_major=intention_major)
+    return algorithm.pseudo_reward(logit, own_log_posterior)

@@ -188,15 +188,14 @@ def make_policy(env, experts, spec: ExpertSpec | None = None):
     import jax
     import jax.numpy as jnp
 
-    from emgail_jax import normalizer as obs_norm
-    from emgail_jax.networks import GaussianPolicy
+    from emgail_jax.networks import GaussianPolicy, policy_action
 
     config = _config(spec or SPECS[env.name])
     net = GaussianPolicy(env.action_size, config.hidden, config.init_log_std)
 
     def mean_action(params, stats, obs):
-        normalized = obs_norm.normalize(stats, obs, config.obs_clip)
-        return net.apply(params, normalized, jnp.zeros((*obs.shape[:-1], 0)))[0]
+        no_condition = jnp.zeros((*obs.shape[:-1], 0))
+        return policy_action(net, params, stats, obs, no_condition, config.obs_clip)
 
     def policy(obs, intention):
         every = jax.vmap(mean_action, in_axes=(0, 0, None))(

@@ -23,6 +23,8 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
+from emgail_jax import normalizer as obs_norm
+
 
 class MLP(nn.Module):
     """Tanh MLP whose last layer starts ``final_scale`` times smaller than a LeCun-normal one.
@@ -162,3 +164,26 @@ class Posterior(nn.Module):
 
 def action_distribution(mean: jax.Array, log_std: jax.Array) -> distrax.MultivariateNormalDiag:
     return distrax.MultivariateNormalDiag(mean, jnp.exp(log_std))
+
+
+def policy_action(
+    policy: GaussianPolicy,
+    params,
+    normalizer: obs_norm.RunningStats,
+    obs: jax.Array,
+    condition: jax.Array,
+    obs_clip: float,
+    key: jax.Array | None = None,
+    explore: bool | jax.Array = False,
+    intention_major: bool = False,
+) -> jax.Array:
+    """The action ``[..., A]`` of the policy ``params`` for raw ``obs [..., D]`` (normalised
+    here) under ``condition [..., C]``: a sample of pi(. | s, i) where ``explore`` (a possibly
+    traced bool; needs ``key``), the mean otherwise. The one policy of training, the experts,
+    re-optimisation and saved runs."""
+    normalized = obs_norm.normalize(normalizer, obs, obs_clip)
+    mean, log_std = policy.apply(params, normalized, condition, intention_major=intention_major)
+    if key is None:
+        return mean
+    noise = jax.random.normal(key, mean.shape)
+    return mean + jnp.where(explore, jnp.exp(log_std) * noise, 0.0)

@@ -8,13 +8,17 @@ gamma(i | s, a) = P(i | s, a). Info/IntentionGAIL trains the same network the sa
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
+import chex
 import jax
 import jax.numpy as jnp
 import optax
 from flax import struct
 
-from emgail_jax.optim import minimize
+from emgail_jax.batches import ExpertData, NormalizedBatch
+from emgail_jax.config import Config
+from emgail_jax.optim import Learner, minimize
 
 # The E-step modes that give every pair its whole demonstration's posterior.
 TRAJECTORY_MODES = ("trajectory", "trajectory-centered")
@@ -33,16 +37,15 @@ def posterior_loss(
 def posterior_update(
     apply: Callable,
     optimizer: optax.GradientTransformation,
-    params,
-    opt_state,
+    posterior: Learner,
     obs: jax.Array,
     actions: jax.Array,
     intentions: jax.Array,
     steps: int,
-):
+) -> tuple[Learner, dict]:
     """E-step training: ``steps`` full-batch steps on the policy samples (labels known)."""
     loss = lambda p: posterior_loss(apply, p, obs, actions, intentions)
-    return minimize(loss, optimizer, params, opt_state, steps)
+    return minimize(loss, optimizer, posterior, steps)
 
 
 def log_posterior(apply: Callable, params, obs: jax.Array, actions: jax.Array) -> jax.Array:
@@ -126,3 +129,69 @@ def expert_responsibilities(
             f"trajectory-centered, pair or labels"
         )
     return Responsibilities(jnp.exp(log_p), pair_labels, pair_labels)
+
+
+@struct.dataclass
+class EStep:
+    """What the E-step hands on."""
+
+    posterior: Learner | None  # None without a posterior (GAIL)
+    responsibilities: Responsibilities | None  # None without a posterior
+    gamma: jax.Array  # [N, K] the M-step's weights of the expert pairs
+    own_log_posterior: jax.Array  # [K, M] log P(i | s, a) of each sample's own intention
+    metrics: dict
+
+
+def make_e_step(apply: Callable, optimizer: optax.GradientTransformation, config: Config):
+    """``e_step(posterior, batch, expert) -> EStep`` (Algorithm 1, E-step).
+
+    The posterior ``posterior`` (a :class:`Learner`, or None for GAIL) learns P(i | s, a) on
+    the policy samples of ``batch`` (a :class:`NormalizedBatch`), each labelled with the
+    intention whose policy made it (eq. 16); gamma is then the posterior of the expert pairs
+    in ``config.responsibilities``' mode (eq. 18, or per demonstration). Info/IntentionGAIL's
+    reward term, the samples' own log-posterior, comes from the updated posterior or the
+    previous one (``config.reward_from``). Without a posterior: uniform gamma, zero
+    log-posterior.
+    """
+
+    def e_step(posterior: Learner | None, batch: NormalizedBatch, expert: ExpertData) -> EStep:
+        k, m = batch.obs.shape[:2]
+        own_intention = jnp.broadcast_to(jnp.arange(k)[:, None], (k, m))
+        if posterior is None:
+            uniform = jnp.full((expert.episode.shape[0], k), 1.0 / k)
+            return EStep(None, None, uniform, jnp.zeros((k, m)), {})
+        flat = lambda x: x.reshape(k * m, -1)
+        trained, metrics = posterior_update(
+            apply,
+            optimizer,
+            posterior,
+            flat(batch.obs),
+            flat(batch.executed),
+            own_intention.reshape(-1),
+            config.posterior_steps,
+        )
+        responsibilities = expert_responsibilities(
+            apply,
+            trained.params,
+            batch.expert_obs,
+            batch.expert_actions,
+            expert.episode,
+            expert.episodes,
+            config.responsibilities,
+            expert.labels if expert.has_labels else None,
+        )
+        rewarding = trained if config.reward_from == "updated" else posterior
+        own = own_log_posterior(apply, rewarding.params, batch.obs, batch.executed, own_intention)
+        chex.assert_shape(responsibilities.gamma, (expert.episode.shape[0], k))
+        return EStep(trained, responsibilities, responsibilities.gamma, own, metrics)
+
+    return e_step
+
+
+def own_log_posterior(
+    apply: Callable, params: Any, obs: jax.Array, actions: jax.Array, intention: jax.Array
+) -> jax.Array:
+    """``[...]`` log P(intention | s, a) of ``obs [..., D]``, ``actions [..., A]`` and
+    ``intention [...]``: the term Info/IntentionGAIL's reward adds (eq. 23)."""
+    log_p = log_posterior(apply, params, obs, actions)
+    return jnp.take_along_axis(log_p, intention[..., None], -1)[..., 0]

@@ -22,9 +22,10 @@ from flax import struct
 
 import envs
 from emgail_jax import normalizer as obs_norm
-from emgail_jax.bstep import PolicySamples, b_step
+from emgail_jax.bstep import PolicySamples, make_b_step
 from emgail_jax.config import Config
-from emgail_jax.networks import GaussianPolicy, ValueNet, action_distribution
+from emgail_jax.networks import GaussianPolicy, ValueNet, policy_action
+from emgail_jax.optim import Learner
 from emgail_jax.rollout import batch_reset, episode_returns, rollout
 
 # (obs [T, 1, B, D] raw, action [T, 1, B, A], true_reward [T, 1, B, K], intention []) -> [T, 1, B]
@@ -38,9 +39,8 @@ def true_reward(obs, action, reward, intention):
 
 @struct.dataclass
 class RLState:
-    policy: Any
-    value: Any
-    value_opt: Any
+    policy: Any  # the policy's parameters
+    value: Learner
     normalizer: obs_norm.RunningStats
     env_state: envs.State  # [1, B]
     key: jax.Array
@@ -61,14 +61,15 @@ def make_rl_train(
     value_net = ValueNet(config.hidden)
     value_opt = optax.adam(config.value_learning_rate)
     no_condition = lambda *shape: jnp.zeros((*shape, 0))
+    b_step = make_b_step(policy_net.apply, value_net.apply, value_opt, config)
 
     def act(params, normalizer, deterministic):
         def policy(obs, key):
-            normalized = obs_norm.normalize(normalizer, obs, config.obs_clip)
-            mean, log_std = policy_net.apply(params, normalized, no_condition(*obs.shape[:-1]))
-            if deterministic:
-                return mean
-            return action_distribution(mean, log_std).sample(seed=key)
+            condition = no_condition(*obs.shape[:-1])
+            key = None if deterministic else key
+            return policy_action(
+                policy_net, params, normalizer, obs, condition, config.obs_clip, key, True
+            )
 
         return policy
 
@@ -78,8 +79,7 @@ def make_rl_train(
         value = value_net.init(key_value, obs, no_condition(1), jnp.zeros(1))
         return RLState(
             policy=policy_net.init(key_policy, obs, no_condition(1)),
-            value=value,
-            value_opt=value_opt.init(value),
+            value=Learner.create(value, value_opt),
             normalizer=obs_norm.RunningStats.create(env.observation_size),
             env_state=batch_reset(train_env, key_env, (1, b)),
             key=key_next,
@@ -103,30 +103,18 @@ def make_rl_train(
             last_condition=no_condition(1, b),
             last_time=env_state.info["steps"] / env.episode_length,
         )
-        policy, value, value_opt_state, metrics = b_step(
-            policy_net.apply,
-            value_net.apply,
-            value_opt,
-            config,
-            state.policy,
-            state.value,
-            state.value_opt,
-            samples,
-            reward,
-            key_value,
-        )
-        greedy = act(policy, normalizer, deterministic=True)
+        improved = b_step(state.policy, state.value, samples, reward, key_value)
+        greedy = act(improved.policy, normalizer, deterministic=True)
         returns = episode_returns(eval_env, greedy, key_eval, 1, eval_episodes)[0]
         metrics = {
-            **metrics,
+            **improved.metrics,
             "eval/returns": returns,  # [K] under every true intention
             "eval/own_return": jnp.take(returns, intention),
             "train/reward": reward.mean(),
         }
         new_state = RLState(
-            policy=policy,
-            value=value,
-            value_opt=value_opt_state,
+            policy=improved.policy,
+            value=improved.value,
             normalizer=normalizer,
             env_state=env_state,
             key=key_next,

@@ -269,9 +269,10 @@ def train(
     import jax
 
     from emgail_jax import checkpoints, records
+    from emgail_jax.batches import ExpertData
     from emgail_jax.progress import ProgressBar
     from emgail_jax.runner import Runner, chunks, concat_history, evaluation_plan, gather
-    from emgail_jax.training import ExpertData, RunData, make_train
+    from emgail_jax.training import RunData, make_train
 
     env = problem.env
     config = spec.config.resolved(env)
@@ -425,10 +426,9 @@ def parameter_counts(init, data) -> dict[str, int]:
     import jax
 
     state = jax.eval_shape(init, jax.random.PRNGKey(0), data)
-    networks = ("policy", "value", "discriminator", "posterior")
     counts = {
-        name: sum(int(np.prod(leaf.shape)) for leaf in jax.tree.leaves(getattr(state, name)))
-        for name in networks
+        name: sum(int(np.prod(leaf.shape)) for leaf in jax.tree.leaves(params))
+        for name, params in state.network_parameters().items()
     }
     return {**counts, "total": sum(counts.values())}
 

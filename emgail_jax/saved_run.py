@@ -22,13 +22,15 @@ import numpy as np
 from emgail_jax import checkpoints
 from emgail_jax import normalizer as obs_norm
 from emgail_jax.algorithms import Algorithm, make_algorithm
+from emgail_jax.batches import ExpertData
 from emgail_jax.config import Config
-from emgail_jax.posterior import Responsibilities, expert_responsibilities, log_posterior
+from emgail_jax.discriminator import learned_reward
+from emgail_jax.networks import policy_action
+from emgail_jax.posterior import Responsibilities, expert_responsibilities, own_log_posterior
 from emgail_jax.problem import Problem
 from emgail_jax.runner import Runner
 from emgail_jax.runs import RunError, RunSpec, read_summary
 from emgail_jax.training import (
-    ExpertData,
     Networks,
     RunData,
     TrainState,
@@ -100,13 +102,13 @@ class SavedRun:
         """Deterministic ``pi(obs [..., D], intention [...]) -> action [..., A]`` (raw obs)."""
         state = self.seed_state(seed)
         env, k = self.problem.env, self.num_intentions
-        apply, algorithm, clip = self.networks.policy.apply, self.algorithm, self.config.obs_clip
+        network, algorithm, clip = self.networks.policy, self.algorithm, self.config.obs_clip
 
         def policy(obs, intention):
             obs = jnp.asarray(obs, jnp.float32)
             intention = jnp.broadcast_to(jnp.asarray(intention, jnp.int32), obs.shape[:-1])
-            normalized = obs_norm.normalize(state.normalizer, obs, clip)
-            mean, _ = apply(state.policy, normalized, algorithm.policy_condition(intention, k))
+            condition = algorithm.policy_condition(intention, k)
+            mean = policy_action(network, state.policy, state.normalizer, obs, condition, clip)
             return jnp.clip(mean, env.action_low, env.action_high)
 
         return policy
@@ -125,14 +127,18 @@ class SavedRun:
             action = env.clip_action(jnp.asarray(action, jnp.float32))
             intention = jnp.broadcast_to(jnp.asarray(intention, jnp.int32), obs.shape[:-1])
             normalized = obs_norm.normalize(state.normalizer, obs, clip)
-            condition = algorithm.discriminator_condition(intention, k)
-            logit = networks.discriminator.apply(state.discriminator, normalized, action, condition)
-            if algorithm.learns_posterior:
-                log_p = log_posterior(networks.posterior.apply, state.posterior, normalized, action)
-                own = jnp.take_along_axis(log_p, intention[..., None], -1)[..., 0]
-            else:
-                own = jnp.zeros_like(logit)
-            return algorithm.pseudo_reward(logit, own)
+            own = (
+                own_log_posterior(
+                    networks.posterior.apply, state.posterior.params, normalized, action, intention
+                )
+                if algorithm.learns_posterior
+                else jnp.zeros(intention.shape)
+            )
+            discriminator = networks.discriminator.apply
+            params = state.discriminator.params
+            return learned_reward(
+                discriminator, params, algorithm, k, normalized, action, intention, own
+            )
 
         return reward
 
@@ -147,7 +153,7 @@ class SavedRun:
         normalized = obs_norm.normalize(state.normalizer, expert.observations, self.config.obs_clip)
         result = expert_responsibilities(
             self.networks.posterior.apply,
-            state.posterior,
+            state.posterior.params,
             normalized,
             expert.actions,
             expert.episode,

@@ -49,17 +49,12 @@ def child(env_name: str, k: int, seed_counts: list[int], chunks: int, cache: str
     import jax
     import jax.numpy as jnp
 
+    from emgail_jax.batches import ExpertData, LearningBatch
     from emgail_jax.config import Config
     from emgail_jax.problem import make_problem
     from emgail_jax.rollout import episode_totals, fresh_starts
     from emgail_jax.runner import Runner, evaluation_plan
-    from emgail_jax.training import (
-        ExpertData,
-        LearningBatch,
-        RunData,
-        evaluation_phases,
-        make_train,
-    )
+    from emgail_jax.training import RunData, evaluation_phases, make_train
 
     problem = make_problem(env_name, k)
     env = problem.env
@@ -99,9 +94,11 @@ def child(env_name: str, k: int, seed_counts: list[int], chunks: int, cache: str
 
     end, transitions = jax.jit(rollout)(state, data)
     batch = LearningBatch.of(transitions, end, env.episode_length)
-    seen = jax.jit(steps.judged)(state, batch, data)
-    e = jax.jit(steps.e_step)(state, seen, data)
-    discriminator = jax.jit(steps.m_step)(state, seen, e.gamma, data)[0]
+    algorithm = steps.algorithm_of(data)
+    seen = jax.jit(steps.normalized)(state, batch, data)
+    e = jax.jit(steps.e_step)(state.posterior, seen, data.expert)
+    m_step = lambda discriminator, seen, gamma: steps.m_step(discriminator, seen, gamma, algorithm)
+    discriminator = jax.jit(m_step)(state.discriminator, seen, e.gamma).discriminator
     phases = evaluation_phases(config, env)
 
     def evaluation(state, data):
@@ -119,11 +116,11 @@ def child(env_name: str, k: int, seed_counts: list[int], chunks: int, cache: str
 
     pieces = {
         "rollout": (rollout, (state, data)),
-        "E-step": (steps.e_step, (state, seen, data)),
-        "M-step": (steps.m_step, (state, seen, e.gamma, data)),
+        "E-step": (steps.e_step, (state.posterior, seen, data.expert)),
+        "M-step": (m_step, (state.discriminator, seen, e.gamma)),
         "B-step": (
-            steps.improve,
-            (state, batch, seen, discriminator, e.own_log_posterior, data, key),
+            lambda *args: steps.improve(*args, algorithm, key),
+            (state, batch, seen, discriminator, e.own_log_posterior),
         ),
         "evaluation": (evaluation, (state, data)),
     }

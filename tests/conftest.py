@@ -37,3 +37,27 @@ def tiny_run(tmp_path_factory):
     ]
     assert run.main(args) == 0
     return out
+
+
+@pytest.fixture
+def random_batch():
+    """``random_batch(k, m, n, obs_dim, act_dim, seed)``: a ``NormalizedBatch`` of random
+    samples (``[k, m, ...]``) and demonstration pairs (``[n, ...]``) for the step tests."""
+    import jax
+    import jax.numpy as jnp
+
+    from emgail_jax.batches import NormalizedBatch
+    from emgail_jax.normalizer import RunningStats
+
+    def make(k=3, m=4, n=6, obs_dim=2, act_dim=1, seed=0):
+        keys = jax.random.split(jax.random.PRNGKey(seed), 4)
+        return NormalizedBatch(
+            normalizer=RunningStats.create(obs_dim),
+            obs=jax.random.normal(keys[0], (k, m, obs_dim)),
+            executed=jax.random.normal(keys[1], (k, m, act_dim)),
+            expert_obs=jax.random.normal(keys[2], (n, obs_dim)),
+            expert_actions=jax.random.normal(keys[3], (n, act_dim)),
+            last_obs=jnp.zeros((k, 1, obs_dim)),
+        )
+
+    return make

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from emgail_jax.algorithms import NAMES, make_algorithm
+from emgail_jax.algorithms import NAMES, imitation_reward, make_algorithm
 from emgail_jax.discriminator import discriminator_loss
 
 LOG2 = math.log(2.0)
@@ -189,3 +189,22 @@ def test_logit_reward_form_is_the_logit_and_keeps_the_info_term():
     # log D - log(1 - D): the GAIL reward minus -log D, negative where D < 1/2.
     gail = make_algorithm("emgail").pseudo_reward(logits, log_posterior)
     np.testing.assert_allclose(gail - jax.nn.softplus(-logits), logits, rtol=1e-5, atol=1e-6)
+
+
+def test_imitation_reward_is_minus_log_one_minus_d():
+    logits = np.array([-3.0, -0.5, 0.0, 0.7, 4.0])
+    expected = -np.log(1.0 - 1.0 / (1.0 + np.exp(-logits)))
+    np.testing.assert_allclose(imitation_reward(jnp.asarray(logits)), expected, rtol=1e-5)
+    assert float(imitation_reward(jnp.array(0.0))) == pytest.approx(math.log(2.0))
+
+
+def test_imitation_reward_finite_at_extreme_logits():
+    reward = imitation_reward(jnp.array([-100.0, 100.0]))
+    grad = jax.vmap(jax.grad(imitation_reward))(jnp.array([-100.0, 100.0]))
+    assert np.all(np.isfinite(reward)) and np.all(np.isfinite(grad))
+    assert 0.0 <= float(reward[0]) < 1e-30  # D ~ 0: no reward
+    assert float(reward[1]) == pytest.approx(100.0)  # D ~ 1: -log(1 - D) ~ f
+    # The naive formula overflows in float32 where the softplus form does not.
+    with np.errstate(divide="ignore"):
+        naive = -np.log(1.0 - 1.0 / (1.0 + np.exp(np.float32(-100.0))))
+    assert not np.isfinite(naive)

@@ -1,4 +1,4 @@
-"""The M-step loss (eq. 19 / 22) and the imitation reward -log(1 - D) (eq. 20)."""
+"""The M-step loss (eq. 19 / 22) and training."""
 
 import math
 
@@ -8,13 +8,16 @@ import numpy as np
 import optax
 import pytest
 
+from emgail_jax.algorithms import make_algorithm
 from emgail_jax.discriminator import (
     discriminator_loss,
     discriminator_update,
     expert_logits,
-    imitation_reward,
+    learned_reward,
+    make_m_step,
 )
 from emgail_jax.networks import Discriminator
+from emgail_jax.optim import Learner
 
 LN3 = math.log(3.0)
 
@@ -154,25 +157,6 @@ def test_one_hot_gamma_reduces_to_per_intention_gail_losses(network_batch):
     assert float(em_loss) == pytest.approx(np.mean(gail_losses), rel=1e-5)
 
 
-def test_imitation_reward_is_minus_log_one_minus_d():
-    logits = np.array([-3.0, -0.5, 0.0, 0.7, 4.0])
-    expected = -np.log(1.0 - 1.0 / (1.0 + np.exp(-logits)))
-    np.testing.assert_allclose(imitation_reward(jnp.asarray(logits)), expected, rtol=1e-5)
-    assert float(imitation_reward(jnp.array(0.0))) == pytest.approx(math.log(2.0))
-
-
-def test_imitation_reward_finite_at_extreme_logits():
-    reward = imitation_reward(jnp.array([-100.0, 100.0]))
-    grad = jax.vmap(jax.grad(imitation_reward))(jnp.array([-100.0, 100.0]))
-    assert np.all(np.isfinite(reward)) and np.all(np.isfinite(grad))
-    assert 0.0 <= float(reward[0]) < 1e-30  # D ~ 0: no reward
-    assert float(reward[1]) == pytest.approx(100.0)  # D ~ 1: -log(1 - D) ~ f
-    # The naive formula overflows in float32 where the softplus form does not.
-    with np.errstate(divide="ignore"):
-        naive = -np.log(1.0 - 1.0 / (1.0 + np.exp(np.float32(-100.0))))
-    assert not np.isfinite(naive)
-
-
 def test_loss_finite_at_extreme_logits():
     params = jnp.array([0.0])
     huge = jnp.array([[100.0], [-100.0]])
@@ -194,10 +178,67 @@ def test_loss_finite_at_extreme_logits():
 def test_update_reduces_loss_and_reports_first_step_metrics(network_batch):
     net, params, batch = network_batch
     optimizer = optax.adam(1e-2)
-    update = jax.jit(lambda p, s: discriminator_update(net.apply, optimizer, p, s, 20, **batch))
-    new_params, _, metrics = update(params, optimizer.init(params))
+    update = jax.jit(lambda p: discriminator_update(net.apply, optimizer, p, 20, **batch))
+    trained, metrics = update(Learner.create(params, optimizer))
+    new_params = trained.params
     before, _ = discriminator_loss(net.apply, params, **batch)
     after, _ = discriminator_loss(net.apply, new_params, **batch)
     # The metrics describe the parameters before the update.
     assert float(metrics["discriminator/loss"]) == pytest.approx(float(before), rel=1e-5)
     assert float(after) < float(before) - 0.05
+
+
+@pytest.mark.parametrize("algo", ["emgail", "infogail", "gail"])
+def test_m_step_trains_on_the_algorithms_weights_and_conditions(algo, random_batch):
+    """The M-step is discriminator_update on the batch with what the algorithm chooses: EM-GAIL
+    weights each expert pair by gamma under every intention, the baselines by one."""
+    k, m, n = 3, 4, 6
+    algorithm = make_algorithm(algo)
+    batch = random_batch(k, m, n, obs_dim=4, act_dim=2, seed=2)
+    gamma = jax.nn.softmax(jax.random.normal(jax.random.PRNGKey(4), (n, k)))
+    net = Discriminator(hidden=(8,), heads=True)
+    own = jnp.broadcast_to(jnp.arange(k)[:, None], (k, m))
+    conditions = algorithm.discriminator_condition(own, k)
+    params = net.init(jax.random.PRNGKey(3), batch.obs, batch.executed, conditions)
+    optimizer = optax.adam(1e-2)
+    start = Learner.create(params, optimizer)
+    result = make_m_step(net.apply, optimizer, 5)(start, batch, gamma, algorithm)
+    expected, expected_metrics = discriminator_update(
+        net.apply,
+        optimizer,
+        start,
+        5,
+        expert_obs=batch.expert_obs,
+        expert_actions=batch.expert_actions,
+        expert_weights=gamma if algo == "emgail" else jnp.ones((n, 1)),
+        conditions=jnp.eye(k) if algo == "emgail" else jnp.zeros((1, 0)),
+        policy_obs=batch.obs,
+        policy_actions=batch.executed,
+        policy_conditions=conditions,
+    )
+    for got, want in zip(
+        jax.tree.leaves(result.discriminator), jax.tree.leaves(expected), strict=True
+    ):
+        np.testing.assert_allclose(got, want, rtol=1e-6)
+    assert float(result.metrics["discriminator/loss"]) == pytest.approx(
+        float(expected_metrics["discriminator/loss"]), rel=1e-6
+    )
+
+
+@pytest.mark.parametrize("algo", ["emgail", "infogail", "gail"])
+def test_learned_reward_is_the_algorithms_pseudo_reward_of_the_own_condition(algo):
+    k, m = 2, 3
+    algorithm = make_algorithm(algo, info_weight=0.5)
+    obs = jnp.arange(k * m * 1.0).reshape(k, m, 1) / 10
+    executed = jnp.full((k, m, 1), 0.2)
+    intention = jnp.broadcast_to(jnp.arange(k)[:, None], (k, m))
+    own_log_posterior = jnp.full((k, m), -0.7)
+    params = jnp.array([0.3, -0.4]) if algorithm.conditional_discriminator else jnp.zeros(0)
+    reward = learned_reward(
+        toy_apply, params, algorithm, k, obs, executed, intention, own_log_posterior
+    )
+    logit = obs[..., 0] + executed[..., 0]
+    if algorithm.conditional_discriminator:
+        logit = logit + params[intention]
+    expected = jax.nn.softplus(logit) + (0.5 * -0.7 if algo == "infogail" else 0.0)
+    np.testing.assert_allclose(reward, expected, rtol=1e-6)

@@ -15,7 +15,9 @@ from emgail_jax.networks import (
     Posterior,
     ValueNet,
     action_distribution,
+    policy_action,
 )
+from emgail_jax.normalizer import RunningStats, normalize
 
 N, OBS, ACT, K = 7, 5, 3, 2
 HIDDEN = (8,)
@@ -278,3 +280,20 @@ def test_intention_major_inputs_give_the_general_outputs(inputs, name, heads):
     np.testing.assert_allclose(
         _output(net, params, slim, intention_major=True), general, rtol=1e-5, atol=1e-6
     )
+
+
+def test_policy_action_is_the_mean_unless_exploring():
+    policy = GaussianPolicy(action_size=2, hidden=(8,), init_log_std=-1.0)
+    obs = jnp.array([[1.0, 2.0, 3.0], [0.5, -1.0, 2.0]])
+    condition = jnp.zeros((2, 0))
+    params = policy.init(jax.random.PRNGKey(0), obs, condition)
+    stats = RunningStats(mean=jnp.array([1.0, 0.0, 0.0]), var=jnp.full(3, 4.0), count=jnp.ones(()))
+    mean, log_std = policy.apply(params, normalize(stats, obs, 5.0), condition)
+    key = jax.random.PRNGKey(1)
+    np.testing.assert_array_equal(policy_action(policy, params, stats, obs, condition, 5.0), mean)
+    quiet = policy_action(policy, params, stats, obs, condition, 5.0, key, explore=False)
+    np.testing.assert_array_equal(quiet, mean)
+    sample = policy_action(policy, params, stats, obs, condition, 5.0, key, explore=True)
+    np.testing.assert_allclose(sample, mean + jnp.exp(log_std) * jax.random.normal(key, (2, 2)))
+    # The same draw as the action distribution's own sampler, so that either may be used.
+    np.testing.assert_array_equal(sample, action_distribution(mean, log_std).sample(seed=key))

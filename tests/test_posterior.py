@@ -8,10 +8,14 @@ import numpy as np
 import optax
 import pytest
 
+from emgail_jax.batches import ExpertData
+from emgail_jax.config import Config
 from emgail_jax.networks import Posterior
+from emgail_jax.optim import Learner
 from emgail_jax.posterior import (
     expert_responsibilities,
     log_posterior,
+    make_e_step,
     posterior_loss,
     posterior_update,
     trajectory_responsibilities,
@@ -107,10 +111,9 @@ def separable_problem():
 def test_update_reduces_loss_on_separable_problem(separable_problem):
     net, params, obs, actions, labels = separable_problem
     optimizer = optax.adam(1e-2)
-    update = jax.jit(
-        lambda p, s: posterior_update(net.apply, optimizer, p, s, obs, actions, labels, 100)
-    )
-    new_params, _, metrics = update(params, optimizer.init(params))
+    update = jax.jit(lambda p: posterior_update(net.apply, optimizer, p, obs, actions, labels, 100))
+    trained, metrics = update(Learner.create(params, optimizer))
+    new_params = trained.params
     before, _ = posterior_loss(net.apply, params, obs, actions, labels)
     after, after_metrics = posterior_loss(net.apply, new_params, obs, actions, labels)
     # Metrics come from the first step, i.e. describe the parameters before the update.
@@ -180,3 +183,59 @@ def test_centering_cancels_a_lean_common_to_every_pair():
     np.testing.assert_array_equal(np.argmax(raw, -1), np.zeros(200))
     centered = trajectory_responsibilities(log_p, episode, 2, centered=True)
     np.testing.assert_array_equal(np.argmax(centered, -1), np.repeat([0, 1], 100))
+
+
+def _expert(n, episodes):
+    episode = np.repeat(np.arange(episodes), n // episodes).astype(np.int32)
+    return ExpertData(
+        observations=np.zeros((n, 2), np.float32),
+        actions=np.zeros((n, 1), np.float32),
+        episode=episode,
+        labels=np.full(n, -1, np.int32),
+        expert_returns=np.zeros(3, np.float32),
+        random_returns=np.zeros(3, np.float32),
+        episodes=episodes,
+    )
+
+
+def test_e_step_without_a_posterior_is_uniform_with_zero_log_posterior(random_batch):
+    """GAIL's E-step: every pair belongs to every intention alike, and no reward term."""
+    e_step = make_e_step(None, optax.adam(1e-3), Config())
+    result = e_step(None, random_batch(3, 4, 6), _expert(6, 2))
+    np.testing.assert_array_equal(result.gamma, np.full((6, 3), 1 / 3, np.float32))
+    np.testing.assert_array_equal(result.own_log_posterior, np.zeros((3, 4)))
+    assert result.posterior is None and result.responsibilities is None
+
+
+@pytest.mark.parametrize("reward_from", ["updated", "previous"])
+def test_e_step_trains_on_the_policy_samples_and_scores_their_own_intention(
+    reward_from, random_batch
+):
+    k, m, n = 3, 5, 6
+    net = Posterior(num_intentions=k, hidden=(8,))
+    optimizer = optax.adam(1e-2)
+    batch = random_batch(k, m, n)
+    start = Learner.create(
+        net.init(jax.random.PRNGKey(1), batch.obs[0], batch.executed[0]), optimizer
+    )
+    config = Config(posterior_steps=7, responsibilities="pair", reward_from=reward_from)
+    result = make_e_step(net.apply, optimizer, config)(start, batch, _expert(n, 2))
+    # The same training, written out: the samples labelled by the row they came from.
+    labels = np.repeat(np.arange(k), m)
+    flat = lambda x: x.reshape(k * m, -1)
+    trained, _ = posterior_update(
+        net.apply, optimizer, start, flat(batch.obs), flat(batch.executed), labels, 7
+    )
+    np.testing.assert_allclose(
+        result.posterior.params["params"]["MLP_0"]["Dense_0"]["kernel"],
+        trained.params["params"]["MLP_0"]["Dense_0"]["kernel"],
+        rtol=1e-6,
+    )
+    gamma = jnp.exp(
+        log_posterior(net.apply, trained.params, batch.expert_obs, batch.expert_actions)
+    )
+    np.testing.assert_allclose(result.gamma, gamma, rtol=1e-5)
+    scoring = trained if reward_from == "updated" else start
+    log_p = log_posterior(net.apply, scoring.params, batch.obs, batch.executed)  # [K, M, K]
+    own = np.stack([log_p[i, :, i] for i in range(k)])
+    np.testing.assert_allclose(result.own_log_posterior, own, rtol=1e-5)

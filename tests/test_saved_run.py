@@ -44,7 +44,9 @@ def test_load_reward_is_minus_log_one_minus_d(tiny_run, saved):
     normalized = obs_norm.normalize(state.normalizer, obs, saved.config.obs_clip)
     for intention in (0, 1):
         condition = jax.nn.one_hot(jnp.full(5, intention), 2)
-        logit = saved.networks.discriminator.apply(state.discriminator, normalized, act, condition)
+        logit = saved.networks.discriminator.apply(
+            state.discriminator.params, normalized, act, condition
+        )
         d = jax.nn.sigmoid(logit)
         np.testing.assert_allclose(reward(obs, act, intention), -np.log(1 - d), rtol=1e-4)
     np.testing.assert_allclose(jax.jit(reward)(obs, act, 1), reward(obs, act, 1), rtol=1e-6)

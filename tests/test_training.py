@@ -9,9 +9,10 @@ import pytest
 
 import envs
 from emgail_jax import demos as demos_lib
+from emgail_jax.batches import ExpertData
 from emgail_jax.config import Config
 from emgail_jax.demos import Demonstrations
-from emgail_jax.training import ExpertData, RunData, TrainState, make_train
+from emgail_jax.training import RunData, TrainState, make_train
 
 K, B, T = 2, 2, 10
 RANDOM_RETURNS = np.array([-300.0, -250.0])
@@ -151,7 +152,7 @@ def test_init_gives_a_finite_state_with_k_by_b_envs(emgail):
     assert int(state.iteration) == 0 and state.iteration.dtype == jnp.int32
     assert float(state.normalizer.count) == 0.0
     np.testing.assert_allclose(state.policy["params"]["log_std"], [CONFIG.init_log_std])
-    assert state.posterior is not None and state.posterior_opt is not None
+    assert state.posterior is not None and state.posterior.opt_state is not None
 
 
 def test_init_network_inputs_follow_the_algorithm(emgail, emgail_onehot, gail):
@@ -160,16 +161,16 @@ def test_init_network_inputs_follow_the_algorithm(emgail, emgail_onehot, gail):
     # EM-GAIL: pi(a | s, i), V(s, i, t) and D(s, a, i), with one head per intention (default)
     # or a K one-hot input; V sees the time too.
     assert _first_kernel(heads.policy).shape == (K, obs, 8)
-    assert _first_kernel(heads.value).shape == (K, obs + 1, 8)
-    assert _first_kernel(heads.discriminator).shape == (K, obs + act, 8)
+    assert _first_kernel(heads.value.params).shape == (K, obs + 1, 8)
+    assert _first_kernel(heads.discriminator.params).shape == (K, obs + act, 8)
     assert _first_kernel(onehot.policy).shape == (obs + K, 8)
-    assert _first_kernel(onehot.value).shape == (obs + 1 + K, 8)
-    assert _first_kernel(onehot.discriminator).shape == (obs + act + K, 8)
+    assert _first_kernel(onehot.value.params).shape == (obs + 1 + K, 8)
+    assert _first_kernel(onehot.discriminator.params).shape == (obs + act + K, 8)
     # P(i | s, a) is not conditioned; GAIL conditions nothing and has no posterior.
-    assert _first_kernel(heads.posterior).shape == (obs + act, 8)
+    assert _first_kernel(heads.posterior.params).shape == (obs + act, 8)
     assert _first_kernel(gail_state.policy).shape == (obs, 8)
-    assert _first_kernel(gail_state.discriminator).shape == (obs + act, 8)
-    assert gail_state.posterior is None and gail_state.posterior_opt is None
+    assert _first_kernel(gail_state.discriminator.params).shape == (obs + act, 8)
+    assert gail_state.posterior is None
 
 
 def test_one_hot_intention_input_trains_too(emgail_onehot):
@@ -247,7 +248,7 @@ def test_cluster_accuracy_is_a_fraction_of_the_expert_pairs(emgail, expert):
 def test_discriminator_and_posterior_see_the_executed_actions(env, expert, monkeypatch):
     """With a policy std of e^2, nearly every raw sample lies outside the action range [-1, 1];
     the posterior and the discriminator must see them clipped, as the env executed them."""
-    from emgail_jax import training
+    from emgail_jax import discriminator, posterior
 
     seen = {}
     record = lambda name, actions: jax.debug.callback(
@@ -255,7 +256,7 @@ def test_discriminator_and_posterior_see_the_executed_actions(env, expert, monke
     )
 
     def posterior_update(*args):
-        record("posterior", args[5])
+        record("posterior", args[4])
         return original_posterior(*args)
 
     def discriminator_update(*args, **batch):
@@ -263,10 +264,10 @@ def test_discriminator_and_posterior_see_the_executed_actions(env, expert, monke
         record("expert", batch["expert_actions"])
         return original_discriminator(*args, **batch)
 
-    original_posterior = training.posterior_update
-    original_discriminator = training.discriminator_update
-    monkeypatch.setattr(training, "posterior_update", posterior_update)
-    monkeypatch.setattr(training, "discriminator_update", discriminator_update)
+    original_posterior = posterior.posterior_update
+    original_discriminator = discriminator.discriminator_update
+    monkeypatch.setattr(posterior, "posterior_update", posterior_update)
+    monkeypatch.setattr(discriminator, "discriminator_update", discriminator_update)
     _, [(_, metrics)], _ = _train(CONFIG.replace(init_log_std=2.0), env, expert, 1, (False,))
     jax.effects_barrier()
     assert seen["posterior"] == [1.0] and seen["discriminator"] == [1.0]
@@ -297,7 +298,7 @@ def test_update_advances_the_state(emgail):
 
 def test_gail_has_no_posterior_and_no_accuracy(gail):
     _, [(state, metrics)], _ = gail
-    assert state.posterior is None and state.posterior_opt is None
+    assert state.posterior is None
     assert np.isnan(metrics["eval/cluster_accuracy"])
     assert not any(name.startswith("posterior/") for name in metrics)
     assert set(metrics) >= COMMON_KEYS

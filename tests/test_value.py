@@ -7,6 +7,7 @@ import optax
 import pytest
 
 from emgail_jax.networks import ValueNet
+from emgail_jax.optim import Learner
 from emgail_jax.value import fit_value, value_loss
 
 
@@ -37,11 +38,12 @@ def test_fit_reduces_the_loss(regression):
     predict, params, inputs, targets = regression
     optimizer = optax.adam(1e-2)
     fit = jax.jit(
-        lambda p, s, key: fit_value(
-            predict, optimizer, p, s, inputs, targets, key, epochs=30, minibatches=4
+        lambda value, key: fit_value(
+            predict, optimizer, value, inputs, targets, key, epochs=30, minibatches=4
         )
     )
-    new_params, opt_state, metrics = fit(params, optimizer.init(params), jax.random.PRNGKey(1))
+    fitted, metrics = fit(Learner.create(params, optimizer), jax.random.PRNGKey(1))
+    new_params, opt_state = fitted.params, fitted.opt_state
     before = float(value_loss(predict, params, inputs, targets))
     after = float(value_loss(predict, new_params, inputs, targets))
     assert float(metrics["value/loss_before"]) == pytest.approx(before, rel=1e-5)
@@ -55,16 +57,15 @@ def test_fit_uses_whole_minibatches_when_m_is_not_divisible(regression):
     predict, params, inputs, targets = regression
     inputs = tuple(x[:, :10] for x in inputs)
     optimizer = optax.sgd(1e-2)
-    new_params, _, metrics = fit_value(
+    fitted, metrics = fit_value(
         predict,
         optimizer,
-        params,
-        optimizer.init(params),
+        Learner.create(params, optimizer),
         inputs,
         targets[:, :10],
         jax.random.PRNGKey(2),
         epochs=2,
         minibatches=3,
     )
-    assert all(np.all(np.isfinite(x)) for x in jax.tree.leaves(new_params))
+    assert all(np.all(np.isfinite(x)) for x in jax.tree.leaves(fitted.params))
     assert float(metrics["value/loss"]) < float(metrics["value/loss_before"])

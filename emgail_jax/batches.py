@@ -1,0 +1,98 @@
+"""The data the steps of one update hand each other, with their shapes.
+
+K intentions, B envs per intention, T steps per rollout, M = T * B samples per intention,
+N demonstration pairs, D observation and A action dimensions.
+"""
+
+from __future__ import annotations
+
+import chex
+import jax
+import numpy as np
+from flax import struct
+
+import envs
+from emgail_jax import normalizer as obs_norm
+from emgail_jax.demos import Demonstrations
+from emgail_jax.rollout import Transitions
+
+
+@struct.dataclass
+class ExpertData:
+    """The demonstrations, plus the references ERD is normalised with."""
+
+    observations: jax.Array  # [N, D] raw
+    actions: jax.Array  # [N, A] executed (clipped to the env's range)
+    episode: jax.Array  # [N] index of each pair's demonstration (episode)
+    labels: jax.Array  # [N] hidden intention labels, -1 when unknown
+    expert_returns: jax.Array  # [K] NaN when unknown
+    random_returns: jax.Array  # [K]
+    episodes: int = struct.field(pytree_node=False, default=1)  # demonstrations (episodes)
+    has_labels: bool = struct.field(pytree_node=False, default=False)
+
+    @classmethod
+    def create(cls, demos: Demonstrations, random_returns: np.ndarray, k: int) -> ExpertData:
+        n = len(demos)
+        labels = demos.intentions if demos.intentions is not None else np.full(n, -1)
+        returns = demos.expert_returns
+        returns = np.full(k, np.nan) if returns is None else returns
+        episode = np.maximum(np.cumsum(demos.episode_starts) - 1, 0).astype(np.int32)
+        return cls(
+            observations=np.asarray(demos.observations, np.float32),
+            actions=np.asarray(demos.actions, np.float32),
+            episode=episode,
+            labels=np.asarray(labels, np.int32),
+            expert_returns=np.asarray(returns, np.float32),
+            random_returns=np.asarray(random_returns, np.float32),
+            episodes=int(episode.max()) + 1,
+            has_labels=demos.intentions is not None,
+        )
+
+
+@struct.dataclass
+class LearningBatch:
+    """A rollout as the learning steps read it: the transitions, and the state after them (for
+    the value baseline's bootstrap)."""
+
+    obs: jax.Array  # [T, K, B, D] raw
+    action: jax.Array  # [T, K, B, A] raw samples
+    time: jax.Array  # [T, K, B]
+    done: jax.Array  # [T, K, B]
+    last_obs: jax.Array  # [K, B, D] raw
+    last_time: jax.Array  # [K, B]
+
+    @classmethod
+    def of(cls, batch: Transitions, end: envs.State, episode_length: int) -> LearningBatch:
+        return cls(
+            obs=batch.obs,
+            action=batch.action,
+            time=batch.time,
+            done=batch.done,
+            last_obs=end.obs,
+            last_time=end.info["steps"] / episode_length,
+        )
+
+
+@struct.dataclass
+class NormalizedBatch:
+    """A rollout and the demonstrations as the posterior and the discriminator see them:
+    observations normalised with statistics that include the rollout, and the actions the env
+    executed (clipped to its range) on both sides."""
+
+    normalizer: obs_norm.RunningStats  # including the rollout
+    obs: jax.Array  # [K, M, D] the samples, grouped by intention
+    executed: jax.Array  # [K, M, A] their actions as executed (clipped)
+    expert_obs: jax.Array  # [N, D]
+    expert_actions: jax.Array  # [N, A] executed
+    last_obs: jax.Array  # [K, B, D] the states after the rollout
+
+    def check(self) -> NormalizedBatch:
+        """Asserts the documented shapes (at trace time); returns ``self``."""
+        chex.assert_rank(
+            (self.obs, self.executed, self.expert_obs, self.expert_actions), (3, 3, 2, 2)
+        )
+        chex.assert_equal_shape_prefix((self.obs, self.executed), 2)
+        chex.assert_equal_shape_prefix((self.expert_obs, self.expert_actions), 1)
+        chex.assert_equal_shape_suffix((self.obs, self.expert_obs), 1)
+        chex.assert_equal_shape_suffix((self.executed, self.expert_actions), 1)
+        return self

@@ -1,0 +1,40 @@
+"""The data handed between the steps of an update: the demonstrations and the normalised batch."""
+
+import numpy as np
+import pytest
+
+from emgail_jax.batches import ExpertData
+from emgail_jax.demos import Demonstrations
+
+
+def test_a_consistent_batch_passes_its_shape_check(random_batch):
+    batch = random_batch()
+    assert batch.check() is batch
+
+
+@pytest.mark.parametrize(
+    "broken",
+    [
+        lambda b: b.replace(executed=b.executed[:, :3]),  # fewer actions than samples
+        lambda b: b.replace(expert_actions=b.expert_actions[:5]),  # fewer than the pairs
+        lambda b: b.replace(expert_obs=b.expert_obs[:, :1]),  # another observation size
+        lambda b: b.replace(obs=b.obs[0]),  # not grouped by intention
+    ],
+)
+def test_a_batch_with_mismatched_shapes_is_refused(broken, random_batch):
+    with pytest.raises(AssertionError):
+        broken(random_batch()).check()
+
+
+def test_expert_data_numbers_the_demonstrations_and_keeps_the_labels():
+    starts = np.array([1, 0, 0, 1, 0, 1], bool)
+    demos = Demonstrations(
+        observations=np.zeros((6, 2)),
+        actions=np.zeros((6, 1)),
+        episode_starts=starts,
+        intentions=np.array([0, 0, 0, 1, 1, 1]),
+    )
+    expert = ExpertData.create(demos, np.array([-5.0, -6.0]), 2)
+    np.testing.assert_array_equal(expert.episode, [0, 0, 0, 1, 1, 2])
+    assert expert.episodes == 3 and expert.has_labels
+    assert np.isnan(expert.expert_returns).all() and expert.random_returns.dtype == np.float32
