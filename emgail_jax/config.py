@@ -33,30 +33,17 @@ class Config:
     hidden: tuple[int, ...] = (64, 64)
     # How the intention enters the policy, value and EM-GAIL's discriminator: "heads" (one
     # network per intention, as the paper's public code) or "onehot" (an input of one network,
-    # as the paper's Table 2 counts); see emgail_jax.networks. Heads by default: with one-hot
-    # inputs the intentions share every hidden unit and start out alike. On the swimmer, 8 seeds
-    # x 200 iterations, 2 one-hot seeds had not separated the swimmers (accuracy 0.79, 0.81)
-    # against 1 with heads (0.81), the others at 0.99-1.00; heads also ran 10 % faster.
+    # as the paper's Table 2 counts); see emgail_jax.networks. Why heads: docs/defaults.md.
     intention_input: str = "heads"
     # The E-step's responsibilities: "trajectory" (each pair takes the posterior of its whole
-    # demonstration, from the product of its pairs' P; see
-    # emgail_jax.posterior.trajectory_responsibilities), "trajectory-centered" (the same with
-    # each intention's log-evidence centred over the demonstrations) or "pair" (gamma =
-    # P(i | s, a) of each pair, the paper's eq. 18). Trajectory by default, a departure from
-    # the paper: with the per-pair gamma every discriminator starts on
-    # the mixture of all intentions and hopper-3 and reacher-4 never separate them (accuracy
-    # 0.57-0.87 and 0.47-0.52, 2 seeds x 400); with trajectory gamma both reach 0.96-1.00 with
-    # ERD 0.006-0.045, and the driver, swimmer-2 and halfcheetah-3 do as well or better. But
-    # at the driver's radius 4 it sent every demonstration to one intention on 2 of 4 seeds;
-    # centred, on none, though one reacher-4 seed of 2 did worse centred (docs/
-    # learning-the-mjx-envs.md, experiments 4-12): not yet a default. "labels" takes
-    # the demonstrations' hidden labels instead: an oracle, for diagnosis only (how well the
-    # rest of the method does when the E-step is perfect).
+    # demonstration; emgail_jax.posterior.trajectory_responsibilities), "trajectory-centered"
+    # (the same, each intention's log-evidence centred over the demonstrations), "pair" (the
+    # paper's eq. 18) or "labels" (the hidden labels: an oracle, for diagnosis only). Trajectory
+    # is a departure from the paper, made because the per-pair E-step lets hopper-3 and
+    # reacher-4 collapse onto one intention: docs/defaults.md.
     responsibilities: str = "trajectory"
-    # The policy's initial log-std, 0 as in the paper's public code. A wide start lets the E-step
-    # separate the intentions before the policies commit: on the swimmer (8 seeds x 300
-    # iterations) every seed separated the two intentions (accuracy >= 0.999) where with -0.5
-    # (8 x 200, 4 x 400) one seed in 4 to 8 settled with both policies swimming forward.
+    # The policy's initial log-std, 0 as in the paper's public code: a wide start lets the E-step
+    # separate the intentions before the policies commit (docs/defaults.md).
     init_log_std: float = 0.0
     obs_clip: float = 5.0
     # B-step (TRPO on the pseudo-reward) and its value baseline.
@@ -64,19 +51,12 @@ class Config:
     gae_lambda: float = 0.97
     trpo: TRPOConfig = field(default_factory=TRPOConfig)
     value_learning_rate: float = 1e-3
-    # Epochs of the value baseline's fit per iteration (each `value_minibatches` Adam steps).
-    # 5 epochs could not follow halfcheetah's values: TRPO on its true reward reached 518 of
-    # the expert's 2121 in 200 iterations with 5, 1580 with 20, and GAIL on one halfcheetah
-    # intention ERD 0.90 / 0.92 with 5, 0.70 / 0.59 with 20; reacher-4 and the driver were
-    # unchanged, hopper-3 slightly worse (ERD 0.007 -> 0.038 at 200 iterations; docs/
-    # learning-the-mjx-envs.md, experiment 10). The paper gives no value fit; its public code
-    # fits the baseline with 25 L-BFGS iterations per iteration, stronger still.
+    # Epochs of the value baseline's fit per iteration (each `value_minibatches` Adam steps); the
+    # paper gives none, and fewer cannot follow halfcheetah's values (docs/defaults.md).
     value_epochs: int = 20
     value_minibatches: int = 4
-    # E-step and M-step: full-batch Adam steps per iteration (paper: Adam, lr 1e-3). On the
-    # driver (4 seeds x 400 iterations), 5 posterior steps left a seed's clustering accuracy at
-    # 0.94 where 20 reached 0.97-0.98 on every seed; 10 discriminator steps instead of 5 cut the
-    # final ERD from 0.02-0.06 to 0.01-0.03 (see the closing note of issue 2).
+    # E-step and M-step: full-batch Adam steps per iteration (paper: Adam, lr 1e-3; the number
+    # of steps is not given, ours are measured on the driver: docs/defaults.md).
     discriminator_learning_rate: float = 1e-3
     discriminator_steps: int = 10
     posterior_learning_rate: float = 1e-3
@@ -89,9 +69,8 @@ class Config:
     # The B-step reward of a discriminator logit f: "gail", -log(1 - D) = softplus(f), the
     # paper's, or "logit", f itself (AIRL's form), which pays nothing for merely staying alive.
     reward_form: str = "gail"
-    # Info/IntentionGAIL's lambda (eq. 23). 1.0 weighs log P(i|s,a) like the discriminator term:
-    # at a perfectly imitated pair shared by two intentions, the penalty lambda*log 2 then equals
-    # the discriminator reward log 2 itself, the regime Theorem 2 is about.
+    # Info/IntentionGAIL's lambda (eq. 23): 1 weighs log P(i|s,a) like the discriminator term
+    # (docs/defaults.md).
     info_weight: float = 1.0
     # Iterations compiled into one call; host work (logs, progress) happens between chunks.
     chunk_size: int = 10

@@ -41,10 +41,8 @@ def seed_sharding(seeds: int) -> NamedSharding:
 def default_seed_batch() -> int | None:
     """Seeds vmapped together on one device: one on CPU, all of a device's on accelerators.
 
-    XLA:CPU runs a device's program on one core, so vmapping seeds there batches nothing: on
-    this 2-core machine, halfcheetah (K = 3) took 1.06 s per seed-iteration with 2 seeds
-    vmapped on each core and 0.78-0.87 s with them one after the other; the driver took
-    the same.
+    XLA:CPU runs a device's program on one core, so vmapping seeds there batches nothing and
+    is slower (README, "Notes for this machine").
     """
     return 1 if jax.default_backend() == "cpu" else None
 

@@ -26,11 +26,6 @@ _REGISTRY: dict[str, str] = {
 }
 
 
-def register(name: str, target: str) -> None:
-    """Adds an env under ``name``; ``target`` is ``'package.module:ClassName'``."""
-    _REGISTRY[name] = target
-
-
 def names() -> list[str]:
     return sorted(_REGISTRY)
 
@@ -73,6 +68,5 @@ __all__ = [
     "env_class",
     "make",
     "names",
-    "register",
     "wrap_for_training",
 ]

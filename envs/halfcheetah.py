@@ -19,26 +19,15 @@ the "increasing body angle" of the paper is rewarded):
 - backward: ``-vx - c ‖a‖²``
 - flip: ``-m |vx| + w ω - c ‖a‖²`` with ``m = 3``, ``w = 1``
 
-With ``w = 1`` every full turn earns ``2π / dt ≈ 126`` over the steps it takes, whatever its
-speed, while lying or standing still earns 0 and translating is penalised; a cheetah flipping
-once a second earns about as much per episode as one running forward at 6 m/s. Why ``m = 3``:
-with ``m = 1`` the TRPO expert (``emgail_jax.experts``) flipped about once a second but drifted
-at 0.86 m/s (flipping over the head carries the body along); with ``m = 3`` it turns over once
-(pitch +3.3 rad) in place and then lies on its back (mean velocity 0.00 m/s).
+With ``w = 1`` a turn pays as well as running; ``m = 3`` keeps the flipping expert in place
+(docs/environments.md).
 
 No termination; 500-step episodes. Reset as gym: ``qpos0`` plus uniform noise in ±0.1, zero
 velocity plus normal noise of std 0.1.
 
-Solver (the XML has Newton, 4 iterations, 50 line-search iterations): Newton, 3 iterations,
-1 line-search iteration, sparse (tree) mass-matrix factorisation; the constraints are five
-capsules' contacts with the floor and six joint limits. Fewer iterations are faster but not the
-same physics: in ``experiments/check_mjx_dynamics.py`` (open-loop gaits, 8 starts, against
-native MuJoCo at its defaults, Newton 100/50) one iteration under-resolves the contacts and the
-cheetah bounces and turns over where it stays upright at the defaults (largest pitch 24.7 rad vs
-0.99, 3.6 vs 0.24, ...), which would make the flip intention artificially easy; with two it
-still turns over now and then. With 3/1: mean velocities 0.359 vs 0.362, -0.394 vs
--0.342 ± 0.034, -0.147 vs -0.041 ± 0.062 m/s (± the reference's standard error over the
-chaotic runs), largest pitch 0.89 vs 0.99 rad, joint errors ~1e-3 over the first 10 steps.
+Solver: Newton, 3 iterations, 1 line-search iteration, sparse factorisation; five capsules'
+contacts and six joint limits are the constraints. Fewer iterations let the cheetah turn over
+where native MuJoCo keeps it upright (docs/environments.md).
 """
 
 from __future__ import annotations

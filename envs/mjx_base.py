@@ -261,13 +261,13 @@ class MjxEnv(Env):
     def _substep(self, data: mjx.Data) -> mjx.Data:
         """One ``mjx.step`` (Euler), with the solver's iterations unrolled.
 
-        ``mjx.solve`` runs more than one iteration in a ``while_loop``, which is slow under
-        ``vmap`` on CPU (measured here: the cheetah with 3 iterations runs ~15k env-steps/s with
-        the loop, ~22k unrolled). Newton's iterations are memoryless (each starts from the
-        current accelerations), so ``n`` one-iteration solves, each warm-started from the
-        previous result, are ``n`` Newton iterations without the loop; only the tolerance test,
-        which can merely end the loop early, is dropped. CG keeps the loop (its iterations
-        depend on the previous search direction).
+        ``mjx.solve`` runs more than one iteration in a ``while_loop`` (under ``vmap``, every
+        env runs the most iterations any env needs; measurements: docs/environments.md).
+        Newton's iterations are memoryless (each starts from the current accelerations), so
+        ``n`` one-iteration solves, each warm-started from the previous result, are ``n``
+        Newton iterations without the loop; only the tolerance test, which can merely end the
+        loop early, is dropped. CG keeps the loop (its iterations depend on the previous search
+        direction).
         """
         m, m1 = self.mjx_model, self._mjx_model_one_iteration
         if self.solver.iterations == 1 or m.opt.solver != mjx.SolverType.NEWTON:

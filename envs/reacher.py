@@ -23,12 +23,9 @@ control cost), the distance measured after the step (gym measures it before).
 No termination; 50-step episodes. Reset as gym: joint angles uniform in ±0.1, joint velocities
 uniform in ±0.005.
 
-Solver (the XML keeps MuJoCo's defaults, Newton 100/50): Newton, 1 iteration, 4 line-search
-iterations, sparse (tree) mass-matrix factorisation, contacts off (no geom pair of the model can
-collide, so that only skips the collision pass). The one constraint is the elbow's limit
-(±3 rad). In ``experiments/check_mjx_dynamics.py`` (gaits that drive the elbow into its limit,
-8 starts, 50 steps) the joint angles stay within 1e-3 rad of native MuJoCo at its defaults;
-with 1 or 2 line-search iterations the limit is resolved badly (errors up to 2.4 rad).
+Solver: Newton, 1 iteration, 4 line-search iterations, sparse factorisation, contacts off
+(nothing can collide); the elbow's limit is the one constraint. Fewer line-search iterations
+resolve it badly (docs/environments.md).
 """
 
 from __future__ import annotations

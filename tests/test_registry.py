@@ -7,7 +7,7 @@ import envs
 ALL = envs.names()
 
 
-def test_every_design_env_is_registered():
+def test_every_paper_env_is_registered():
     assert {"driver", "swimmer", "hopper", "halfcheetah", "reacher"} <= set(ALL)
 
 

@@ -1,4 +1,4 @@
-"""The driver acceptance run (issue 2), end to end: `make test-slow`, not CI."""
+"""The driver acceptance run, end to end: `make test-slow`, not CI."""
 
 import json
 

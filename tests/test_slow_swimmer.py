@@ -1,4 +1,4 @@
-"""The swimmer acceptance run (issue 3), end to end: `make test-slow`, not CI."""
+"""The swimmer acceptance run, end to end: `make test-slow`, not CI."""
 
 import json
 
