@@ -110,44 +110,31 @@ class GaussianPolicy(nn.Module):
         return mean, jnp.broadcast_to(log_std, mean.shape)
 
 
-class ValueNet(nn.Module):
+class ScalarNet(nn.Module):
+    """A conditioned MLP with one output per input row (the value and the discriminator)."""
+
+    hidden: Sequence[int] = (64, 64)
+    heads: bool = False
+
+
+class ValueNet(ScalarNet):
     """V(s, i, t): the normalised time t/T is an input because the horizon is fixed."""
 
-    hidden: Sequence[int] = (64, 64)
-    heads: bool = False
-
     @nn.compact
-    def __call__(
-        self,
-        obs: jax.Array,
-        condition: jax.Array,
-        time: jax.Array,
-        intention_major: bool = False,
-    ) -> jax.Array:
+    def __call__(self, obs, condition, time, intention_major: bool = False) -> jax.Array:
         x = jnp.concatenate([obs, time[..., None]], -1)
-        return conditioned_mlp(
-            self.hidden, 1, x, condition, self.heads, intention_major=intention_major
-        )[..., 0]
+        value = conditioned_mlp(self.hidden, 1, x, condition, self.heads, 1.0, intention_major)
+        return value[..., 0]
 
 
-class Discriminator(nn.Module):
+class Discriminator(ScalarNet):
     """The logit f of D = sigmoid(f): f(s, a, i) for EM-GAIL, f(s, a) for the baselines."""
 
-    hidden: Sequence[int] = (64, 64)
-    heads: bool = False
-
     @nn.compact
-    def __call__(
-        self,
-        obs: jax.Array,
-        action: jax.Array,
-        condition: jax.Array,
-        intention_major: bool = False,
-    ) -> jax.Array:
+    def __call__(self, obs, action, condition, intention_major: bool = False) -> jax.Array:
         x = jnp.concatenate([obs, action], -1)
-        return conditioned_mlp(
-            self.hidden, 1, x, condition, self.heads, intention_major=intention_major
-        )[..., 0]
+        logit = conditioned_mlp(self.hidden, 1, x, condition, self.heads, 1.0, intention_major)
+        return logit[..., 0]
 
 
 class Posterior(nn.Module):

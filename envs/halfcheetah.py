@@ -53,19 +53,14 @@ class HalfCheetahEnv(MjxEnv):
     flip_weight = 1.0
     flip_move_weight = 3.0
     reset_noise = 0.1
+    reset_velocity_normal = True
 
     @property
     def observation_size(self) -> int:
         return 17
 
-    def reset(self, key: jax.Array) -> State:
-        qpos, qvel = self.reset_qpos_qvel(key, self.reset_noise, self.reset_noise, qvel_normal=True)
-        data = self.physics_reset(qpos, qvel)
-        return self.initial_state(data)
-
     def step(self, state: State, action: jax.Array) -> State:
-        action = self.clip_action(action)
-        data = self.physics_step(state.physics, action)
+        action, data = self.advance(state, action)
         x_velocity = self.forward_velocity(state.physics, data)
         pitch_rate = (data.qpos[2] - state.physics.qpos[2]) / self.dt
         flip = -self.flip_move_weight * jnp.abs(x_velocity) + self.flip_weight * pitch_rate

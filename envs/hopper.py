@@ -61,14 +61,8 @@ class HopperEnv(MjxEnv):
     def observation_size(self) -> int:
         return 11
 
-    def reset(self, key: jax.Array) -> State:
-        qpos, qvel = self.reset_qpos_qvel(key, self.reset_noise, self.reset_noise)
-        data = self.physics_reset(qpos, qvel)
-        return self.initial_state(data)
-
     def step(self, state: State, action: jax.Array) -> State:
-        action = self.clip_action(action)
-        data = self.physics_step(state.physics, action)
+        action, data = self.advance(state, action)
         x_velocity = self.forward_velocity(state.physics, data)
         common = self.healthy_reward - self.ctrl_cost * jnp.sum(action**2)
         reward = jnp.stack([x_velocity, -x_velocity, -jnp.abs(x_velocity)])

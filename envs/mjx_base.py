@@ -156,6 +156,7 @@ class MjxEnv(Env):
       default_solver: the env's :class:`Solver` (documented in its docstring).
       episode_steps: episode length T.
       unroll_frame_skip: unroll the frame-skip loop (longer compile; faster for some envs).
+      reset_noise, reset_velocity_normal: gym's reset noise (see :meth:`reset`).
     """
 
     xml: ClassVar[str]
@@ -163,6 +164,8 @@ class MjxEnv(Env):
     default_solver: ClassVar[Solver]
     episode_steps: ClassVar[int]
     unroll_frame_skip: ClassVar[bool] = False
+    reset_noise: ClassVar[float] = 0.1
+    reset_velocity_normal: ClassVar[bool] = False
 
     def __init__(
         self,
@@ -210,6 +213,20 @@ class MjxEnv(Env):
             "solver_iterations": self.solver.iterations,
             "ls_iterations": self.solver.ls_iterations,
         }
+
+    def reset(self, key: jax.Array) -> State:
+        """Gym's reset: ``qpos0`` plus uniform noise in ±``reset_noise``, zero velocity plus
+        uniform noise in ±``reset_noise`` (normal noise of that std if
+        ``reset_velocity_normal``)."""
+        qpos, qvel = self.reset_qpos_qvel(
+            key, self.reset_noise, self.reset_noise, qvel_normal=self.reset_velocity_normal
+        )
+        return self.initial_state(self.physics_reset(qpos, qvel))
+
+    def advance(self, state: State, action: jax.Array) -> tuple[jax.Array, mjx.Data]:
+        """The executed (clipped) action and the physics one env step later."""
+        action = self.clip_action(action)
+        return action, self.physics_step(state.physics, action)
 
     # ---- physics -------------------------------------------------------------------------
 

@@ -105,8 +105,7 @@ class ReacherEnv(MjxEnv):
         return self.initial_state(self.physics_kinematics(data))
 
     def step(self, state: State, action: jax.Array) -> State:
-        action = self.clip_action(action)
-        data = self.physics_step(state.physics, action)
+        action, data = self.advance(state, action)
         # mj_step leaves positions of the state before the last integration: recompute them.
         data = self.physics_kinematics(data)
         distance = jnp.linalg.norm(self._fingertip_to_balls(data), axis=-1)
