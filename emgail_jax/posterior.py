@@ -65,9 +65,8 @@ def trajectory_responsibilities(
     their summed ``log P(i | .)``: a lean the posterior network has on every pair (an untrained
     one always has some) then cancels instead of growing with the episode length and sending
     every demonstration to one intention, and each demonstration goes where it differs from the
-    others (on the driver at radius 4 the uncentred product did that on 2 of 4 seeds, the
-    centred one on none; on reacher-4 one seed of 2 did worse centred: an option under study,
-    docs/learning-the-mjx-envs.md, experiment 12).
+    others. An option, not the default: it fails reacher-4 (docs/learning-the-mjx-envs.md,
+    experiment 12).
 
     Args:
       log_p: ``[N, K]`` log P(i | s, a) of the expert pairs.
