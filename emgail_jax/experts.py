@@ -93,27 +93,27 @@ def train(env, spec: ExpertSpec, seeds: int, key, progress: bool = True, intenti
     import jax.numpy as jnp
 
     from emgail_jax.progress import ProgressBar
-    from emgail_jax.runner import Runner, chunk_length
+    from emgail_jax.rl import intention_runner
+    from emgail_jax.runner import chunk_length, chunks
 
     trainer = _trainer(env, spec)
     intentions = jnp.arange(env.num_intentions) if intentions is None else jnp.asarray(intentions)
     k = len(intentions)
-    init = lambda seed_key, _: jax.vmap(trainer.init)(jax.random.split(seed_key, k))
-    update = lambda states, _, __: jax.vmap(trainer.update)(states, intentions)
-    chunk = chunk_length(spec.iterations, 10)
-    inputs = np.zeros(chunk, bool)  # the update takes no per-iteration input
-    runner = Runner(init, update, seeds)
-    states = runner.init(key)
-    runner.compile(states, inputs)
+    runner = intention_runner(trainer, intentions, seeds)
+    plan = chunks(0, spec.iterations, chunk_length(spec.iterations, 10))
+    no_inputs = lambda first, length: np.zeros(length, bool)
     own = []
     with ProgressBar(
         f"experts {env.name}", spec.iterations, {"returns": "-"}, enabled=progress
     ) as bar:
-        for _ in range(spec.iterations // chunk):
-            states, metrics = runner.step(states, inputs)
+
+        def after_chunk(first, length, states, metrics) -> bool:
             own.append(metrics["eval/own_return"])  # [S, chunk, K]
             latest = own[-1][:, -1].max(0)
-            bar.update(chunk, returns=" ".join(f"{r:.1f}" for r in latest))
+            bar.update(length, returns=" ".join(f"{r:.1f}" for r in latest))
+            return True
+
+        states = runner.run(runner.init(key), plan, no_inputs, after_chunk)
     own = np.concatenate(own, axis=1)
     best = own[:, -10:].mean(1).argmax(0)  # [I] best seed of every intention
     states = jax.device_get(states)

@@ -30,8 +30,8 @@ def reoptimize(run, seed: int, iterations: int, chunk: int = 10, progress: bool 
 
     from emgail_jax.metrics import normalized_erd
     from emgail_jax.progress import ProgressBar
-    from emgail_jax.rl import make_rl_train
-    from emgail_jax.runner import chunk_length
+    from emgail_jax.rl import intention_chunk, make_rl_train
+    from emgail_jax.runner import chunk_length, chunks, run_chunks
 
     env = run.problem.env
     k = run.num_intentions
@@ -41,34 +41,32 @@ def reoptimize(run, seed: int, iterations: int, chunk: int = 10, progress: bool 
         return learned_reward(obs, action, intention)
 
     trainer = make_rl_train(run.config, env, reward_fn)
-    intentions = jnp.arange(k)
-    chunk = chunk_length(iterations, chunk)
-
-    def train_chunk(states):
-        step = lambda s, _: jax.vmap(trainer.update)(s, intentions)
-        return jax.lax.scan(step, states, None, length=chunk)
-
+    plan = chunks(0, iterations, chunk_length(iterations, chunk))
+    no_inputs = lambda first, length: np.zeros(length, bool)
+    # The policies' keys come from the run's seed, one per learned intention.
     keys = jax.random.split(jax.random.PRNGKey(run.spec.first_seed + seed + 1000), k)
     states = jax.jit(jax.vmap(trainer.init))(keys)
     start = time.perf_counter()
-    compiled = jax.jit(train_chunk).lower(states).compile()
+    step = intention_chunk(trainer, jnp.arange(k)).lower(states, no_inputs(*plan[0])).compile()
     compile_s = time.perf_counter() - start
-
     demos = run.problem.demos
     expert_returns = demos.expert_returns
     random_returns = run.problem.random_returns
     erds, all_returns, earned = [], [], []
     bar = ProgressBar("re-optimising", iterations, {"ERD": "-"}, enabled=progress)
-    start = time.perf_counter()
-    for _ in range(iterations // chunk):
-        states, metrics = compiled(states)
+
+    def after_chunk(first, length, states, metrics) -> bool:
         returns = np.asarray(metrics["eval/returns"])  # [chunk, K learned, K true]
         all_returns.extend(returns)
         earned.extend(np.asarray(metrics["train/reward"]))  # [chunk, K] learned reward per step
         if expert_returns is not None:
             for r in returns:
                 erds.append(float(normalized_erd(r, expert_returns, random_returns).mean))
-        bar.update(chunk, ERD=f"{erds[-1]:.3f}" if erds else "-")
+        bar.update(length, ERD=f"{erds[-1]:.3f}" if erds else "-")
+        return True
+
+    start = time.perf_counter()
+    run_chunks(step, states, plan, no_inputs, after_chunk)
     bar.close()
     train_s = time.perf_counter() - start
     last = np.mean(all_returns[-10:], axis=0)

@@ -306,6 +306,24 @@ def train(
     plan = chunks(done, config.iterations, config.chunk_size)
     stop = _StopRequest()
     iteration = last_saved = done
+
+    def after_chunk(first: int, length: int, state, metrics: dict) -> bool:
+        nonlocal history, iteration, last_saved
+        log.write(first, metrics)
+        history = concat_history(history, metrics)
+        iteration = first + length
+        bar.update(length, **_progress_fields(history))
+        finished = iteration >= config.iterations or stop.signal is not None
+        if finished or iteration - last_saved >= checkpoint_every:
+            host_state = gather(state)  # every process takes part
+            if writes:
+                checkpoints.save(out, iteration, host_state, history)
+            last_saved = iteration
+        return stop.signal is None
+
+    evaluating = lambda first, length: evaluation_plan(
+        first, length, config.iterations, config.eval_every
+    )
     if plan:
         log = records.MetricsLog(out, keep_until=done if resume else None, enabled=writes)
         bar = ProgressBar(
@@ -317,23 +335,7 @@ def train(
         )
         try:
             with stop:
-                for first, length in plan:
-                    if stop.signal is not None:
-                        break
-                    evaluating = evaluation_plan(
-                        first, length, config.iterations, config.eval_every
-                    )
-                    state, metrics = runner.step(state, evaluating)
-                    log.write(first, metrics)
-                    history = concat_history(history, metrics)
-                    iteration = first + length
-                    bar.update(length, **_progress_fields(history))
-                    finished = iteration >= config.iterations or stop.signal is not None
-                    if finished or iteration - last_saved >= checkpoint_every:
-                        host_state = gather(state)  # every process takes part
-                        if writes:
-                            checkpoints.save(out, iteration, host_state, history)
-                        last_saved = iteration
+                runner.run(state, plan, evaluating, after_chunk)
         finally:
             bar.close()
             log.close()

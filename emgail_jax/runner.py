@@ -114,6 +114,7 @@ class Runner:
             self._programs = _shared(key, build)
 
     def init(self, key: jax.Array) -> TrainState:
+        """Every seed's initial state, seed s from the s-th key of ``split(key, seeds)``."""
         keys = place(np.asarray(jax.random.split(key, self.seeds)), self.sharding)
         start = time.perf_counter()
         state = self._programs.init(keys, self.data)
@@ -173,6 +174,29 @@ class Runner:
         self.timings.train_s += time.perf_counter() - start
         self.timings.iterations += len(inputs)
         return state, metrics
+
+    def run(
+        self,
+        state: TrainState,
+        plan: list[tuple[int, int]],
+        inputs_of: Callable[[int, int], np.ndarray],
+        after_chunk: Callable[[int, int, TrainState, dict], bool],
+    ) -> TrainState:
+        """The chunk loop: steps ``state`` through ``plan`` (``(first, length)`` pairs, see
+        :func:`chunks`), chunk ``(first, length)`` with the inputs ``inputs_of(first, length)``.
+        ``after_chunk(first, length, state, metrics)`` acts on each chunk's result on the host
+        (logs, progress, checkpoints) and returns False to stop. Returns the last state."""
+        return run_chunks(self.step, state, plan, inputs_of, after_chunk)
+
+
+def run_chunks(step: Callable, state, plan, inputs_of: Callable, after_chunk: Callable):
+    """The chunk loop of :meth:`Runner.run` for any ``step(state, inputs) -> (state, metrics)``
+    (e.g. a program that is not sharded over seeds)."""
+    for first, length in plan:
+        state, metrics = step(state, inputs_of(first, length))
+        if not after_chunk(first, length, state, metrics):
+            break
+    return state
 
 
 @dataclasses.dataclass

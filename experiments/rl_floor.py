@@ -35,37 +35,34 @@ def main(argv=None) -> int:
 
     from emgail_jax.config import Config
     from emgail_jax.problem import make_problem
-    from emgail_jax.rl import make_rl_train
-    from emgail_jax.runner import chunk_length
+    from emgail_jax.rl import intention_chunk, make_rl_train
+    from emgail_jax.runner import chunk_length, chunks, run_chunks
 
     problem = make_problem(args.env, args.intentions)
     env = problem.env
     expert_returns = np.asarray(problem.demos.expert_returns)
     random_returns = np.asarray(problem.random_returns)
     trainer = make_rl_train(Config().with_settings(args.set), env)
-    intentions = jnp.arange(env.num_intentions)
-    chunk = chunk_length(args.iterations, 10)
-
-    def train_chunk(states):
-        step = lambda s, _: jax.vmap(trainer.update)(s, intentions)
-        return jax.lax.scan(step, states, None, length=chunk)
-
-    keys = jax.random.split(jax.random.PRNGKey(args.seed), env.num_intentions)
-    states = jax.jit(jax.vmap(trainer.init))(keys)
-    compiled = jax.jit(train_chunk)
+    step = intention_chunk(trainer, jnp.arange(env.num_intentions))
+    plan = chunks(0, args.iterations, chunk_length(args.iterations, 10))
     start = time.perf_counter()
-    for done in range(chunk, args.iterations + 1, chunk):
-        states, metrics = compiled(states)
+
+    def report(first, length, states, metrics) -> bool:
         returns = np.diag(np.asarray(metrics["eval/returns"])[-1])  # each on its own reward
         erd = np.abs(expert_returns - returns) / np.abs(expert_returns - random_returns)
         entropy = np.asarray(metrics["policy/entropy"])[-1]
         listed = lambda values, digits: ", ".join(f"{v:.{digits}f}" for v in values)
         print(
-            f"iteration {done}: returns {listed(returns, 1)} (experts "
+            f"iteration {first + length}: returns {listed(returns, 1)} (experts "
             f"{listed(expert_returns, 1)}), ERD {erd.mean():.3f}, entropy "
             f"{listed(entropy, 2)}, {time.perf_counter() - start:.0f} s",
             flush=True,
         )
+        return True
+
+    keys = jax.random.split(jax.random.PRNGKey(args.seed), env.num_intentions)
+    states = jax.jit(jax.vmap(trainer.init))(keys)
+    run_chunks(step, states, plan, lambda first, n: np.zeros(n, bool), report)
     return 0
 
 
