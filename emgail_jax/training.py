@@ -193,32 +193,40 @@ def evaluation_phases(config: Config, env: envs.Env) -> int:
     return math.ceil(env.episode_length / config.rollout_length)
 
 
-def make_train(config: Config, env: envs.Env) -> Trainer:
-    """Builds ``init(key, data) -> TrainState`` and
-    ``update(state, evaluating, data) -> (state, metrics)`` (see the module docstring)."""
-    config = config.resolved(env)
-    k, b, t = env.num_intentions, config.num_envs, config.rollout_length
-    networks = make_networks(config, env)
-    value_opt = optax.adam(config.value_learning_rate)
-    discriminator_opt = optax.adam(config.discriminator_learning_rate)
-    posterior_opt = optax.adam(config.posterior_learning_rate)
-    e_step = make_e_step(networks.posterior.apply, posterior_opt, config)
-    m_step = make_m_step(
-        networks.discriminator.apply, discriminator_opt, config.discriminator_steps
-    )
-    b_step = make_b_step(networks.policy.apply, networks.value.apply, value_opt, config)
-    eval_phases = evaluation_phases(config, env)
-    # The intention of every sample of a rollout in the intention-major layout [K, T * B].
-    own_intention = np.broadcast_to(np.arange(k)[:, None], (k, t * b))
+def algorithm_of(config: Config, data: RunData) -> Algorithm:
+    """The run's algorithm, with Info/IntentionGAIL's lambda from the run's data."""
+    return make_algorithm(config.algo, data.info_weight, config.reward_form)
 
-    def algorithm_of(data: RunData) -> Algorithm:
-        return make_algorithm(config.algo, data.info_weight, config.reward_form)
+
+def own_intentions(k: int, m: int) -> np.ndarray:
+    """``[K, M]``: the intention of every sample in the intention-major layout (row i is i)."""
+    return np.broadcast_to(np.arange(k)[:, None], (k, m))
+
+
+class Optimizers(NamedTuple):
+    value: optax.GradientTransformation
+    discriminator: optax.GradientTransformation
+    posterior: optax.GradientTransformation
+
+
+def make_optimizers(config: Config) -> Optimizers:
+    return Optimizers(
+        value=optax.adam(config.value_learning_rate),
+        discriminator=optax.adam(config.discriminator_learning_rate),
+        posterior=optax.adam(config.posterior_learning_rate),
+    )
+
+
+def make_init(config: Config, env: envs.Env, networks: Networks, optimizers: Optimizers):
+    """``init(key, data) -> TrainState``: fresh networks and ``[K, B]`` reset training envs."""
+    k, b = env.num_intentions, config.num_envs
 
     def init(key: jax.Array, data: RunData) -> TrainState:
-        algorithm = algorithm_of(data)
+        algorithm = algorithm_of(config, data)
         train_env = envs.wrap_for_training(env.bind(data.env))
-        policy_condition = algorithm.policy_condition(own_intention[:1, 0], k)
-        discriminator_condition = algorithm.discriminator_condition(own_intention[:1, 0], k)
+        first = own_intentions(k, 1)[:1, 0]
+        policy_condition = algorithm.policy_condition(first, k)
+        discriminator_condition = algorithm.discriminator_condition(first, k)
         keys = dict(
             zip(
                 ("policy", "value", "disc", "post", "env", "next"),
@@ -233,14 +241,14 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
             keys["disc"], obs, action, discriminator_condition
         )
         posterior = (
-            Learner.create(networks.posterior.init(keys["post"], obs, action), posterior_opt)
+            Learner.create(networks.posterior.init(keys["post"], obs, action), optimizers.posterior)
             if algorithm.learns_posterior
             else None
         )
         return TrainState(
             policy=networks.policy.init(keys["policy"], obs, policy_condition),
-            value=Learner.create(value, value_opt),
-            discriminator=Learner.create(discriminator, discriminator_opt),
+            value=Learner.create(value, optimizers.value),
+            discriminator=Learner.create(discriminator, optimizers.discriminator),
             posterior=posterior,
             normalizer=obs_norm.RunningStats.create(env.observation_size),
             env_state=batch_reset(train_env, keys["env"], (k, b)),
@@ -248,46 +256,20 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
             iteration=jnp.zeros((), jnp.int32),
         )
 
-    def normalized(state: TrainState, batch: LearningBatch, data: RunData) -> NormalizedBatch:
-        """The rollout and the demonstrations as the posterior and the discriminator see them;
-        TRPO keeps the raw samples."""
-        normalizer = obs_norm.update(state.normalizer, batch.obs)
-        normalize = lambda x: obs_norm.normalize(normalizer, x, config.obs_clip)
-        return NormalizedBatch(
-            normalizer=normalizer,
-            obs=normalize(intention_major(batch.obs)),
-            executed=env.clip_action(intention_major(batch.action)),
-            expert_obs=normalize(data.expert.observations),
-            expert_actions=data.expert.actions,
-            last_obs=normalize(batch.last_obs),
-        ).check()
+    return init
 
-    def improve(state, batch, seen, discriminator, own_log_posterior, algorithm, key) -> BStep:
-        """4. The B-step: TRPO on the learned reward of every sample under its own intention."""
-        reward = learned_reward(
-            networks.discriminator.apply,
-            discriminator.params,
-            algorithm,
-            k,
-            seen.obs,
-            seen.executed,
-            own_intention,
-            own_log_posterior,
-            intention_major=True,
-        )  # [K, T * B]
-        last_intention = np.broadcast_to(np.arange(k)[:, None], (k, b))
-        samples = PolicySamples(
-            obs=time_major(seen.obs, t),
-            action=batch.action,
-            condition=time_major(algorithm.policy_condition(own_intention, k), t),
-            time=batch.time,
-            done=batch.done,
-            last_obs=seen.last_obs,
-            last_condition=algorithm.policy_condition(last_intention, k),
-            last_time=batch.last_time,
-        )
-        improved = b_step(state.policy, state.value, samples, time_major(reward, t), key)
-        return improved.replace(metrics={"train/pseudo_reward": reward.mean(), **improved.metrics})
+
+class Collector(NamedTuple):
+    """Step 1 of an update (and the evaluation episodes), and its pieces for the benchmark."""
+
+    collect: Callable  # (env_state, policy, key, explore, data) -> (end, transitions)
+    acting: Callable  # (state, data) -> policy(obs, key, explore)
+    collect_and_evaluate: Callable  # (state, evaluating, data, key) -> (end, batch, metrics)
+
+
+def make_collector(config: Config, env: envs.Env, networks: Networks) -> Collector:
+    k, b, t = env.num_intentions, config.num_envs, config.rollout_length
+    eval_phases = evaluation_phases(config, env)
 
     def collect(env_state: envs.State, policy, key, explore, data: RunData):
         """T steps of the [K, B] auto-resetting envs from ``env_state`` with ``policy``
@@ -298,7 +280,7 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
 
     def acting(state: TrainState, data: RunData):
         """The policy of ``state`` as ``collect`` drives it."""
-        return policy_function(networks, algorithm_of(data), config, k)(
+        return policy_function(networks, algorithm_of(config, data), config, k)(
             state.policy, state.normalizer
         )
 
@@ -314,9 +296,8 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
             train_state, batch, eval_state, totals, alive = carry
             training = index == 0
             start = tree_where(training, train_state, eval_state)
-            end, transitions = collect(
-                start, policy, jax.random.fold_in(key, index), training, data
-            )
+            key_phase = jax.random.fold_in(key, index)
+            end, transitions = collect(start, policy, key_phase, training, data)
             more, still_alive = episode_totals(transitions, alive)
             return (
                 tree_where(training, end, train_state),
@@ -342,13 +323,80 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
         )
         return end, LearningBatch.of(batch, end, env.episode_length), evaluation
 
+    return Collector(collect, acting, collect_and_evaluate)
+
+
+def make_improve(config: Config, env: envs.Env, networks: Networks, b_step: Callable):
+    """``improve(state, batch, seen, discriminator, own_log_posterior, algorithm, key) ->
+    BStep``: step 4, TRPO on the learned reward of every sample under its own intention."""
+    k, b, t = env.num_intentions, config.num_envs, config.rollout_length
+    own_intention = own_intentions(k, t * b)
+
+    def improve(state, batch, seen, discriminator, own_log_posterior, algorithm, key) -> BStep:
+        reward = learned_reward(
+            networks.discriminator.apply,
+            discriminator.params,
+            algorithm,
+            k,
+            seen.obs,
+            seen.executed,
+            own_intention,
+            own_log_posterior,
+            intention_major=True,
+        )  # [K, T * B]
+        samples = PolicySamples(
+            obs=time_major(seen.obs, t),
+            action=batch.action,
+            condition=time_major(algorithm.policy_condition(own_intention, k), t),
+            time=batch.time,
+            done=batch.done,
+            last_obs=seen.last_obs,
+            last_condition=algorithm.policy_condition(own_intentions(k, b), k),
+            last_time=batch.last_time,
+        )
+        improved = b_step(state.policy, state.value, samples, time_major(reward, t), key)
+        return improved.replace(metrics={"train/pseudo_reward": reward.mean(), **improved.metrics})
+
+    return improve
+
+
+def make_train(config: Config, env: envs.Env) -> Trainer:
+    """Builds ``init(key, data) -> TrainState`` and
+    ``update(state, evaluating, data) -> (state, metrics)`` (see the module docstring)."""
+    config = config.resolved(env)
+    k = env.num_intentions
+    networks = make_networks(config, env)
+    optimizers = make_optimizers(config)
+    init = make_init(config, env, networks, optimizers)
+    collector = make_collector(config, env, networks)
+    e_step = make_e_step(networks.posterior.apply, optimizers.posterior, config)
+    m_step = make_m_step(
+        networks.discriminator.apply, optimizers.discriminator, config.discriminator_steps
+    )
+    b_step = make_b_step(networks.policy.apply, networks.value.apply, optimizers.value, config)
+    improve = make_improve(config, env, networks, b_step)
+
+    def normalized(state: TrainState, batch: LearningBatch, data: RunData) -> NormalizedBatch:
+        """The rollout and the demonstrations as the posterior and the discriminator see them;
+        TRPO keeps the raw samples."""
+        normalizer = obs_norm.update(state.normalizer, batch.obs)
+        normalize = lambda x: obs_norm.normalize(normalizer, x, config.obs_clip)
+        return NormalizedBatch(
+            normalizer=normalizer,
+            obs=normalize(intention_major(batch.obs)),
+            executed=env.clip_action(intention_major(batch.action)),
+            expert_obs=normalize(data.expert.observations),
+            expert_actions=data.expert.actions,
+            last_obs=normalize(batch.last_obs),
+        ).check()
+
     def update(state: TrainState, evaluating: jax.Array, data: RunData) -> tuple[TrainState, dict]:
         """One iteration of Algorithm 1; ``evaluating`` (a bool scalar, not batched over seeds,
         so that the evaluation phases are really skipped) says whether to run the evaluation
         episodes."""
         key_next, key_phases, key_value = jax.random.split(state.key, 3)
-        algorithm = algorithm_of(data)
-        end, batch, evaluation = collect_and_evaluate(state, evaluating, data, key_phases)
+        algorithm = algorithm_of(config, data)
+        end, batch, evaluation = collector.collect_and_evaluate(state, evaluating, data, key_phases)
         seen = normalized(state, batch, data)
         e = e_step(state.posterior, seen, data.expert)
         m = m_step(state.discriminator, seen, e.gamma, algorithm)
@@ -367,20 +415,18 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
         clustering = clustering_metrics(e.responsibilities, data.expert, k, config.responsibilities)
         return new_state, {**evaluation, **clustering, **e.metrics, **m.metrics, **b.metrics}
 
-    steps = Steps(collect, acting, normalized, e_step, m_step, improve, algorithm_of)
+    steps = Steps(collector, normalized, e_step, m_step, improve)
     return Trainer(init, update, steps)
 
 
 class Steps(NamedTuple):
     """The pieces of one update, for callers that run them alone (the benchmark)."""
 
-    collect: Callable
-    acting: Callable
+    collector: Collector
     normalized: Callable
     e_step: Callable
     m_step: Callable
     improve: Callable
-    algorithm_of: Callable
 
 
 class Trainer(NamedTuple):

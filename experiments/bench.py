@@ -54,7 +54,7 @@ def child(env_name: str, k: int, seed_counts: list[int], chunks: int, cache: str
     from emgail_jax.problem import make_problem
     from emgail_jax.rollout import episode_totals, fresh_starts
     from emgail_jax.runner import Runner, evaluation_plan
-    from emgail_jax.training import RunData, evaluation_phases, make_train
+    from emgail_jax.training import RunData, algorithm_of, evaluation_phases, make_train
 
     problem = make_problem(env_name, k)
     env = problem.env
@@ -90,11 +90,13 @@ def child(env_name: str, k: int, seed_counts: list[int], chunks: int, cache: str
     key = jax.random.PRNGKey(1)
 
     def rollout(state, data):
-        return steps.collect(state.env_state, steps.acting(state, data), key, True, data)
+        return steps.collector.collect(
+            state.env_state, steps.collector.acting(state, data), key, True, data
+        )
 
     end, transitions = jax.jit(rollout)(state, data)
     batch = LearningBatch.of(transitions, end, env.episode_length)
-    algorithm = steps.algorithm_of(data)
+    algorithm = algorithm_of(config, data)
     seen = jax.jit(steps.normalized)(state, batch, data)
     e = jax.jit(steps.e_step)(state.posterior, seen, data.expert)
     m_step = lambda discriminator, seen, gamma: steps.m_step(discriminator, seen, gamma, algorithm)
@@ -104,8 +106,12 @@ def child(env_name: str, k: int, seed_counts: list[int], chunks: int, cache: str
     def evaluation(state, data):
         def phase(carry, index):
             env_state, totals, alive = carry
-            end, batch = steps.collect(
-                env_state, steps.acting(state, data), jax.random.fold_in(key, index), False, data
+            end, batch = steps.collector.collect(
+                env_state,
+                steps.collector.acting(state, data),
+                jax.random.fold_in(key, index),
+                False,
+                data,
             )
             more, alive = episode_totals(batch, alive)
             return (end, totals + more, alive), None
