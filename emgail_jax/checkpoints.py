@@ -114,6 +114,13 @@ def restore(run_dir: str, target_state, iteration: int | None = None):
             )
     except Exception as error:  # orbax raises many types for damaged or foreign files
         message = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        if "tree structures do not match" in message:
+            raise CheckpointError(
+                f"the checkpoint of iteration {iteration} in '{directory(run_dir)}' holds a train "
+                f"state of another structure than this version of emgail-jax builds for the run "
+                f"(written by another version?); read it with the version that wrote it, or "
+                f"train afresh in a new directory"
+            ) from None
         raise CheckpointError(
             f"the checkpoint of iteration {iteration} in '{directory(run_dir)}' cannot be "
             f"read ({message[:200]}); delete it to fall back to an older one"

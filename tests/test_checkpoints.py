@@ -1,5 +1,5 @@
 """Checkpoints: a round trip of a state with zero-size arrays (as MJX states have) through the
-host, and the error for a run without checkpoints."""
+host, and the errors for a run without checkpoints or with foreign ones."""
 
 import jax
 import jax.numpy as jnp
@@ -44,3 +44,17 @@ def test_a_run_without_checkpoints_is_a_clear_error(tmp_path):
     state, _ = _state()
     with pytest.raises(checkpoints.CheckpointError, match="holds no checkpoint"):
         checkpoints.restore(str(tmp_path), state)
+
+
+def test_a_checkpoint_of_another_structure_is_a_clear_error_and_stays(tmp_path):
+    """A train state laid out differently (an older version's) is named as such, and the
+    checkpoint is left as it was: no advice to delete it."""
+    state, _ = _state()
+    checkpoints.save(str(tmp_path), 4, jax.device_get(state), {"erd": np.zeros((2, 4))})
+    before = sorted(p.name for p in (tmp_path / "checkpoints").iterdir())
+    regrouped = {"learner": {"params": state["params"]}, "physics": state["physics"]}
+    with pytest.raises(checkpoints.CheckpointError, match="another structure") as error:
+        checkpoints.restore(str(tmp_path), regrouped)
+    assert "delete" not in str(error.value) and "\n" not in str(error.value)
+    assert sorted(p.name for p in (tmp_path / "checkpoints").iterdir()) == before
+    assert checkpoints.restore(str(tmp_path), state)[2] == 4
