@@ -84,7 +84,6 @@ class NormalizedBatch:
     executed: jax.Array  # [K, M, A] their actions as executed (clipped)
     expert_obs: jax.Array  # [N, D]
     expert_actions: jax.Array  # [N, A] executed
-    last_obs: jax.Array  # [K, B, D] the states after the rollout
 
     def check(self) -> NormalizedBatch:
         """Asserts the documented shapes (at trace time); returns ``self``."""

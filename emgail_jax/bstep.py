@@ -16,6 +16,7 @@ import jax
 import optax
 from flax import struct
 
+from emgail_jax.batches import LearningBatch
 from emgail_jax.config import Config
 from emgail_jax.gae import generalized_advantages
 from emgail_jax.networks import action_distribution
@@ -37,6 +38,28 @@ class PolicySamples:
     last_obs: jax.Array  # [K, B, D] the state after the rollout, for the bootstrap value
     last_condition: jax.Array  # [K, B, C]
     last_time: jax.Array  # [K, B]
+
+    @classmethod
+    def of(
+        cls,
+        batch: LearningBatch,
+        normalize: Callable[[jax.Array], jax.Array],
+        condition: jax.Array,
+        last_condition: jax.Array,
+    ) -> PolicySamples:
+        """A rollout as the B-step reads it, in the IRL loop and in plain RL alike: the
+        observations ``normalize``d, and the policy's intention inputs ``condition [T, K, B, C]``
+        and ``last_condition [K, B, C]``."""
+        return cls(
+            obs=normalize(batch.obs),
+            action=batch.action,
+            condition=condition,
+            time=batch.time,
+            done=batch.done,
+            last_obs=normalize(batch.last_obs),
+            last_condition=last_condition,
+            last_time=batch.last_time,
+        )
 
 
 @struct.dataclass

@@ -24,6 +24,7 @@ from flax import struct
 
 import envs
 from emgail_jax import normalizer as obs_norm
+from emgail_jax.batches import LearningBatch
 from emgail_jax.bstep import PolicySamples, make_b_step
 from emgail_jax.config import Config
 from emgail_jax.networks import GaussianPolicy, ValueNet, policy_action
@@ -96,16 +97,8 @@ def make_rl_train(
         reward = reward_fn(batch.obs, batch.action, batch.true_reward, intention)
         normalizer = obs_norm.update(state.normalizer, batch.obs)
         normalize = lambda x: obs_norm.normalize(normalizer, x, config.obs_clip)
-        samples = PolicySamples(
-            obs=normalize(batch.obs),
-            action=batch.action,
-            condition=no_condition(t, 1, b),
-            time=batch.time,
-            done=batch.done,
-            last_obs=normalize(env_state.obs),
-            last_condition=no_condition(1, b),
-            last_time=env_state.info["steps"] / env.episode_length,
-        )
+        learning = LearningBatch.of(batch, env_state, env.episode_length)
+        samples = PolicySamples.of(learning, normalize, no_condition(t, 1, b), no_condition(1, b))
         improved = b_step(state.policy, state.value, samples, reward, key_value)
         greedy = act(improved.policy, normalizer, deterministic=True)
         returns = episode_returns(eval_env, greedy, key_eval, 1, eval_episodes)[0]

@@ -344,15 +344,11 @@ def make_improve(config: Config, env: envs.Env, networks: Networks, b_step: Call
             own_log_posterior,
             intention_major=True,
         )  # [K, T * B]
-        samples = PolicySamples(
-            obs=time_major(seen.obs, t),
-            action=batch.action,
-            condition=time_major(algorithm.policy_condition(own_intention, k), t),
-            time=batch.time,
-            done=batch.done,
-            last_obs=seen.last_obs,
-            last_condition=algorithm.policy_condition(own_intentions(k, b), k),
-            last_time=batch.last_time,
+        samples = PolicySamples.of(
+            batch,
+            lambda x: obs_norm.normalize(seen.normalizer, x, config.obs_clip),
+            time_major(algorithm.policy_condition(own_intention, k), t),
+            algorithm.policy_condition(own_intentions(k, b), k),
         )
         improved = b_step(state.policy, state.value, samples, time_major(reward, t), key)
         return improved.replace(metrics={"train/pseudo_reward": reward.mean(), **improved.metrics})
@@ -387,7 +383,6 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
             executed=env.clip_action(intention_major(batch.action)),
             expert_obs=normalize(data.expert.observations),
             expert_actions=data.expert.actions,
-            last_obs=normalize(batch.last_obs),
         ).check()
 
     def update(state: TrainState, evaluating: jax.Array, data: RunData) -> tuple[TrainState, dict]:

@@ -44,7 +44,6 @@ def random_batch():
     """``random_batch(k, m, n, obs_dim, act_dim, seed)``: a ``NormalizedBatch`` of random
     samples (``[k, m, ...]``) and demonstration pairs (``[n, ...]``) for the step tests."""
     import jax
-    import jax.numpy as jnp
 
     from emgail_jax.batches import NormalizedBatch
     from emgail_jax.normalizer import RunningStats
@@ -57,7 +56,6 @@ def random_batch():
             executed=jax.random.normal(keys[1], (k, m, act_dim)),
             expert_obs=jax.random.normal(keys[2], (n, obs_dim)),
             expert_actions=jax.random.normal(keys[3], (n, act_dim)),
-            last_obs=jnp.zeros((k, 1, obs_dim)),
         )
 
     return make
