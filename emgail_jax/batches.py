@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import chex
 import jax
+import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
@@ -84,6 +85,11 @@ class NormalizedBatch:
     executed: jax.Array  # [K, M, A] their actions as executed (clipped)
     expert_obs: jax.Array  # [N, D]
     expert_actions: jax.Array  # [N, A] executed
+
+    def own_intention(self) -> jax.Array:
+        """``[K, M]``: the intention whose policy made each sample (row k is k)."""
+        k, m = self.obs.shape[:2]
+        return jnp.broadcast_to(jnp.arange(k)[:, None], (k, m))
 
     def check(self) -> NormalizedBatch:
         """Asserts the documented shapes (at trace time); returns ``self``."""

@@ -96,9 +96,9 @@ def make_m_step(apply: Callable, optimizer: optax.GradientTransformation, steps:
     def m_step(
         discriminator: Learner, batch: NormalizedBatch, gamma: jax.Array, algorithm: Algorithm
     ) -> MStep:
-        k, m = batch.obs.shape[:2]
+        k = batch.obs.shape[0]
         chex.assert_shape(gamma, (batch.expert_obs.shape[0], k))
-        own_intention = jnp.broadcast_to(jnp.arange(k)[:, None], (k, m))
+        own_intention = batch.own_intention()
         trained, metrics = discriminator_update(
             apply,
             optimizer,

@@ -155,7 +155,7 @@ def make_e_step(apply: Callable, optimizer: optax.GradientTransformation, config
 
     def e_step(posterior: Learner | None, batch: NormalizedBatch, expert: ExpertData) -> EStep:
         k, m = batch.obs.shape[:2]
-        own_intention = jnp.broadcast_to(jnp.arange(k)[:, None], (k, m))
+        own_intention = batch.own_intention()
         if posterior is None:
             uniform = jnp.full((expert.episode.shape[0], k), 1.0 / k)
             return EStep(None, None, uniform, jnp.zeros((k, m)), {})
