@@ -23,9 +23,10 @@ import sys
 
 import numpy as np
 
-from emgail_jax import runtime
+from emgail_jax.host import jax_setup
 
 COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red")
+EVALUATION_SEED = 12345  # the episodes' key: every evaluation of a run sees the same starts
 
 
 def rollouts(run, seed: int, episodes: int, key):
@@ -34,7 +35,7 @@ def rollouts(run, seed: int, episodes: int, key):
     import jax.numpy as jnp
 
     import envs
-    from emgail_jax.rollout import episodes as run_episodes
+    from emgail_jax.method.rollout import episodes as run_episodes
 
     env = envs.EpisodeWrapper(run.problem.env)
     k = run.num_intentions
@@ -50,7 +51,7 @@ def expert_rollouts(run, episodes: int, key):
     import jax.numpy as jnp
 
     import envs
-    from emgail_jax.rollout import episodes as run_episodes
+    from emgail_jax.method.rollout import episodes as run_episodes
 
     raw = run.problem.env
     env = envs.EpisodeWrapper(raw)
@@ -75,7 +76,7 @@ def score(run, seed: int, returns: np.ndarray) -> dict:
     (with the Hungarian mapping of true intentions to clusters)."""
     from scipy.optimize import linear_sum_assignment
 
-    from emgail_jax.metrics import normalized_erd
+    from emgail_jax.method.metrics import normalized_erd
 
     demos = run.problem.demos
     mean_returns = returns.mean(1)  # [K learned, K true]
@@ -188,6 +189,48 @@ def _band(ax, values, alive, color, label, style):
         ax.fill_between(steps, np.nanmin(masked, 1), np.nanmax(masked, 1), color=color, alpha=0.15)
 
 
+def seed_line(run, seed: int, result: dict) -> str:
+    """One seed's scores in a line: ERD with each true intention's matched learned one, and the
+    clustering accuracy with each true intention's cluster."""
+    names = run.problem.env.intention_names[: run.num_intentions]
+    parts = [f"seed {run.spec.first_seed + seed}:"]
+    if result["erd"] is not None:
+        matched = ", ".join(
+            f"{names[i]} -> learned {j} ({result['returns'][j, i]:.1f} vs expert "
+            f"{run.problem.demos.expert_returns[i]:.1f})"
+            for i, j in enumerate(result["matching"])
+        )
+        parts.append(f"ERD {result['erd']:.3f} [{matched}]")
+    if "cluster_accuracy" in result:
+        clusters = ", ".join(
+            f"{names[i]} -> cluster {c}" for i, c in enumerate(result["cluster_of_intention"])
+        )
+        parts.append(f"accuracy {result['cluster_accuracy']:.3f} [{clusters}]")
+    if "trajectory_cluster_accuracy" in result:
+        parts.append(f"trajectory accuracy {result['trajectory_cluster_accuracy']:.3f}")
+    return " ".join(parts)
+
+
+def write_figures(run, run_dir: str, out: str, seed_results: tuple, args) -> list[str]:
+    """The learning curves, and the paths (driver) or traces (MJX) of seed ``args.seed``."""
+    import jax
+
+    os.makedirs(out, exist_ok=True)
+    written = [os.path.join(out, "learning_curves.png")]
+    plot_learning_curves(run_dir, written[-1])
+    _, alive, trace, result = seed_results
+    if run.problem.env.name == "driver":
+        written.append(os.path.join(out, f"paths_seed{args.seed}.png"))
+        plot_driver_paths(run, trace, alive, result["matching"], written[-1])
+    elif trace:
+        expert = expert_rollouts(run, args.episodes, jax.random.PRNGKey(EVALUATION_SEED))
+        if expert is None:
+            print("notice: no expert to replay for this env; the traces show the learner only")
+        written.append(os.path.join(out, f"traces_seed{args.seed}.png"))
+        plot_traces(run, trace, alive, expert, result["matching"], written[-1])
+    return written
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m emgail_jax.evaluate", description=__doc__.split("\n")[0]
@@ -197,7 +240,7 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=0, help="the seed whose figures are drawn")
     parser.add_argument("--out", default=None, help="figure directory (default RUN_DIR/figures)")
     args = parser.parse_args(argv)
-    runtime.setup(host_devices=1)
+    jax_setup.setup(host_devices=1)
 
     import jax
     import matplotlib
@@ -205,11 +248,11 @@ def main(argv=None) -> int:
     matplotlib.use("Agg")
 
     import envs
-    from emgail_jax import records
-    from emgail_jax.checkpoints import CheckpointError
-    from emgail_jax.demos import DemonstrationError
-    from emgail_jax.runs import RunError
-    from emgail_jax.saved_run import SavedRun
+    from emgail_jax.host import records
+    from emgail_jax.host.checkpoints import CheckpointError
+    from emgail_jax.host.demonstration_files import DemonstrationError
+    from emgail_jax.host.run_spec import RunError
+    from emgail_jax.host.saved_run import SavedRun
 
     try:
         run = SavedRun.open(args.run_dir)
@@ -219,31 +262,15 @@ def main(argv=None) -> int:
         return 2
 
     env = run.problem.env
-    names = env.intention_names[: run.num_intentions]
     print(f"{run.config.algo} on {env.name} (K={run.num_intentions}), iteration {run.iteration}, "
           f"{args.episodes} deterministic episodes per learned intention")  # fmt: skip
-    key = jax.random.PRNGKey(12345)
+    key = jax.random.PRNGKey(EVALUATION_SEED)
     results = []
     for seed in range(run.spec.seeds):
         returns, alive, trace = rollouts(run, seed, args.episodes, key)
         result = score(run, seed, returns)
         results.append((returns, alive, trace, result))
-        parts = [f"seed {run.spec.first_seed + seed}:"]
-        if result["erd"] is not None:
-            matched = ", ".join(
-                f"{names[i]} -> learned {j} ({result['returns'][j, i]:.1f} vs expert "
-                f"{run.problem.demos.expert_returns[i]:.1f})"
-                for i, j in enumerate(result["matching"])
-            )
-            parts.append(f"ERD {result['erd']:.3f} [{matched}]")
-        if "cluster_accuracy" in result:
-            clusters = ", ".join(
-                f"{names[i]} -> cluster {c}" for i, c in enumerate(result["cluster_of_intention"])
-            )
-            parts.append(f"accuracy {result['cluster_accuracy']:.3f} [{clusters}]")
-        if "trajectory_cluster_accuracy" in result:
-            parts.append(f"trajectory accuracy {result['trajectory_cluster_accuracy']:.3f}")
-        print(" ".join(parts))
+        print(seed_line(run, seed, result))
 
     evaluation_path = os.path.join(args.run_dir, "evaluation.json")
     records.write_json(
@@ -256,19 +283,7 @@ def main(argv=None) -> int:
     )
 
     out = args.out or os.path.join(args.run_dir, "figures")
-    os.makedirs(out, exist_ok=True)
-    written = [evaluation_path, os.path.join(out, "learning_curves.png")]
-    plot_learning_curves(args.run_dir, written[-1])
-    returns, alive, trace, result = results[args.seed]
-    if env.name == "driver":
-        written.append(os.path.join(out, f"paths_seed{args.seed}.png"))
-        plot_driver_paths(run, trace, alive, result["matching"], written[-1])
-    elif trace:
-        expert = expert_rollouts(run, args.episodes, key)
-        if expert is None:
-            print("notice: no expert to replay for this env; the traces show the learner only")
-        written.append(os.path.join(out, f"traces_seed{args.seed}.png"))
-        plot_traces(run, trace, alive, expert, result["matching"], written[-1])
+    written = [evaluation_path, *write_figures(run, args.run_dir, out, results[args.seed], args)]
     for path in written:
         print(f"wrote {path}")
     return 0

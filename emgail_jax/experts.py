@@ -27,7 +27,7 @@ from importlib import resources
 
 import numpy as np
 
-from emgail_jax import runtime
+from emgail_jax.host import jax_setup
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,8 +65,8 @@ def checkpoint_dir(env_name: str, root: str | None = None) -> str:
 
 
 def _config(spec: ExpertSpec):
-    from emgail_jax.config import Config
-    from emgail_jax.trpo import TRPOConfig
+    from emgail_jax.method.config import Config
+    from emgail_jax.method.trpo import TRPOConfig
 
     return Config(
         num_envs=spec.num_envs,
@@ -79,7 +79,7 @@ def _config(spec: ExpertSpec):
 
 
 def _trainer(env, spec: ExpertSpec):
-    from emgail_jax.rl import make_rl_train
+    from emgail_jax.method.rl import make_rl_train
 
     return make_rl_train(_config(spec), env, eval_episodes=spec.eval_episodes)
 
@@ -92,9 +92,8 @@ def train(env, spec: ExpertSpec, seeds: int, key, progress: bool = True, intenti
     import jax
     import jax.numpy as jnp
 
-    from emgail_jax.progress import ProgressBar
-    from emgail_jax.rl import intention_runner
-    from emgail_jax.runner import chunk_length, chunks
+    from emgail_jax.host.progress import ProgressBar
+    from emgail_jax.host.seed_runner import chunk_length, chunks, intention_runner
 
     trainer = _trainer(env, spec)
     intentions = jnp.arange(env.num_intentions) if intentions is None else jnp.asarray(intentions)
@@ -140,7 +139,7 @@ def save(env_name: str, experts, meta: dict, root: str | None = None) -> str:
     """Writes the experts' checkpoint (orbax, atomically) and ``meta.json`` beside it."""
     import orbax.checkpoint as ocp
 
-    from emgail_jax import records
+    from emgail_jax.host import records
 
     directory = checkpoint_dir(env_name, root)
     os.makedirs(directory, exist_ok=True)
@@ -188,7 +187,7 @@ def make_policy(env, experts, spec: ExpertSpec | None = None):
     import jax
     import jax.numpy as jnp
 
-    from emgail_jax.networks import GaussianPolicy, policy_action
+    from emgail_jax.method.networks import GaussianPolicy, policy_action
 
     config = _config(spec or SPECS[env.name])
     net = GaussianPolicy(env.action_size, config.hidden, config.init_log_std)
@@ -260,7 +259,7 @@ def quality(env, policy, key, episodes: int = 10) -> list[dict]:
     import jax.numpy as jnp
 
     import envs
-    from emgail_jax.rollout import episodes as run_episodes
+    from emgail_jax.method.rollout import episodes as run_episodes
 
     k = env.num_intentions
     rows = jnp.broadcast_to(jnp.arange(k)[:, None], (k, episodes))
@@ -295,11 +294,12 @@ def quality(env, policy, key, episodes: int = 10) -> list[dict]:
 def write_demos(env, policy, key, episodes: int, path: str):
     """The experts' deterministic episodes as a labelled demonstrations file (format: README,
     "Demonstrations format")."""
-    from emgail_jax import demos as demos_lib
+    from emgail_jax.host import demonstration_files
+    from emgail_jax.method import demonstrations
 
     expert = lambda state, intention, _: policy(state.obs, intention)
-    demos = demos_lib.generate(env, expert, episodes, key)
-    demos.save(path)
+    demos = demonstrations.generate(env, expert, episodes, key)
+    demonstration_files.save(demos, path)
     return demos
 
 
@@ -335,6 +335,37 @@ def _intention_indices(env, names: list[str] | None) -> list[int] | None:
     return [env.intention_names.index(name) for name in names]
 
 
+def _train_and_save(env, spec: ExpertSpec, args, root: str, meta: dict, only, kept):
+    """Trains the experts of every intention (or of the indices ``only``, taking the others
+    from the saved experts ``kept``), saves them and returns them with ``meta`` updated by
+    their training record."""
+    import jax
+
+    start = time.perf_counter()
+    experts, own_returns, timings = train(
+        env, spec, args.seeds, jax.random.PRNGKey(args.seed), not args.quiet, intentions=only
+    )
+    if kept is not None:
+        experts = jax.tree.map(partial(_replace_rows, rows=only), kept, experts)
+    trained = only if only is not None else range(env.num_intentions)
+    if only is None:
+        meta = {}
+    meta.update(env=env.name, intentions=list(env.intention_names))
+    training = meta.setdefault("training", {})
+    for column, index in enumerate(trained):
+        training[env.intention_names[index]] = {
+            "spec": dataclasses.asdict(spec),
+            "seeds": args.seeds,
+            "seed": args.seed,
+            "own_return_per_seed": own_returns[:, -10:, column].mean(1),
+            "compile_time_s": timings.compile_s,
+            "train_time_s": timings.train_s,
+            "wall_time_s": time.perf_counter() - start,
+        }
+    save(env.name, experts, meta, root)
+    return experts, meta
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m emgail_jax.experts", description=__doc__.split("\n")[0]
@@ -358,19 +389,16 @@ def main(argv=None) -> int:
     if args.seeds < 1 or (args.iterations is not None and args.iterations < 1):
         print("error: --seeds and --iterations must be at least 1", file=sys.stderr)
         return 2
-    runtime.setup()
-
-    import jax
+    jax_setup.setup()
 
     import envs
-    from emgail_jax import records
+    from emgail_jax.host import records
 
     env = envs.make(args.env)
     spec = SPECS[args.env]
     if args.iterations:
         spec = dataclasses.replace(spec, iterations=args.iterations)
     root = os.path.abspath(args.out or data_dir())
-    key_train = jax.random.PRNGKey(args.seed)
     key_quality, key_demos = evaluation_keys()
     meta_path = os.path.join(checkpoint_dir(env.name, root), "meta.json")
     meta = {}
@@ -391,28 +419,7 @@ def main(argv=None) -> int:
         except (ExpertError, ValueError) as error:
             print(f"error: {error}", file=sys.stderr)
             return 2
-        start = time.perf_counter()
-        experts, own_returns, timings = train(
-            env, spec, args.seeds, key_train, not args.quiet, intentions=only
-        )
-        if kept is not None:
-            experts = jax.tree.map(partial(_replace_rows, rows=only), kept, experts)
-        trained = only if only is not None else range(env.num_intentions)
-        if only is None:
-            meta = {}
-        meta.update(env=env.name, intentions=list(env.intention_names))
-        training = meta.setdefault("training", {})
-        for column, index in enumerate(trained):
-            training[env.intention_names[index]] = {
-                "spec": dataclasses.asdict(spec),
-                "seeds": args.seeds,
-                "seed": args.seed,
-                "own_return_per_seed": own_returns[:, -10:, column].mean(1),
-                "compile_time_s": timings.compile_s,
-                "train_time_s": timings.train_s,
-                "wall_time_s": time.perf_counter() - start,
-            }
-        save(env.name, experts, meta, root)
+        experts, meta = _train_and_save(env, spec, args, root, meta, only, kept)
     policy = make_policy(env, experts)
     results = quality(env, policy, key_quality)
     print_quality(env.name, results)

@@ -20,7 +20,7 @@ import time
 
 import numpy as np
 
-from emgail_jax import runtime
+from emgail_jax.host import jax_setup
 
 
 def reoptimize(run, seed: int, iterations: int, chunk: int = 10, progress: bool = True) -> dict:
@@ -28,10 +28,10 @@ def reoptimize(run, seed: int, iterations: int, chunk: int = 10, progress: bool 
     import jax
     import jax.numpy as jnp
 
-    from emgail_jax.metrics import normalized_erd
-    from emgail_jax.progress import ProgressBar
-    from emgail_jax.rl import intention_chunk, make_rl_train
-    from emgail_jax.runner import chunk_length, chunks, run_chunks
+    from emgail_jax.host.progress import ProgressBar
+    from emgail_jax.host.seed_runner import chunk_length, chunks, run_chunks
+    from emgail_jax.method.metrics import normalized_erd
+    from emgail_jax.method.rl import intention_chunk, make_rl_train
 
     env = run.problem.env
     k = run.num_intentions
@@ -96,15 +96,15 @@ def demonstrations_reward(run, seed: int) -> np.ndarray:
     """``[K]``: learned intention i's reward per step on the demonstration pairs, weighted by
     the run's responsibilities gamma_i (every pair alike without a posterior); NaN for an
     intention the run assigned no demonstration to."""
-    expert = run.expert_data
+    pairs = run.demonstration_pairs
     k = run.num_intentions
     if run.algorithm.learns_posterior:
         gamma = np.asarray(run.responsibilities(seed).gamma)  # [N, K]
     else:
-        gamma = np.ones((expert.observations.shape[0], k))
+        gamma = np.ones((pairs.observations.shape[0], k))
     reward = run.reward(seed)
     per_pair = np.stack(
-        [np.asarray(reward(expert.observations, expert.actions, i)) for i in range(k)], -1
+        [np.asarray(reward(pairs.observations, pairs.actions, i)) for i in range(k)], -1
     )  # [N, K]
     weight = gamma.sum(0)
     total = (gamma * per_pair).sum(0)
@@ -120,14 +120,14 @@ def main(argv=None) -> int:
     parser.add_argument("--iterations", type=int, default=None, help="default: the run's")
     parser.add_argument("--quiet", action="store_true")
     args = parser.parse_args(argv)
-    runtime.setup(host_devices=1)
+    jax_setup.setup(host_devices=1)
 
     import envs
-    from emgail_jax import records
-    from emgail_jax.checkpoints import CheckpointError
-    from emgail_jax.demos import DemonstrationError
-    from emgail_jax.runs import RunError
-    from emgail_jax.saved_run import SavedRun
+    from emgail_jax.host import records
+    from emgail_jax.host.checkpoints import CheckpointError
+    from emgail_jax.host.demonstration_files import DemonstrationError
+    from emgail_jax.host.run_spec import RunError
+    from emgail_jax.host.saved_run import SavedRun
 
     try:
         run = SavedRun.open(args.run_dir)

@@ -43,24 +43,24 @@ EVAL_EVERY = 10
 
 def child(env_name: str, k: int, seed_counts: list[int], chunks: int, cache: str) -> dict:
     """Everything measured for one env, in this process (see the module docstring)."""
-    from emgail_jax import runtime
+    from emgail_jax.host import jax_setup
 
-    runtime.setup(cache_dir=cache)
+    jax_setup.setup(cache_dir=cache)
     import jax
     import jax.numpy as jnp
 
-    from emgail_jax.batches import ExpertData, LearningBatch
-    from emgail_jax.config import Config
-    from emgail_jax.problem import make_problem
-    from emgail_jax.rollout import episode_totals, fresh_starts
-    from emgail_jax.runner import Runner, evaluation_plan
-    from emgail_jax.training import RunData, algorithm_of, evaluation_phases, make_train
+    from emgail_jax.host.problem import make_problem
+    from emgail_jax.host.seed_runner import Runner, evaluation_plan
+    from emgail_jax.method.batches import DemonstrationPairs, LearningBatch
+    from emgail_jax.method.config import Config
+    from emgail_jax.method.rollout import episode_totals, fresh_starts
+    from emgail_jax.method.training import RunData, algorithm_of, evaluation_phases, make_train
 
     problem = make_problem(env_name, k)
     env = problem.env
     config = Config(eval_every=EVAL_EVERY).resolved(env)
-    expert = ExpertData.create(problem.demos, problem.random_returns, env.num_intentions)
-    data = RunData.create(expert, env, config)
+    pairs = DemonstrationPairs.create(problem.demos, problem.random_returns, env.num_intentions)
+    data = RunData.create(pairs, env, config)
     trainer = make_train(config, env)
     # A chunk in the middle of a 400-iteration run: one evaluation in ten iterations.
     steady = evaluation_plan(100, CHUNK, 400, EVAL_EVERY)
@@ -98,7 +98,7 @@ def child(env_name: str, k: int, seed_counts: list[int], chunks: int, cache: str
     batch = LearningBatch.of(transitions, end, env.episode_length)
     algorithm = algorithm_of(config, data)
     seen = jax.jit(steps.normalized)(state, batch, data)
-    e = jax.jit(steps.e_step)(state.posterior, seen, data.expert)
+    e = jax.jit(steps.e_step)(state.posterior, seen, data.demos)
     m_step = lambda discriminator, seen, gamma: steps.m_step(discriminator, seen, gamma, algorithm)
     discriminator = jax.jit(m_step)(state.discriminator, seen, e.gamma).discriminator
     phases = evaluation_phases(config, env)
@@ -122,7 +122,7 @@ def child(env_name: str, k: int, seed_counts: list[int], chunks: int, cache: str
 
     pieces = {
         "rollout": (rollout, (state, data)),
-        "E-step": (steps.e_step, (state.posterior, seen, data.expert)),
+        "E-step": (steps.e_step, (state.posterior, seen, data.demos)),
         "M-step": (m_step, (state.discriminator, seen, e.gamma)),
         "B-step": (
             lambda *args: steps.improve(*args, algorithm, key),

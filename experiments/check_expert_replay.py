@@ -28,7 +28,8 @@ import mujoco
 import numpy as np
 
 import envs
-from emgail_jax import experts, runtime
+from emgail_jax import experts
+from emgail_jax.host import jax_setup
 from envs.mjx_base import mujoco_default_solver
 
 MJX_ENVS = ("swimmer", "hopper", "halfcheetah", "reacher")
@@ -76,7 +77,7 @@ def main() -> int:
     parser.add_argument("--envs", nargs="+", default=list(MJX_ENVS), choices=MJX_ENVS)
     parser.add_argument("--episodes", type=int, default=10)
     args = parser.parse_args()
-    runtime.setup(host_devices=1)
+    jax_setup.setup(host_devices=1)
     key, _ = experts.evaluation_keys()  # the start states `python -m emgail_jax.experts` scores
     print(
         f"{'env':12s} {'intention':10s} {'bar':34s} {'':7s} {'return':>9s} {'velocity':>8s} "

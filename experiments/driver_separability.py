@@ -2,7 +2,7 @@
 
     python experiments/driver_separability.py [--radii 3.6 4 5 ...] [--out DIR]
 
-For every radius: the demonstrations `emgail_jax.run` would use (500 pairs per intention), their
+For every radius: the demonstrations `emgail_jax.train` would use (500 pairs per intention), their
 separability (Gaussian mixture, mean and std over 5 mixture seeds), and, for reference, the
 accuracy a supervised classifier reaches with the hidden labels (3-fold cross-validated MLP): an
 upper bound on what any clustering of these pairs can reach.
@@ -33,9 +33,9 @@ def main(argv=None) -> int:
     )
     args = parser.parse_args(argv)
 
-    from emgail_jax import runtime
+    from emgail_jax.host import jax_setup
 
-    runtime.setup(host_devices=1)
+    jax_setup.setup(host_devices=1)
     from rich.console import Console
     from rich.progress import track
     from rich.table import Table
@@ -45,8 +45,8 @@ def main(argv=None) -> int:
     from sklearn.preprocessing import StandardScaler
 
     import envs
-    from emgail_jax.metrics import separability
-    from emgail_jax.problem import default_demos
+    from emgail_jax.host.problem import default_demos
+    from emgail_jax.method.metrics import separability
 
     options = {}
     for item in args.env_option:

@@ -4,7 +4,7 @@
         [--set KEY=VALUE ...]
 
 Trains one policy per intention with the project's B-step (TRPO, GAE, value baseline) on the
-true reward, with the rollout sizes and hyper-parameters of an IRL run (`emgail_jax.config`),
+true reward, with the rollout sizes and hyper-parameters of an IRL run (`emgail_jax.method.config`),
 and prints every 10 iterations the deterministic return of each intention, its normalised ERD
 against the shipped experts and the policy's entropy. No imitation method trained at the
 same budget with the same B-step can be expected to beat this curve.
@@ -26,17 +26,17 @@ def main(argv=None) -> int:
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     args = parser.parse_args(argv)
 
-    from emgail_jax import runtime
+    from emgail_jax.host import jax_setup
 
-    runtime.setup(host_devices=1)
+    jax_setup.setup(host_devices=1)
     import jax
     import jax.numpy as jnp
     import numpy as np
 
-    from emgail_jax.config import Config
-    from emgail_jax.problem import make_problem
-    from emgail_jax.rl import intention_chunk, make_rl_train
-    from emgail_jax.runner import chunk_length, chunks, run_chunks
+    from emgail_jax.host.problem import make_problem
+    from emgail_jax.host.seed_runner import chunk_length, chunks, run_chunks
+    from emgail_jax.method.config import Config
+    from emgail_jax.method.rl import intention_chunk, make_rl_train
 
     problem = make_problem(args.env, args.intentions)
     env = problem.env

@@ -6,7 +6,7 @@
 Every cell is a normal run directory, ``OUT/runs/<cell>`` (``ENV-K-ALGO``, ``-onehot`` for
 EM-GAIL with the paper's one-network architecture, ``-pair`` for EM-GAIL with the paper's
 per-pair E-step, ``driver-rRADIUS-ALGO``), trained by
-``python -m emgail_jax.run`` with the defaults. A finished cell is skipped, an interrupted one
+``python -m emgail_jax.train`` with the defaults. A finished cell is skipped, an interrupted one
 resumed from its last checkpoint, so the sweep can be stopped (Ctrl-C) and started again at will.
 ``--only`` takes comma-separated patterns, each a figure or table (fig4a, fig4b, fig5a, fig5b,
 fig6, table2, table3) or a part of cell names (``halfcheetah``, ``reacher-2``, ``driver-r*-gail``).
@@ -80,7 +80,7 @@ PAPER_TABLE2 = {  # env: {algo: (parameters, seconds per iteration)}
 
 # For the time estimate before any cell of an env has finished: seconds per seed, iteration
 # and intention with the seeds on both cores, and seconds to compile (warm cache), measured
-# here with `python -m emgail_jax.run` at the defaults.
+# here with `python -m emgail_jax.train` at the defaults.
 MEASURED_SECONDS = {  # env: (per seed-iteration-intention, compile)
     "driver": (0.020, 10.0),
     "swimmer": (0.21, 60.0),
@@ -117,7 +117,7 @@ class Cell:
     @property
     def shares_programs(self) -> bool:
         """The driver's cells of one algorithm differ only in data (the radius), so they run in
-        the sweep's own process, where the second compiles nothing (emgail_jax.runner)."""
+        the sweep's own process, where the second compiles nothing (emgail_jax.host.seed_runner)."""
         return self.radius is not None
 
     @property
@@ -126,7 +126,7 @@ class Cell:
         return self.method == "emgail" and "table3" in self.groups
 
     def run_args(self, settings: tuple[str, ...] = ()) -> list[str]:
-        """``python -m emgail_jax.run`` options of a new run; ``settings`` go to ``--set``."""
+        """``python -m emgail_jax.train`` options of a new run; ``settings`` go to ``--set``."""
         args = ["--env", self.env, "--intentions", str(self.intentions), "--algo", self.algo]
         for setting in settings:
             args += ["--set", setting]
@@ -252,18 +252,18 @@ def run_command(command: list[str], log_path: str) -> int:
 
 
 def run_in_process(args: list[str], log_path: str) -> int:
-    """``python -m emgail_jax.run ARGS`` in this process, its output to ``log_path``. Ctrl-C or
+    """``python -m emgail_jax.train ARGS`` in this process, its output to ``log_path``. Ctrl-C or
     SIGTERM lets the run checkpoint its chunk, then stops the sweep."""
-    from emgail_jax import run
+    from emgail_jax import train
 
     with (
         open(log_path, "a") as log,
         contextlib.redirect_stdout(log),
         contextlib.redirect_stderr(log),
     ):
-        print(f"\n$ python -m emgail_jax.run {' '.join(args)}", flush=True)
+        print(f"\n$ python -m emgail_jax.train {' '.join(args)}", flush=True)
         try:
-            code = run.main(args)
+            code = train.main(args)
         except Exception:  # a crash fails this cell as a crashed child process would
             traceback.print_exc()
             code = 1
@@ -290,7 +290,7 @@ def train_cell(
         if cell.shares_programs:
             code = run_in_process([*args, "--quiet"], log_path)
         else:
-            code = run_command([*python, "emgail_jax.run", *args, "--quiet"], log_path)
+            code = run_command([*python, "emgail_jax.train", *args, "--quiet"], log_path)
         if code != 0:
             raise SweepError(f"cell {cell.name} failed (exit {code}): see {log_path}")
     if cell.reoptimized and not os.path.exists(os.path.join(run_dir, "reoptimize.json")):
@@ -307,8 +307,8 @@ def separability_table(out: str, cells: list[Cell]) -> dict:
     """``{"hopper-3" | "driver-r10": {"separability", "separability_std", "gmm_accuracy",
     "gmm_accuracy_std"}}`` of the demonstrations the cells train on, computed once and kept in
     ``OUT/separability.csv``."""
-    from emgail_jax.metrics import gaussian_mixture_accuracies, separability_of
-    from emgail_jax.problem import make_problem
+    from emgail_jax.host.problem import make_problem
+    from emgail_jax.method.metrics import gaussian_mixture_accuracies, separability_of
 
     path = os.path.join(out, "separability.csv")
     table = {}

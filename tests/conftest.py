@@ -6,7 +6,7 @@ import pathlib
 
 import pytest
 
-from emgail_jax import _add_xla_flags, runtime
+from emgail_jax.host import jax_setup
 
 _REPO = pathlib.Path(__file__).resolve().parents[1]
 
@@ -19,8 +19,8 @@ for _variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 # The tests compile many small programs once each and run them for moments: LLVM's lowest
 # optimisation level halves a cold compile (the tiny driver run: 45-48 s -> 22-25 s), and
 # the child processes some tests start inherit it.
-_add_xla_flags("--xla_backend_optimization_level=0")
-runtime.setup(host_devices=2, cache_dir=str(_REPO / ".cache" / "jax"))
+jax_setup.add_xla_flags("--xla_backend_optimization_level=0")
+jax_setup.setup(host_devices=2, cache_dir=str(_REPO / ".cache" / "jax"))
 
 
 @pytest.fixture(scope="session")
@@ -28,14 +28,14 @@ def tiny_run(tmp_path_factory):
     """A finished tiny EM-GAIL driver run (2 seeds, 4 iterations) with its checkpoint. Its sizes
     and chunk are those of the other tiny driver runs (test_run, test_resume, test_distributed),
     so that they all share one compiled program through the persistent compilation cache."""
-    from emgail_jax import run
+    from emgail_jax import train
 
     out = tmp_path_factory.mktemp("tiny") / "emgail"
     args = [
         *("--env", "driver", "--seeds", "2", "--iterations", "4", "--num-envs", "2"),
         *("--rollout-length", "20", "--chunk-size", "2", "--quiet", "--out", str(out)),
     ]
-    assert run.main(args) == 0
+    assert train.main(args) == 0
     return out
 
 
@@ -45,8 +45,8 @@ def random_batch():
     samples (``[k, m, ...]``) and demonstration pairs (``[n, ...]``) for the step tests."""
     import jax
 
-    from emgail_jax.batches import NormalizedBatch
-    from emgail_jax.normalizer import RunningStats
+    from emgail_jax.method.batches import NormalizedBatch
+    from emgail_jax.method.normalizer import RunningStats
 
     def make(k=3, m=4, n=6, obs_dim=2, act_dim=1, seed=0):
         keys = jax.random.split(jax.random.PRNGKey(seed), 4)

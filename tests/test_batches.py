@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from emgail_jax.batches import ExpertData
-from emgail_jax.demos import Demonstrations
+from emgail_jax.method.batches import DemonstrationPairs
+from emgail_jax.method.demonstrations import Demonstrations
 
 
 def test_a_consistent_batch_passes_its_shape_check(random_batch):
@@ -26,7 +26,7 @@ def test_a_batch_with_mismatched_shapes_is_refused(broken, random_batch):
         broken(random_batch()).check()
 
 
-def test_expert_data_numbers_the_demonstrations_and_keeps_the_labels():
+def test_demonstration_pairs_numbers_the_demonstrations_and_keeps_the_labels():
     starts = np.array([1, 0, 0, 1, 0, 1], bool)
     demos = Demonstrations(
         observations=np.zeros((6, 2)),
@@ -34,7 +34,7 @@ def test_expert_data_numbers_the_demonstrations_and_keeps_the_labels():
         episode_starts=starts,
         intentions=np.array([0, 0, 0, 1, 1, 1]),
     )
-    expert = ExpertData.create(demos, np.array([-5.0, -6.0]), 2)
+    expert = DemonstrationPairs.create(demos, np.array([-5.0, -6.0]), 2)
     np.testing.assert_array_equal(expert.episode, [0, 0, 0, 1, 1, 2])
     assert expert.episodes == 3 and expert.has_labels
     assert np.isnan(expert.expert_returns).all() and expert.random_returns.dtype == np.float32

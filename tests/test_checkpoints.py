@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from jax.sharding import NamedSharding, PartitionSpec
 
-from emgail_jax import checkpoints
+from emgail_jax.host import checkpoints
 
 
 def _state():

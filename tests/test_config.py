@@ -7,8 +7,8 @@ import types
 import pytest
 
 import envs
-from emgail_jax.config import Config, rollout_defaults
-from emgail_jax.trpo import TRPOConfig
+from emgail_jax.method.config import Config, rollout_defaults
+from emgail_jax.method.trpo import TRPOConfig
 
 
 def _fake_env(name, episode_length):

@@ -8,16 +8,16 @@ import numpy as np
 import optax
 import pytest
 
-from emgail_jax.algorithms import make_algorithm
-from emgail_jax.discriminator import (
+from emgail_jax.method.algorithms import make_algorithm
+from emgail_jax.method.discriminator import (
     discriminator_loss,
     discriminator_update,
     expert_logits,
     learned_reward,
     make_m_step,
 )
-from emgail_jax.networks import Discriminator
-from emgail_jax.optim import Learner
+from emgail_jax.method.networks import Discriminator
+from emgail_jax.method.optim import Learner
 
 LN3 = math.log(3.0)
 

@@ -9,7 +9,8 @@ import sys
 
 import pytest
 
-from emgail_jax import run, runtime
+from emgail_jax import train
+from emgail_jax.host import jax_setup
 
 TINY = [
     "--env", "driver",
@@ -38,8 +39,8 @@ def _environment(devices: int) -> dict:
 
 def test_two_processes_give_the_one_process_results(tmp_path):
     one = tmp_path / "one"  # in this process, whose two host devices the conftest made
-    assert run.main([*TINY, "--out", str(one)]) == 0
-    command = [sys.executable, "-m", "emgail_jax.run", *TINY]
+    assert train.main([*TINY, "--out", str(one)]) == 0
+    command = [sys.executable, "-m", "emgail_jax.train", *TINY]
 
     two = tmp_path / "two"
     coordinator = f"127.0.0.1:{_free_port()}"
@@ -87,17 +88,17 @@ def test_incomplete_distributed_options_are_refused(options, message, monkeypatc
     for name in ("JAX_COORDINATOR_ADDRESS", "JAX_NUM_PROCESSES", "JAX_PROCESS_ID"):
         monkeypatch.delenv(name, raising=False)
     with pytest.raises(ValueError, match=message):
-        runtime.Distributed.from_options(*options)
+        jax_setup.Distributed.from_options(*options)
 
 
 def test_distributed_options_from_jax_environment_variables(monkeypatch):
     monkeypatch.setenv("JAX_COORDINATOR_ADDRESS", "10.0.0.1:7777")
     monkeypatch.setenv("JAX_NUM_PROCESSES", "4")
     monkeypatch.setenv("JAX_PROCESS_ID", "3")
-    assert runtime.Distributed.from_options(None, None, None) == runtime.Distributed(
+    assert jax_setup.Distributed.from_options(None, None, None) == jax_setup.Distributed(
         "10.0.0.1:7777", 4, 3
     )
     monkeypatch.delenv("JAX_COORDINATOR_ADDRESS")
     monkeypatch.delenv("JAX_NUM_PROCESSES")
     monkeypatch.delenv("JAX_PROCESS_ID")
-    assert runtime.Distributed.from_options(None, None, None) is None
+    assert jax_setup.Distributed.from_options(None, None, None) is None

@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from emgail_jax import evaluate, run
+from emgail_jax import evaluate, train
 
 PNG = b"\x89PNG\r\n\x1a\n"
 
@@ -40,7 +40,7 @@ def trajectory_run(tmp_path_factory):
         *("--rollout-length", "20", "--quiet", "--out", str(out)),
         *("--responsibilities", "trajectory"),
     ]
-    assert run.main(args) == 0
+    assert train.main(args) == 0
     return out
 
 
@@ -48,7 +48,7 @@ def test_trajectory_mode_accuracies_equal_the_logged_ones(trajectory_run):
     """Both accuracies of a --responsibilities trajectory run, as evaluate recomputes them from
     the checkpoint, equal those training logged at its last iteration: same posterior, same
     pairs, same function."""
-    from emgail_jax.saved_run import SavedRun
+    from emgail_jax.host.saved_run import SavedRun
 
     assert evaluate.main([str(trajectory_run), "--episodes", "1"]) == 0
     written = json.loads((trajectory_run / "evaluation.json").read_text())

@@ -97,10 +97,10 @@ def test_sweep_runs_skips_and_reports_driver_cells(tmp_path, monkeypatch, capsys
     """End to end on two tiny driver cells (the sizes of the other tiny driver runs): trained in
     this process, the second radius on the first one's compiled programs, reported, then
     skipped."""
-    from emgail_jax import runner as runner_lib
+    from emgail_jax.host import seed_runner
 
     sweep = _load("sweep")
-    monkeypatch.setattr(runner_lib, "_shared_programs", type(runner_lib._shared_programs)())
+    monkeypatch.setattr(seed_runner, "_shared_programs", type(seed_runner._shared_programs)())
     out = tmp_path / "results"
     args = [
         *("--only", "driver-r4-emgail,driver-r20-emgail", "--seeds", "2", "--iterations", "4"),
@@ -108,7 +108,7 @@ def test_sweep_runs_skips_and_reports_driver_cells(tmp_path, monkeypatch, capsys
         *("--out", str(out)),
     ]
     assert sweep.main(args) == 0
-    assert len(runner_lib._shared_programs) == 1  # both radii ran one set of programs
+    assert len(seed_runner._shared_programs) == 1  # both radii ran one set of programs
     for name in ("table2.md", "table3.md", "table3.csv", "fig6.csv", "fig4b.png", "fig5a.png"):
         assert (out / name).exists(), name
     rows = {float(row["radius"]): row for row in csv.DictReader((out / "fig5a.csv").open())}

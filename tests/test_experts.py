@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 import envs
-from emgail_jax import demos as demos_lib
 from emgail_jax import experts
-from emgail_jax.problem import shipped_demos_path
+from emgail_jax.host import demonstration_files
+from emgail_jax.host.problem import shipped_demos_path
+from emgail_jax.method import demonstrations
 
 MJX_ENVS = ("swimmer", "hopper", "halfcheetah", "reacher")
 TINY = experts.ExpertSpec(iterations=2, num_envs=2, rollout_length=20, demo_episodes=2)
@@ -90,7 +91,7 @@ def test_corrupt_checkpoint_is_a_one_line_error(driver_experts, tmp_path):
 def test_shipped_demonstrations_match_their_env(name):
     env = envs.make(name)
     spec = experts.SPECS[name]
-    demos = demos_lib.load(shipped_demos_path(name), env)
+    demos = demonstration_files.load(shipped_demos_path(name), env)
     assert demos.num_intentions == env.max_intentions
     counts = np.bincount(demos.intentions, minlength=env.max_intentions)
     full = spec.demo_episodes * env.episode_length  # 2500 (reacher 1500) unless an expert fell
@@ -107,7 +108,9 @@ def test_shipped_experts_meta_records_their_quality(name):
     assert meta["env"] == name
     assert [q["intention"] for q in meta["quality"]] == list(envs.make(name).intention_names)
     np.testing.assert_allclose(
-        meta["demo_returns"], demos_lib.load(shipped_demos_path(name)).expert_returns, rtol=1e-6
+        meta["demo_returns"],
+        demonstration_files.load(shipped_demos_path(name)).expert_returns,
+        rtol=1e-6,
     )
 
 
@@ -121,8 +124,8 @@ def test_replayed_experts_reproduce_the_shipped_returns(name):
     spec = experts.SPECS[name]
     policy = experts.load_expert_policy(env)
     assert policy is not None
-    stored = demos_lib.load(shipped_demos_path(name)).expert_returns
+    stored = demonstration_files.load(shipped_demos_path(name)).expert_returns
     expert = lambda state, intention, _: policy(state.obs, intention)
-    replay = demos_lib.generate(env, expert, spec.demo_episodes, jax.random.PRNGKey(7))
+    replay = demonstrations.generate(env, expert, spec.demo_episodes, jax.random.PRNGKey(7))
     scale = np.abs(stored) + 0.1 * np.abs(stored).mean()
     np.testing.assert_array_less(np.abs(replay.expert_returns - stored), 0.15 * scale)

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from emgail_jax.gae import generalized_advantages
+from emgail_jax.method.gae import generalized_advantages
 
 
 def reference_gae(rewards, values, dones, bootstrap, gamma, lam):

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from emgail_jax import metrics
+from emgail_jax.method import metrics
 
 jit_accuracy = jax.jit(metrics.cluster_accuracy, static_argnums=2)
 jit_erd = jax.jit(metrics.normalized_erd)

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from emgail_jax.networks import (
+from emgail_jax.method.networks import (
     MLP,
     Discriminator,
     GaussianPolicy,
@@ -17,7 +17,7 @@ from emgail_jax.networks import (
     action_distribution,
     policy_action,
 )
-from emgail_jax.normalizer import RunningStats, normalize
+from emgail_jax.method.normalizer import RunningStats, normalize
 
 N, OBS, ACT, K = 7, 5, 3, 2
 HIDDEN = (8,)

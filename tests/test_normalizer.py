@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from emgail_jax import normalizer
+from emgail_jax.method import normalizer
 
 
 def test_create_is_identity_before_any_data():

@@ -6,7 +6,7 @@ import numpy as np
 import optax
 import pytest
 
-from emgail_jax.optim import Learner, minimize
+from emgail_jax.method.optim import Learner, minimize
 
 TARGET = jnp.array([1.0, -2.0, 0.5])
 

@@ -8,11 +8,11 @@ import numpy as np
 import optax
 import pytest
 
-from emgail_jax.batches import ExpertData
-from emgail_jax.config import Config
-from emgail_jax.networks import Posterior
-from emgail_jax.optim import Learner
-from emgail_jax.posterior import (
+from emgail_jax.method.batches import DemonstrationPairs
+from emgail_jax.method.config import Config
+from emgail_jax.method.networks import Posterior
+from emgail_jax.method.optim import Learner
+from emgail_jax.method.posterior import (
     expert_responsibilities,
     log_posterior,
     make_e_step,
@@ -187,7 +187,7 @@ def test_centering_cancels_a_lean_common_to_every_pair():
 
 def _expert(n, episodes):
     episode = np.repeat(np.arange(episodes), n // episodes).astype(np.int32)
-    return ExpertData(
+    return DemonstrationPairs(
         observations=np.zeros((n, 2), np.float32),
         actions=np.zeros((n, 1), np.float32),
         episode=episode,

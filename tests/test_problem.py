@@ -1,19 +1,23 @@
 """An IRL problem: env, demonstrations (generated, or from a --demos file) and ERD's random
 reference."""
 
+import dataclasses
+
 import jax
 import numpy as np
 import pytest
 
 import envs
-from emgail_jax import demos as demos_lib
-from emgail_jax.demos import DemonstrationError, Demonstrations
-from emgail_jax.problem import (
+from emgail_jax.host import demonstration_files
+from emgail_jax.host.demonstration_files import DemonstrationError
+from emgail_jax.host.problem import (
     DRIVER_DEMO_EPISODES,
     default_demos,
     make_problem,
     shipped_demos_path,
 )
+from emgail_jax.method import demonstrations
+from emgail_jax.method.demonstrations import Demonstrations
 
 
 @pytest.fixture(scope="module")
@@ -25,7 +29,7 @@ def driver():
 def demos_file(driver, tmp_path_factory):
     """The driver problem's demonstrations saved as a --demos file."""
     path = str(tmp_path_factory.mktemp("demos") / "driver.npz")
-    driver.demos.save(path)
+    demonstration_files.save(driver.demos, path)
     return path
 
 
@@ -40,7 +44,9 @@ def test_driver_problem_has_500_pairs_per_intention(driver):
 
 def test_driver_demos_are_the_noisy_expert_with_the_demo_seed(driver):
     env = driver.env
-    again = demos_lib.generate(env, env.expert_policy, DRIVER_DEMO_EPISODES, jax.random.PRNGKey(0))
+    again = demonstrations.generate(
+        env, env.expert_policy, DRIVER_DEMO_EPISODES, jax.random.PRNGKey(0)
+    )
     np.testing.assert_array_equal(driver.demos.observations, again.observations)
     np.testing.assert_array_equal(driver.demos.actions, again.actions)
 
@@ -77,7 +83,7 @@ def _relabelled_copy(demos, label, k):
 
 def test_a_file_with_more_intentions_gives_the_first_k(driver, tmp_path):
     path = str(tmp_path / "three.npz")
-    _relabelled_copy(driver.demos, 2, 3).save(path)
+    demonstration_files.save(_relabelled_copy(driver.demos, 2, 3), path)
     problem = make_problem("driver", 2, path)
     assert problem.num_intentions == 2
     np.testing.assert_array_equal(problem.demos.observations, driver.demos.observations)
@@ -116,7 +122,7 @@ def test_env_options_reach_the_env(demos_file):
 def test_an_unlabelled_file_is_accepted(driver, tmp_path):
     path = str(tmp_path / "bare.npz")
     d = driver.demos
-    Demonstrations(d.observations, d.actions, d.episode_starts).save(path)
+    demonstration_files.save(Demonstrations(d.observations, d.actions, d.episode_starts), path)
     problem = make_problem("driver", 2, path)
     assert problem.demos.intentions is None and problem.demos.expert_returns is None
     assert len(problem.demos) == 1000
@@ -127,23 +133,18 @@ def test_actions_outside_the_range_are_clipped_as_the_env_executes_them(driver, 
     what the env executed, clipped to its action range."""
     raw = np.where(np.arange(len(driver.demos))[:, None] % 2 == 0, 3.0, -0.5).astype(np.float32)
     path = str(tmp_path / "raw.npz")
-    Demonstrations(
-        driver.demos.observations,
-        raw,
-        driver.demos.episode_starts,
-        driver.demos.intentions,
-        driver.demos.expert_returns,
-    ).save(path)
+    demos = dataclasses.replace(driver.demos, actions=raw)
+    demonstration_files.save(demos, path)
     problem = make_problem("driver", demos_path=path)
     np.testing.assert_array_equal(problem.demos.actions, np.clip(raw, -1.0, 1.0))
     assert problem.demos.actions.dtype == np.float32
     # The file itself is left as it is.
-    np.testing.assert_array_equal(demos_lib.load(path).actions, raw)
+    np.testing.assert_array_equal(demonstration_files.load(path).actions, raw)
 
 
 @pytest.mark.parametrize("env_name", ["swimmer", "hopper", "halfcheetah", "reacher"])
 def test_shipped_demonstrations_hold_executed_actions(env_name):
-    demos = demos_lib.load(shipped_demos_path(env_name))
+    demos = demonstration_files.load(shipped_demos_path(env_name))
     assert np.abs(demos.actions).max() <= 1.0
 
 

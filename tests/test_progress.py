@@ -1,6 +1,6 @@
 """The progress bar: plain log lines where the output is not a terminal, silence when disabled."""
 
-from emgail_jax.progress import ProgressBar
+from emgail_jax.host.progress import ProgressBar
 
 
 def test_logs_plain_lines_with_the_latest_fields_when_not_a_terminal(capsys):

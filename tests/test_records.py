@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from tensorboardX.proto import event_pb2
 
-from emgail_jax import records
+from emgail_jax.host import records
 
 NAN = float("nan")
 

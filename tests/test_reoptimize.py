@@ -23,10 +23,10 @@ def test_reoptimize_writes_an_erd(tiny_run, capsys):
 
 
 def test_demonstrations_reward_weights_pairs_by_their_responsibilities(tiny_run):
-    from emgail_jax.saved_run import SavedRun
+    from emgail_jax.host.saved_run import SavedRun
 
     run = SavedRun.open(str(tiny_run))
-    expert = run.expert_data
+    expert = run.demonstration_pairs
     gamma = np.asarray(run.responsibilities(0).gamma)
     reward = run.reward(0)
     earned = reoptimize.demonstrations_reward(run, 0)

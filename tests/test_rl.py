@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 import envs
-from emgail_jax.config import Config
-from emgail_jax.rl import intention_chunk, intention_runner, make_rl_train
-from emgail_jax.runner import chunks, run_chunks
+from emgail_jax.host.seed_runner import chunks, run_chunks
+from emgail_jax.method.config import Config
+from emgail_jax.method.rl import intention_chunk, make_rl_train
 
 CONFIG = Config(hidden=(8,), num_envs=2, rollout_length=10, value_epochs=1)
 
@@ -31,17 +31,3 @@ def test_one_seed_chunk_trains_every_intention_on_its_own_reward(trainer):
     returns, own = seen[1][1]["eval/returns"], seen[1][1]["eval/own_return"]
     np.testing.assert_allclose(own, np.stack([returns[:, i, i] for i in range(k)], -1))
     assert np.asarray(states.iteration).tolist() == [4, 4]
-
-
-def test_runner_over_seeds_gives_each_seed_its_own_policies(trainer):
-    runner = intention_runner(trainer, jnp.arange(2), seeds=2)
-    stop_after_first = lambda first, length, states, metrics: False
-    states = runner.run(
-        runner.init(jax.random.PRNGKey(1)),
-        chunks(0, 4, 2),
-        lambda f, n: np.zeros(n, bool),
-        stop_after_first,
-    )
-    assert np.asarray(states.iteration).tolist() == [[2, 2], [2, 2]]  # stopped after one chunk
-    kernel = lambda s: jax.tree.leaves(s.policy)[0]
-    assert not np.allclose(kernel(states)[0], kernel(states)[1])

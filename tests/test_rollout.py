@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 import envs
-from emgail_jax import demos as demos_lib
-from emgail_jax.rollout import (
+from emgail_jax.method import demonstrations
+from emgail_jax.method.rollout import (
     batch_reset,
     episode_returns,
     intention_major,
@@ -201,7 +201,7 @@ def test_driver_expert_returns_match_the_demonstrations():
         lambda key: episode_returns(envs.EpisodeWrapper(driver), expert_from_obs, key, K, episodes)
     )(key)
     noiseless = lambda state, intention, key: driver.expert_action(state, intention)
-    demos = demos_lib.generate(driver, noiseless, episodes, key)
+    demos = demonstrations.generate(driver, noiseless, episodes, key)
     np.testing.assert_allclose(np.diag(returns), demos.expert_returns, rtol=1e-3)
     # Each expert follows its own path: under intention i, expert i beats expert j.
     assert returns[0, 0] > returns[1, 0] + 10 and returns[1, 1] > returns[0, 1] + 10

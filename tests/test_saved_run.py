@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 import emgail_jax
-from emgail_jax import normalizer as obs_norm
-from emgail_jax.runs import RunError
-from emgail_jax.saved_run import SavedRun
+from emgail_jax.host.run_spec import RunError
+from emgail_jax.host.saved_run import SavedRun
+from emgail_jax.method import normalizer as obs_norm
 
 
 @pytest.fixture(scope="module")
@@ -68,7 +68,7 @@ def test_responsibilities_are_distributions(saved):
     np.testing.assert_allclose(result.gamma.sum(-1), 1.0, rtol=1e-5)
     # Trajectory responsibilities (the default): gamma is each demonstration's posterior.
     np.testing.assert_array_equal(result.trajectory_labels, np.argmax(result.gamma, -1))
-    episode = saved.expert_data.episode
+    episode = saved.demonstration_pairs.episode
     for e in np.unique(episode):
         assert len(np.unique(result.trajectory_labels[episode == e])) == 1
 

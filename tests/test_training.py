@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 import envs
-from emgail_jax import demos as demos_lib
-from emgail_jax.batches import ExpertData
-from emgail_jax.config import Config
-from emgail_jax.demos import Demonstrations
-from emgail_jax.training import RunData, TrainState, make_train
+from emgail_jax.method import demonstrations
+from emgail_jax.method.batches import DemonstrationPairs
+from emgail_jax.method.config import Config
+from emgail_jax.method.demonstrations import Demonstrations
+from emgail_jax.method.training import RunData, TrainState, make_train
 
 K, B, T = 2, 2, 10
 RANDOM_RETURNS = np.array([-300.0, -250.0])
@@ -51,12 +51,12 @@ def env():
 
 @pytest.fixture(scope="module")
 def demos(env):
-    return demos_lib.generate(env, env.expert_policy, 2, jax.random.PRNGKey(0))
+    return demonstrations.generate(env, env.expert_policy, 2, jax.random.PRNGKey(0))
 
 
 @pytest.fixture(scope="module")
 def expert(demos):
-    return ExpertData.create(demos, RANDOM_RETURNS, K)
+    return DemonstrationPairs.create(demos, RANDOM_RETURNS, K)
 
 
 def _train(config, env, expert, iterations, evaluating=(True, False)):
@@ -106,10 +106,10 @@ def emgail_pair(env, expert):
     return _train(CONFIG.replace(responsibilities="pair"), env, expert, 1)
 
 
-# ---- ExpertData --------------------------------------------------------------------------
+# ---- DemonstrationPairs --------------------------------------------------------------------------
 
 
-def test_expert_data_from_labelled_demos(demos, expert):
+def test_demonstration_pairs_from_labelled_demos(demos, expert):
     n = len(demos)
     assert expert.observations.shape == (n, 10) and expert.observations.dtype == np.float32
     assert expert.actions.shape == (n, 1) and expert.actions.dtype == np.float32
@@ -120,21 +120,21 @@ def test_expert_data_from_labelled_demos(demos, expert):
     assert expert.episode.min() == 0 and demos.episode_starts[0]
     np.testing.assert_allclose(expert.expert_returns, demos.expert_returns)
     np.testing.assert_allclose(expert.random_returns, RANDOM_RETURNS)
-    # Host arrays, compiled into the update as constants (see ExpertData).
+    # Host arrays, compiled into the update as constants (see DemonstrationPairs).
     assert isinstance(expert.observations, np.ndarray)
     assert expert.episodes == 2 * K and expert.has_labels
 
 
-def test_expert_data_from_unlabelled_demos(demos):
+def test_demonstration_pairs_from_unlabelled_demos(demos):
     bare = Demonstrations(demos.observations, demos.actions, demos.episode_starts)
-    expert = ExpertData.create(bare, RANDOM_RETURNS, K)
+    expert = DemonstrationPairs.create(bare, RANDOM_RETURNS, K)
     assert not expert.has_labels
     np.testing.assert_array_equal(expert.labels, np.full(len(demos), -1))
     assert expert.expert_returns.shape == (K,) and np.all(np.isnan(expert.expert_returns))
     labels_only = Demonstrations(
         demos.observations, demos.actions, demos.episode_starts, demos.intentions
     )
-    expert = ExpertData.create(labels_only, RANDOM_RETURNS, K)
+    expert = DemonstrationPairs.create(labels_only, RANDOM_RETURNS, K)
     np.testing.assert_array_equal(expert.labels, demos.intentions)
     assert np.all(np.isnan(expert.expert_returns))
 
@@ -248,7 +248,7 @@ def test_cluster_accuracy_is_a_fraction_of_the_expert_pairs(emgail, expert):
 def test_discriminator_and_posterior_see_the_executed_actions(env, expert, monkeypatch):
     """With a policy std of e^2, nearly every raw sample lies outside the action range [-1, 1];
     the posterior and the discriminator must see them clipped, as the env executed them."""
-    from emgail_jax import discriminator, posterior
+    from emgail_jax.method import discriminator, posterior
 
     seen = {}
     record = lambda name, actions: jax.debug.callback(
@@ -342,7 +342,7 @@ def test_update_without_jit_equals_the_jitted_update(env, expert, gail):
 
 def test_unlabelled_demos_give_nan_erd_and_accuracy(env, demos):
     bare = Demonstrations(demos.observations, demos.actions, demos.episode_starts)
-    expert = ExpertData.create(bare, RANDOM_RETURNS, K)
+    expert = DemonstrationPairs.create(bare, RANDOM_RETURNS, K)
     _, [(_, metrics)], _ = _train(CONFIG, env, expert, 1)
     assert np.isnan(metrics["eval/erd"])
     assert np.isnan(metrics["eval/cluster_accuracy"])

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from jax.flatten_util import ravel_pytree
 
-from emgail_jax import trpo
-from emgail_jax.networks import GaussianPolicy, action_distribution
+from emgail_jax.method import trpo
+from emgail_jax.method.networks import GaussianPolicy, action_distribution
 
 OBS, COND, ACT, N = 3, 2, 2, 6
 CONFIG = trpo.TRPOConfig()

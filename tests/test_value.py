@@ -6,9 +6,9 @@ import numpy as np
 import optax
 import pytest
 
-from emgail_jax.networks import ValueNet
-from emgail_jax.optim import Learner
-from emgail_jax.value import fit_value, value_loss
+from emgail_jax.method.networks import ValueNet
+from emgail_jax.method.optim import Learner
+from emgail_jax.method.value import fit_value, value_loss
 
 
 def test_value_loss_hand_computed():

@@ -16,9 +16,9 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from emgail_jax.batches import ExpertData, NormalizedBatch
-from emgail_jax.config import Config
-from emgail_jax.optim import Learner, minimize
+from emgail_jax.method.batches import DemonstrationPairs, NormalizedBatch
+from emgail_jax.method.config import Config
+from emgail_jax.method.optim import Learner, minimize
 
 # The E-step modes that give every pair its whole demonstration's posterior.
 TRAJECTORY_MODES = ("trajectory", "trajectory-centered")
@@ -142,7 +142,7 @@ class EStep:
 
 
 def make_e_step(apply: Callable, optimizer: optax.GradientTransformation, config: Config):
-    """``e_step(posterior, batch, expert) -> EStep`` (Algorithm 1, E-step).
+    """``e_step(posterior, batch, demos) -> EStep`` (Algorithm 1, E-step).
 
     The posterior ``posterior`` (a :class:`Learner`, or None for GAIL) learns P(i | s, a) on
     the policy samples of ``batch`` (a :class:`NormalizedBatch`), each labelled with the
@@ -153,11 +153,13 @@ def make_e_step(apply: Callable, optimizer: optax.GradientTransformation, config
     log-posterior.
     """
 
-    def e_step(posterior: Learner | None, batch: NormalizedBatch, expert: ExpertData) -> EStep:
+    def e_step(
+        posterior: Learner | None, batch: NormalizedBatch, demos: DemonstrationPairs
+    ) -> EStep:
         k, m = batch.obs.shape[:2]
         own_intention = batch.own_intention()
         if posterior is None:
-            uniform = jnp.full((expert.episode.shape[0], k), 1.0 / k)
+            uniform = jnp.full((demos.episode.shape[0], k), 1.0 / k)
             return EStep(None, None, uniform, jnp.zeros((k, m)), {})
         flat = lambda x: x.reshape(k * m, -1)
         trained, metrics = posterior_update(
@@ -174,14 +176,14 @@ def make_e_step(apply: Callable, optimizer: optax.GradientTransformation, config
             trained.params,
             batch.expert_obs,
             batch.expert_actions,
-            expert.episode,
-            expert.episodes,
+            demos.episode,
+            demos.episodes,
             config.responsibilities,
-            expert.labels if expert.has_labels else None,
+            demos.labels if demos.has_labels else None,
         )
         rewarding = trained if config.reward_from == "updated" else posterior
         own = own_log_posterior(apply, rewarding.params, batch.obs, batch.executed, own_intention)
-        chex.assert_shape(responsibilities.gamma, (expert.episode.shape[0], k))
+        chex.assert_shape(responsibilities.gamma, (demos.episode.shape[0], k))
         return EStep(trained, responsibilities, responsibilities.gamma, own, metrics)
 
     return e_step

@@ -9,7 +9,8 @@ intentions (and seeds):
     states = jax.vmap(trainer.init)(keys)                              # [K] independent policies
     states, metrics = jax.vmap(trainer.update)(states, jnp.arange(K))  # intention k trains k
 
-or, over seeds and in compiled chunks, ``intention_runner(trainer, jnp.arange(K), seeds)``.
+or, over seeds and in compiled chunks (host side),
+``seed_runner.intention_runner(trainer, jnp.arange(K), seeds)``.
 """
 
 from __future__ import annotations
@@ -23,14 +24,13 @@ import optax
 from flax import struct
 
 import envs
-from emgail_jax import normalizer as obs_norm
-from emgail_jax.batches import LearningBatch
-from emgail_jax.bstep import PolicySamples, make_b_step
-from emgail_jax.config import Config
-from emgail_jax.networks import GaussianPolicy, ValueNet, policy_action
-from emgail_jax.optim import Learner
-from emgail_jax.rollout import batch_reset, episode_returns, rollout
-from emgail_jax.runner import Runner
+from emgail_jax.method import normalizer as obs_norm
+from emgail_jax.method.b_step import PolicySamples, make_b_step
+from emgail_jax.method.batches import LearningBatch
+from emgail_jax.method.config import Config
+from emgail_jax.method.networks import GaussianPolicy, ValueNet, policy_action
+from emgail_jax.method.optim import Learner
+from emgail_jax.method.rollout import batch_reset, episode_returns, rollout
 
 # (obs [T, 1, B, D] raw, action [T, 1, B, A], true_reward [T, 1, B, K], intention []) -> [T, 1, B]
 RewardFn = Callable[[jax.Array, jax.Array, jax.Array, jax.Array], jax.Array]
@@ -129,16 +129,6 @@ class RLTrainer(NamedTuple):
     init: Callable[[jax.Array], RLState]
     update: Callable[[RLState, jax.Array], tuple[RLState, dict]]
     policy: Callable[..., Callable]
-
-
-def intention_runner(trainer: RLTrainer, intentions: jax.Array, seeds: int) -> Runner:
-    """A :class:`~emgail_jax.runner.Runner` of ``seeds`` seeds, each training one policy per
-    entry of ``intentions [I]`` (vmapped; policy i on intention ``intentions[i]``), from the
-    ``I`` keys its seed key splits into. The runner's per-iteration input is unused."""
-    k = len(intentions)
-    init = lambda seed_key, _: jax.vmap(trainer.init)(jax.random.split(seed_key, k))
-    update = lambda states, _, __: jax.vmap(trainer.update)(states, intentions)
-    return Runner(init, update, seeds)
 
 
 def intention_chunk(trainer: RLTrainer, intentions: jax.Array) -> Callable:

@@ -7,8 +7,8 @@ import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from emgail_jax.algorithms import REWARD_FORMS
-from emgail_jax.trpo import TRPOConfig
+from emgail_jax.method.algorithms import REWARD_FORMS
+from emgail_jax.method.trpo import TRPOConfig
 
 INTENTION_INPUTS = ("onehot", "heads")
 RESPONSIBILITIES = ("trajectory", "trajectory-centered", "pair", "labels")
@@ -36,7 +36,7 @@ class Config:
     # as the paper's Table 2 counts); see emgail_jax.networks. Why heads: docs/defaults.md.
     intention_input: str = "heads"
     # The E-step's responsibilities: "trajectory" (each pair takes the posterior of its whole
-    # demonstration; emgail_jax.posterior.trajectory_responsibilities), "trajectory-centered"
+    # demonstration; emgail_jax.method.posterior.trajectory_responsibilities), "trajectory-centered"
     # (the same, each intention's log-evidence centred over the demonstrations), "pair" (the
     # paper's eq. 18) or "labels" (the hidden labels: an oracle, for diagnosis only). Trajectory
     # is a departure from the paper, made because the per-pair E-step lets hopper-3 and
@@ -75,7 +75,7 @@ class Config:
     # Iterations compiled into one call; host work (logs, progress) happens between chunks.
     chunk_size: int = 10
     # Seeds vmapped together on one device; None: one at a time on CPU, all on accelerators
-    # (emgail_jax.runner.default_seed_batch). Part of the config because it changes the
+    # (emgail_jax.host.seed_runner.default_seed_batch). Part of the config because it changes the
     # floating-point results slightly, and a resumed run must continue them exactly.
     seed_batch: int | None = None
 

@@ -17,7 +17,8 @@ import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from emgail_jax.training import TrainState
+from emgail_jax.method import rl
+from emgail_jax.method.training import TrainState
 
 
 @dataclasses.dataclass
@@ -187,6 +188,16 @@ class Runner:
         ``after_chunk(first, length, state, metrics)`` acts on each chunk's result on the host
         (logs, progress, checkpoints) and returns False to stop. Returns the last state."""
         return run_chunks(self.step, state, plan, inputs_of, after_chunk)
+
+
+def intention_runner(trainer: rl.RLTrainer, intentions: jax.Array, seeds: int) -> Runner:
+    """A :class:`Runner` of ``seeds`` seeds, each training one policy per
+    entry of ``intentions [I]`` (vmapped; policy i on intention ``intentions[i]``), from the
+    ``I`` keys its seed key splits into. The runner's per-iteration input is unused."""
+    k = len(intentions)
+    init = lambda seed_key, _: jax.vmap(trainer.init)(jax.random.split(seed_key, k))
+    update = lambda states, _, __: jax.vmap(trainer.update)(states, intentions)
+    return Runner(init, update, seeds)
 
 
 def run_chunks(step: Callable, state, plan, inputs_of: Callable, after_chunk: Callable):

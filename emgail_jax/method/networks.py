@@ -23,7 +23,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from emgail_jax import normalizer as obs_norm
+from emgail_jax.method import normalizer as obs_norm
 
 
 class MLP(nn.Module):

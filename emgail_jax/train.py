@@ -1,7 +1,7 @@
 """Command line: train EM-GAIL, Info/IntentionGAIL or GAIL on one env for several seeds.
 
-    python -m emgail_jax.run --env driver --algo emgail --seeds 4 --iterations 400 --out DIR
-    python -m emgail_jax.run --resume DIR [--iterations TOTAL]
+    python -m emgail_jax.train --env driver --algo emgail --seeds 4 --iterations 400 --out DIR
+    python -m emgail_jax.train --resume DIR [--iterations TOTAL]
 
 writes ``DIR/summary.json``, ``DIR/metrics.csv`` (one row per iteration and seed), TensorBoard
 events under ``DIR/tensorboard`` and orbax checkpoints under ``DIR/checkpoints`` (README,
@@ -14,6 +14,7 @@ SIGINT or SIGTERM stops a run after the iteration chunk in progress, checkpoints
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import itertools
 import os
@@ -23,19 +24,19 @@ import sys
 
 import numpy as np
 
-from emgail_jax import runtime
-from emgail_jax.runs import DEFAULT_RANDOM_EPISODES, RunError, RunSpec, read_summary
+from emgail_jax.host import jax_setup
+from emgail_jax.host.run_spec import DEFAULT_RANDOM_EPISODES, RunError, RunSpec, read_summary
 
 OUTPUTS = ("summary.json", "metrics.csv", "tensorboard", "checkpoints")
 DEFAULT_CHECKPOINT_EVERY = 50
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    from emgail_jax.algorithms import NAMES
-    from emgail_jax.config import INTENTION_INPUTS, RESPONSIBILITIES
+    from emgail_jax.method.algorithms import NAMES
+    from emgail_jax.method.config import INTENTION_INPUTS, RESPONSIBILITIES
 
     parser = argparse.ArgumentParser(
-        prog="python -m emgail_jax.run", description=__doc__.split("\n")[0]
+        prog="python -m emgail_jax.train", description=__doc__.split("\n")[0]
     )
     parser.add_argument("--env", default=None, help="env name (default: driver)")
     parser.add_argument(
@@ -91,7 +92,7 @@ def parse_args(argv=None) -> argparse.Namespace:
         default=[],
         metavar="KEY=VALUE",
         dest="set",
-        help="any other hyper-parameter of emgail_jax.config.Config, e.g. --set "
+        help="any other hyper-parameter of emgail_jax.method.config.Config, e.g. --set "
         "discriminator_steps=5 --set trpo.cg_damping=0 (repeatable)",
     )
     parser.add_argument(
@@ -143,7 +144,7 @@ _RUN_OPTIONS = (
 
 
 def spec_from_args(args: argparse.Namespace) -> RunSpec:
-    from emgail_jax.config import Config
+    from emgail_jax.method.config import Config
 
     if args.resume is not None:
         given = [f"--{name.replace('_', '-')}" for name in _RUN_OPTIONS if getattr(args, name)]
@@ -268,93 +269,126 @@ def train(
     """
     import jax
 
-    from emgail_jax import checkpoints, records
-    from emgail_jax.batches import ExpertData
-    from emgail_jax.progress import ProgressBar
-    from emgail_jax.runner import Runner, chunks, concat_history, evaluation_plan, gather
-    from emgail_jax.training import RunData, make_train
+    from emgail_jax.host import records
+    from emgail_jax.host.seed_runner import chunks, evaluation_plan
 
-    env = problem.env
-    config = spec.config.resolved(env)
-    expert = ExpertData.create(problem.demos, problem.random_returns, env.num_intentions)
-    data = RunData.create(expert, env, config)
-    init, update, _ = make_train(config, env)
+    config = spec.config.resolved(problem.env)
+    runner, parameters = _runner(spec, problem, config)
     summary_path = os.path.join(out, "summary.json")
     writes = jax.process_index() == 0
     write_json = records.write_json if writes else lambda path, data: None
     summary = _summary_header(spec, problem, config)
-    timings = {"compile_time_s": 0.0, "train_time_s": 0.0, "iterations": 0}
-    done = checkpoints.latest_iteration(out) if resume else 0
-    if resume:
-        timings = read_summary(out).get("timings", timings)
-
-    # Runs of one process that differ only in data (the sweep's driver radii) share programs.
-    program_key = (config.program_key(), problem.env.program_key())
-    runner = Runner(init, update, spec.seeds, data, config.seed_batch, program_key)
     summary["devices"] = [str(d) for d in runner.sharding.mesh.devices.flat]
     summary["processes"] = jax.process_count()
-    summary["parameters"] = parameter_counts(init, data)
-    key = jax.random.PRNGKey(spec.first_seed)
+    summary["parameters"] = parameters
+    timings = {"compile_time_s": 0.0, "train_time_s": 0.0, "iterations": 0}
     if resume:
-        host_state, history, done = checkpoints.restore(out, runner.abstract_state(key))
-        state = runner.place_state(host_state)
-    else:
-        state, history = runner.init(key), None
+        timings = read_summary(out).get("timings", timings)
+    state, history, done = _first_state(runner, out, resume, jax.random.PRNGKey(spec.first_seed))
     write_json(summary_path, {**summary, "status": "running", "timings": timings})
 
     # Chunks only group iterations into compiled calls; they do not change the results.
     plan = chunks(done, config.iterations, config.chunk_size)
     stop = _StopRequest()
-    iteration = last_saved = done
-
-    def after_chunk(first: int, length: int, state, metrics: dict) -> bool:
-        nonlocal history, iteration, last_saved
-        log.write(first, metrics)
-        history = concat_history(history, metrics)
-        iteration = first + length
-        bar.update(length, **_progress_fields(history))
-        finished = iteration >= config.iterations or stop.signal is not None
-        if finished or iteration - last_saved >= checkpoint_every:
-            host_state = gather(state)  # every process takes part
-            if writes:
-                checkpoints.save(out, iteration, host_state, history)
-            last_saved = iteration
-        return stop.signal is None
-
-    evaluating = lambda first, length: evaluation_plan(
-        first, length, config.iterations, config.eval_every
-    )
+    recorder = _ChunkRecorder(out, config, history, done, resume, checkpoint_every, writes, stop)
     if plan:
-        log = records.MetricsLog(out, keep_until=done if resume else None, enabled=writes)
-        bar = ProgressBar(
-            "training",
-            config.iterations,
-            {"ERD": "-", "acc": "-"},
-            done,
-            enabled=progress and writes,
+        evaluating = lambda first, length: evaluation_plan(
+            first, length, config.iterations, config.eval_every
         )
-        try:
-            with stop:
-                runner.run(state, plan, evaluating, after_chunk)
-        finally:
-            bar.close()
-            log.close()
+        with stop, recorder.open(progress and writes):
+            runner.run(state, plan, evaluating, recorder.after_chunk)
         timings = {
             "compile_time_s": timings["compile_time_s"] + runner.timings.compile_s,
             "train_time_s": timings["train_time_s"] + runner.timings.train_s,
             "iterations": timings["iterations"] + runner.timings.iterations,
         }
+    iteration, history = recorder.iteration, recorder.history
 
-    summary["timings"] = timings
-    summary["iterations_done"] = iteration
+    summary.update(timings=timings, iterations_done=iteration)
     if iteration < config.iterations:
-        summary["status"] = "interrupted"
-        summary["stopped_by"] = signal.Signals(stop.signal).name
+        summary.update(status="interrupted", stopped_by=signal.Signals(stop.signal).name)
     else:
         summary["status"] = "completed"
     summary["final"] = _final_summary(problem, config, history, timings, spec)
     write_json(summary_path, summary)
     return records.to_json_value(summary)
+
+
+@dataclasses.dataclass
+class _ChunkRecorder:
+    """After each chunk: the metrics to ``metrics.csv``/TensorBoard, the progress bar, and a
+    checkpoint every ``checkpoint_every`` iterations and at the end (or on a stop request)."""
+
+    out: str
+    config: object  # the resolved Config
+    history: dict | None
+    iteration: int  # iterations done
+    resume: bool
+    checkpoint_every: int
+    writes: bool  # process 0 of the run
+    stop: _StopRequest
+
+    def __post_init__(self):
+        self.last_saved = self.iteration
+
+    @contextlib.contextmanager
+    def open(self, progress: bool):
+        from emgail_jax.host import records
+        from emgail_jax.host.progress import ProgressBar
+
+        keep_until = self.iteration if self.resume else None
+        self.log = records.MetricsLog(self.out, keep_until=keep_until, enabled=self.writes)
+        fields = {"ERD": "-", "acc": "-"}
+        self.bar = ProgressBar(
+            "training", self.config.iterations, fields, self.iteration, enabled=progress
+        )
+        try:
+            yield self
+        finally:
+            self.bar.close()
+            self.log.close()
+
+    def after_chunk(self, first: int, length: int, state, metrics: dict) -> bool:
+        from emgail_jax.host import checkpoints
+        from emgail_jax.host.seed_runner import concat_history, gather
+
+        self.log.write(first, metrics)
+        self.history = concat_history(self.history, metrics)
+        self.iteration = first + length
+        self.bar.update(length, **_progress_fields(self.history))
+        finished = self.iteration >= self.config.iterations or self.stop.signal is not None
+        if finished or self.iteration - self.last_saved >= self.checkpoint_every:
+            host_state = gather(state)  # every process takes part
+            if self.writes:
+                checkpoints.save(self.out, self.iteration, host_state, self.history)
+            self.last_saved = self.iteration
+        return self.stop.signal is None
+
+
+def _runner(spec: RunSpec, problem, config):
+    """The multi-seed runner of the run's update, and the update's parameter counts."""
+    from emgail_jax.host.seed_runner import Runner
+    from emgail_jax.method.batches import DemonstrationPairs
+    from emgail_jax.method.training import RunData, make_train
+
+    env = problem.env
+    pairs = DemonstrationPairs.create(problem.demos, problem.random_returns, env.num_intentions)
+    data = RunData.create(pairs, env, config)
+    init, update, _ = make_train(config, env)
+    # Runs of one process that differ only in data (the sweep's driver radii) share programs.
+    program_key = (config.program_key(), env.program_key())
+    runner = Runner(init, update, spec.seeds, data, config.seed_batch, program_key)
+    return runner, parameter_counts(init, data)
+
+
+def _first_state(runner, out: str, resume: bool, key):
+    """``(state, history, iterations done)``: restored from the last checkpoint, or new."""
+    from emgail_jax.host import checkpoints
+
+    if resume:
+        host_state, history, done = checkpoints.restore(out, runner.abstract_state(key))
+        return runner.place_state(host_state), history, done
+    return runner.init(key), None, 0
 
 
 def _summary_header(spec: RunSpec, problem, config) -> dict:
@@ -381,8 +415,8 @@ def _summary_header(spec: RunSpec, problem, config) -> dict:
 
 
 def _final_summary(problem, config, history, timings, spec) -> dict:
-    from emgail_jax.runner import final_metrics
-    from emgail_jax.training import evaluation_phases
+    from emgail_jax.host.seed_runner import final_metrics
+    from emgail_jax.method.training import evaluation_phases
 
     env = problem.env
     k, b, t = env.num_intentions, config.num_envs, config.rollout_length
@@ -439,7 +473,7 @@ def print_summary(summary: dict) -> None:
     from rich.console import Console
     from rich.table import Table
 
-    from emgail_jax.runner import FINAL_WINDOW
+    from emgail_jax.host.seed_runner import FINAL_WINDOW
 
     final = summary["final"]
     seeds = summary["seeds"]
@@ -483,25 +517,26 @@ def print_summary(summary: dict) -> None:
 def main(argv=None) -> int:
     args = parse_args(argv)
     try:
-        distributed = runtime.Distributed.from_options(
+        distributed = jax_setup.Distributed.from_options(
             args.coordinator, args.num_processes, args.process_id
         )
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
-    runtime.setup(distributed=distributed)
+    jax_setup.setup(distributed=distributed)
     import jax
 
     import envs
-    from emgail_jax.checkpoints import CheckpointError, latest_iteration
-    from emgail_jax.demos import DemonstrationError
+    from emgail_jax.host.checkpoints import CheckpointError, latest_iteration
+    from emgail_jax.host.demonstration_files import DemonstrationError
+    from emgail_jax.host.problem import problem_of
 
     try:
         spec = spec_from_args(args)
         out = args.resume or args.out or default_output(spec.env, spec.algo)
         if args.resume is not None and latest_iteration(out) is None:
             raise CheckpointError(f"'{out}' holds no checkpoint to resume from")
-        problem = spec.problem()
+        problem = problem_of(spec)
         if spec.config.responsibilities == "labels" and problem.demos.intentions is None:
             raise RunError("--responsibilities labels needs demonstrations with hidden labels")
         primary = jax.process_index() == 0

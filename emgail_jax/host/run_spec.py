@@ -26,12 +26,12 @@ class RunSpec:
     first_seed: int
     demos_path: str | None
     demo_seed: int
-    config: object  # emgail_jax.config.Config
+    config: object  # emgail_jax.method.config.Config
     random_episodes: int = DEFAULT_RANDOM_EPISODES
 
     @classmethod
     def from_summary(cls, summary: dict) -> RunSpec:
-        from emgail_jax.config import Config
+        from emgail_jax.method.config import Config
 
         try:
             demos = summary["demonstrations"]
@@ -49,18 +49,6 @@ class RunSpec:
             )
         except (KeyError, TypeError) as error:
             raise RunError(f"summary.json does not describe a run (no {error})") from None
-
-    def problem(self):
-        from emgail_jax.problem import make_problem
-
-        return make_problem(
-            self.env,
-            self.intentions,
-            self.demos_path,
-            self.env_options,
-            self.demo_seed,
-            self.random_episodes,
-        )
 
 
 def read_summary(run_dir: str) -> dict:

@@ -9,11 +9,11 @@ so runs that differ only in their data share one program (and the persistent com
 One update is Algorithm 1 of the paper, for all K intentions at once (``update`` reads as it):
 
 1. rollout: B envs per intention, T steps, with the current policy;
-2. E-step (:mod:`emgail_jax.posterior`): the posterior learns P(i | s, a) on those samples;
+2. E-step (:mod:`emgail_jax.method.posterior`): the posterior learns P(i | s, a) on those samples;
    gamma = P on the expert pairs;
-3. M-step (:mod:`emgail_jax.discriminator`): the discriminator learns expert (weighted by
+3. M-step (:mod:`emgail_jax.method.discriminator`): the discriminator learns expert (weighted by
    gamma) against policy samples;
-4. B-step (:mod:`emgail_jax.bstep`): the samples are relabelled with the learned reward, GAE
+4. B-step (:mod:`emgail_jax.method.b_step`): the samples are relabelled with the learned reward, GAE
    computes advantages, TRPO updates the policy, and the value baseline is refitted;
 5. metrics: the clustering accuracy of the E-step and, when ``evaluating``, deterministic
    episodes (one per env of the rollout, from fresh starts) of the policy that made this
@@ -24,7 +24,7 @@ The rollout and the evaluation episodes are phases of one loop whose body steps 
 the env step, the largest part of an MJX program, is compiled once rather than once for
 training and once more for evaluation.
 
-The caller ``jit``s ``vmap(update)`` over seeds (see :mod:`emgail_jax.runner`).
+The caller ``jit``s ``vmap(update)`` over seeds (see :mod:`emgail_jax.host.seed_runner`).
 """
 
 from __future__ import annotations
@@ -41,17 +41,23 @@ import optax
 from flax import struct
 
 import envs
-from emgail_jax import normalizer as obs_norm
-from emgail_jax.algorithms import Algorithm, make_algorithm
-from emgail_jax.batches import ExpertData, LearningBatch, NormalizedBatch
-from emgail_jax.bstep import BStep, PolicySamples, make_b_step
-from emgail_jax.config import Config
-from emgail_jax.discriminator import learned_reward, make_m_step
-from emgail_jax.metrics import cluster_accuracy, normalized_erd
-from emgail_jax.networks import Discriminator, GaussianPolicy, Posterior, ValueNet, policy_action
-from emgail_jax.optim import Learner
-from emgail_jax.posterior import TRAJECTORY_MODES, Responsibilities, make_e_step
-from emgail_jax.rollout import (
+from emgail_jax.method import normalizer as obs_norm
+from emgail_jax.method.algorithms import Algorithm, make_algorithm
+from emgail_jax.method.b_step import BStep, PolicySamples, make_b_step
+from emgail_jax.method.batches import DemonstrationPairs, LearningBatch, NormalizedBatch
+from emgail_jax.method.config import Config
+from emgail_jax.method.discriminator import learned_reward, make_m_step
+from emgail_jax.method.metrics import cluster_accuracy, normalized_erd
+from emgail_jax.method.networks import (
+    Discriminator,
+    GaussianPolicy,
+    Posterior,
+    ValueNet,
+    policy_action,
+)
+from emgail_jax.method.optim import Learner
+from emgail_jax.method.posterior import TRAJECTORY_MODES, Responsibilities, make_e_step
+from emgail_jax.method.rollout import (
     Transitions,
     batch_reset,
     episode_totals,
@@ -93,13 +99,13 @@ class RunData:
     Host (numpy) arrays here; the runner places one copy on every device before the first call.
     """
 
-    expert: ExpertData
+    demos: DemonstrationPairs
     env: Any  # env.data(): e.g. the driver's path curvatures; None for the MJX envs
     info_weight: jax.Array  # [] Info/IntentionGAIL's lambda (eq. 23)
 
     @classmethod
-    def create(cls, expert: ExpertData, env: envs.Env, config: Config) -> RunData:
-        return cls(expert, env.data(), np.float32(config.info_weight))
+    def create(cls, demos: DemonstrationPairs, env: envs.Env, config: Config) -> RunData:
+        return cls(demos, env.data(), np.float32(config.info_weight))
 
 
 @dataclass(frozen=True)
@@ -147,7 +153,7 @@ def policy_function(networks: Networks, algorithm: Algorithm, config: Config, k:
 
 
 def clustering_metrics(
-    e_step: Responsibilities | None, expert: ExpertData, k: int, mode: str
+    e_step: Responsibilities | None, demos: DemonstrationPairs, k: int, mode: str
 ) -> dict:
     """The clustering accuracy of eq. 29 (the posterior's argmax on every expert pair) and, when
     the E-step works on whole demonstrations, the accuracy of those trajectory labels too; NaN
@@ -155,19 +161,19 @@ def clustering_metrics(
     names = ["eval/cluster_accuracy"]
     if mode in TRAJECTORY_MODES and e_step is not None:
         names.append("eval/trajectory_cluster_accuracy")
-    if e_step is None or not expert.has_labels:
+    if e_step is None or not demos.has_labels:
         return {name: jnp.float32(jnp.nan) for name in names}
     labels = (e_step.pair_labels, e_step.trajectory_labels)
     return {
-        name: cluster_accuracy(predicted, expert.labels, k)
+        name: cluster_accuracy(predicted, demos.labels, k)
         for name, predicted in zip(names, labels, strict=False)
     }
 
 
-def evaluation_metrics(returns: jax.Array, expert: ExpertData) -> dict:
+def evaluation_metrics(returns: jax.Array, demos: DemonstrationPairs) -> dict:
     """ERD (eq. 28) of ``returns [K learned, K true]``, per true intention and matched."""
     k = returns.shape[-1]
-    erd = normalized_erd(returns, expert.expert_returns, expert.random_returns)
+    erd = normalized_erd(returns, demos.expert_returns, demos.random_returns)
     return {
         "eval/erd": erd.mean,
         "eval/erd_per_intention": erd.per_intention,  # [K] per true intention
@@ -318,7 +324,7 @@ def make_collector(config: Config, env: envs.Env, networks: Networks) -> Collect
         end, batch, _, totals, _ = jax.lax.fori_loop(0, phases, phase, carry)
         evaluation = jax.lax.cond(
             evaluating,
-            lambda: evaluation_metrics(totals.mean(1), data.expert),
+            lambda: evaluation_metrics(totals.mean(1), data.demos),
             lambda: no_evaluation(k),
         )
         return end, LearningBatch.of(batch, end, env.episode_length), evaluation
@@ -381,8 +387,8 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
             normalizer=normalizer,
             obs=normalize(intention_major(batch.obs)),
             executed=env.clip_action(intention_major(batch.action)),
-            expert_obs=normalize(data.expert.observations),
-            expert_actions=data.expert.actions,
+            expert_obs=normalize(data.demos.observations),
+            expert_actions=data.demos.actions,
         ).check()
 
     def update(state: TrainState, evaluating: jax.Array, data: RunData) -> tuple[TrainState, dict]:
@@ -393,7 +399,7 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
         algorithm = algorithm_of(config, data)
         end, batch, evaluation = collector.collect_and_evaluate(state, evaluating, data, key_phases)
         seen = normalized(state, batch, data)
-        e = e_step(state.posterior, seen, data.expert)
+        e = e_step(state.posterior, seen, data.demos)
         m = m_step(state.discriminator, seen, e.gamma, algorithm)
         rewarding = m.discriminator if config.reward_from == "updated" else state.discriminator
         b = improve(state, batch, seen, rewarding, e.own_log_posterior, algorithm, key_value)
@@ -407,7 +413,7 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
             key=key_next,
             iteration=state.iteration + 1,
         )
-        clustering = clustering_metrics(e.responsibilities, data.expert, k, config.responsibilities)
+        clustering = clustering_metrics(e.responsibilities, data.demos, k, config.responsibilities)
         return new_state, {**evaluation, **clustering, **e.metrics, **m.metrics, **b.metrics}
 
     steps = Steps(collector, normalized, e_step, m_step, improve)

@@ -1,5 +1,5 @@
-"""Expert demonstrations: the file format (README, "Demonstrations format"), its validation
-and generation.
+"""Demonstration files: the format (README, "Demonstrations format"), loading with
+validation, and saving.
 
 A dataset is one ``.npz`` with
 
@@ -19,44 +19,23 @@ from __future__ import annotations
 import dataclasses
 import os
 import zipfile
-from collections.abc import Callable
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
 import envs
+from emgail_jax.method.demonstrations import Demonstrations
 
 
 class DemonstrationError(ValueError):
     """The demonstrations cannot be used; the message says what is wrong and how to fix it."""
 
 
-@dataclasses.dataclass(frozen=True)
-class Demonstrations:
-    observations: np.ndarray
-    actions: np.ndarray
-    episode_starts: np.ndarray
-    intentions: np.ndarray | None = None
-    expert_returns: np.ndarray | None = None
-
-    def __len__(self) -> int:
-        return len(self.observations)
-
-    @property
-    def num_intentions(self) -> int | None:
-        if self.intentions is not None:
-            return int(self.intentions.max()) + 1
-        if self.expert_returns is not None:
-            return len(self.expert_returns)
-        return None
-
-    def save(self, path: str) -> None:
-        """Writes the dataset atomically (a temporary file renamed into place)."""
-        arrays = {k: v for k, v in dataclasses.asdict(self).items() if v is not None}
-        tmp = f"{path}.tmp.npz"
-        np.savez_compressed(tmp, **arrays)
-        os.replace(tmp, path)
+def save(demos: Demonstrations, path: str) -> None:
+    """Writes the dataset atomically (a temporary file renamed into place)."""
+    arrays = {k: v for k, v in dataclasses.asdict(demos).items() if v is not None}
+    tmp = f"{path}.tmp.npz"
+    np.savez_compressed(tmp, **arrays)
+    os.replace(tmp, path)
 
 
 REQUIRED = ("observations", "actions", "episode_starts")
@@ -165,80 +144,3 @@ def validate(demos: Demonstrations, env: envs.Env | None = None, source: str = "
                 f"{source}: labels name {k} intentions but env '{env.name}' has only "
                 f"{env.max_intentions}"
             )
-
-
-def first_intentions(demos: Demonstrations, k: int) -> Demonstrations:
-    """The pairs of the first ``k`` intentions (labels required)."""
-    if demos.intentions is None:
-        return demos
-    keep = demos.intentions < k
-    returns = demos.expert_returns[:k] if demos.expert_returns is not None else None
-    return Demonstrations(
-        observations=demos.observations[keep],
-        actions=demos.actions[keep],
-        episode_starts=demos.episode_starts[keep],
-        intentions=demos.intentions[keep],
-        expert_returns=returns,
-    )
-
-
-def executed_actions(demos: Demonstrations, env: envs.Env) -> Demonstrations:
-    """The demonstrations with their actions clipped to ``env``'s action range: the actions the
-    env executed, which is what the discriminator and the posterior compare with the policy's
-    (clipped) samples. A file may hold raw actions outside the range; they are clipped here."""
-    actions = np.clip(demos.actions, env.action_low, env.action_high).astype(np.float32)
-    return dataclasses.replace(demos, actions=actions)
-
-
-Expert = Callable[[envs.State, jax.Array, jax.Array], jax.Array]
-
-
-def generate(env: envs.Env, expert: Expert, episodes: int, key: jax.Array) -> Demonstrations:
-    """Rolls ``expert(state, intention, key) -> action`` for ``episodes`` episodes of every
-    intention of ``env`` and returns the labelled pairs (with the actions the env executed,
-    i.e. clipped to its range) and each expert's mean true return.
-
-    Pairs after an episode terminated early are dropped. Deterministic for a given ``key``.
-    """
-    k = env.num_intentions
-    limited = envs.EpisodeWrapper(env)
-    intention = jnp.broadcast_to(jnp.arange(k)[:, None], (k, episodes))
-
-    @jax.jit
-    def roll(key):
-        key_reset, key_steps = jax.random.split(key)
-        states = jax.vmap(jax.vmap(limited.reset))(jax.random.split(key_reset, (k, episodes)))
-        act = jax.vmap(jax.vmap(expert))
-        step = jax.vmap(jax.vmap(limited.step))
-
-        def body(carry, step_key):
-            state, alive = carry
-            action = limited.clip_action(
-                act(state, intention, jax.random.split(step_key, (k, episodes)))
-            )
-            next_state = step(state, action)
-            out = (state.obs, action, next_state.reward, alive)
-            return (next_state, alive * (1.0 - next_state.done)), out
-
-        alive = jnp.ones((k, episodes))
-        _, (obs, actions, rewards, alive) = jax.lax.scan(
-            body, (states, alive), jax.random.split(key_steps, env.episode_length)
-        )
-        return obs, actions, rewards, alive
-
-    obs, actions, rewards, alive = jax.device_get(roll(key))  # [T, K, E, ...]
-    # Episode-major order: intention, episode, time.
-    obs, actions, rewards, alive = (np.moveaxis(x, 0, 2) for x in (obs, actions, rewards, alive))
-    keep = alive.astype(bool)
-    starts = np.zeros_like(keep)
-    starts[..., 0] = True
-    labels = np.broadcast_to(np.arange(k)[:, None, None], keep.shape)
-    own_reward = np.take_along_axis(rewards, labels[..., None], -1)[..., 0]
-    expert_returns = np.where(keep, own_reward, 0.0).sum(-1).mean(-1)
-    return Demonstrations(
-        observations=obs[keep].astype(np.float32),
-        actions=actions[keep].astype(np.float32),
-        episode_starts=starts[keep],
-        intentions=labels[keep].astype(np.int32),
-        expert_returns=np.asarray(expert_returns, np.float32),
-    )

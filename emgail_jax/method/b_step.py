@@ -16,14 +16,14 @@ import jax
 import optax
 from flax import struct
 
-from emgail_jax.batches import LearningBatch
-from emgail_jax.config import Config
-from emgail_jax.gae import generalized_advantages
-from emgail_jax.networks import action_distribution
-from emgail_jax.optim import Learner
-from emgail_jax.rollout import intention_major, time_major
-from emgail_jax.trpo import trpo_step
-from emgail_jax.value import fit_value
+from emgail_jax.method.batches import LearningBatch
+from emgail_jax.method.config import Config
+from emgail_jax.method.gae import generalized_advantages
+from emgail_jax.method.networks import action_distribution
+from emgail_jax.method.optim import Learner
+from emgail_jax.method.rollout import intention_major, time_major
+from emgail_jax.method.trpo import trpo_step
+from emgail_jax.method.value import fit_value
 
 
 @struct.dataclass
@@ -82,7 +82,7 @@ def make_b_step(
     :class:`PolicySamples`), and a refit of the value baseline ``value`` (a :class:`Learner`).
 
     The networks see the samples grouped by intention (``[K, T * B]``, see
-    :func:`~emgail_jax.rollout.intention_major`), GAE sees them in time order.
+    :func:`~emgail_jax.method.rollout.intention_major`), GAE sees them in time order.
     """
 
     def b_step(

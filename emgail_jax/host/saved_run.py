@@ -19,18 +19,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from emgail_jax import checkpoints
-from emgail_jax import normalizer as obs_norm
-from emgail_jax.algorithms import Algorithm, make_algorithm
-from emgail_jax.batches import ExpertData
-from emgail_jax.config import Config
-from emgail_jax.discriminator import learned_reward
-from emgail_jax.networks import policy_action
-from emgail_jax.posterior import Responsibilities, expert_responsibilities, own_log_posterior
-from emgail_jax.problem import Problem
-from emgail_jax.runner import Runner
-from emgail_jax.runs import RunError, RunSpec, read_summary
-from emgail_jax.training import (
+from emgail_jax.host import checkpoints
+from emgail_jax.host.problem import Problem, problem_of
+from emgail_jax.host.run_spec import RunError, RunSpec, read_summary
+from emgail_jax.host.seed_runner import Runner
+from emgail_jax.method import normalizer as obs_norm
+from emgail_jax.method.algorithms import Algorithm, make_algorithm
+from emgail_jax.method.batches import DemonstrationPairs
+from emgail_jax.method.config import Config
+from emgail_jax.method.discriminator import learned_reward
+from emgail_jax.method.networks import policy_action
+from emgail_jax.method.posterior import Responsibilities, expert_responsibilities, own_log_posterior
+from emgail_jax.method.training import (
     Networks,
     RunData,
     TrainState,
@@ -52,7 +52,8 @@ class SavedRun:
     state: TrainState  # every seed, leading axis
     history: dict[str, np.ndarray]
     iteration: int
-    expert_data: ExpertData  # the demonstrations as training sees them (no ERD references)
+    # The demonstrations as training sees them (no ERD references).
+    demonstration_pairs: DemonstrationPairs
 
     @classmethod
     def open(cls, run_dir: str) -> SavedRun:
@@ -63,15 +64,15 @@ class SavedRun:
         """
         summary = read_summary(run_dir)
         spec = RunSpec.from_summary(summary)
-        problem = spec.problem()
+        problem = problem_of(spec)
         env = problem.env
         config = spec.config.resolved(env)
         # Only `init`'s shapes are needed; ERD's references do not enter them.
-        expert = ExpertData.create(
+        pairs = DemonstrationPairs.create(
             problem.demos, np.full(env.num_intentions, np.nan), env.num_intentions
         )
         init, update, _ = make_train(config, env)
-        runner = Runner(init, update, spec.seeds, RunData.create(expert, env, config))
+        runner = Runner(init, update, spec.seeds, RunData.create(pairs, env, config))
         target = runner.abstract_state(jax.random.PRNGKey(spec.first_seed))
         state, history, iteration = checkpoints.restore(run_dir, target)
         return cls(
@@ -85,7 +86,7 @@ class SavedRun:
             state=state,
             history=history,
             iteration=iteration,
-            expert_data=expert,
+            demonstration_pairs=pairs,
         )
 
     @property
@@ -149,17 +150,17 @@ class SavedRun:
         if not self.algorithm.learns_posterior:
             raise RunError(f"{self.config.algo} learns no posterior")
         state = self.seed_state(seed)
-        expert = self.expert_data
-        normalized = obs_norm.normalize(state.normalizer, expert.observations, self.config.obs_clip)
+        pairs = self.demonstration_pairs
+        normalized = obs_norm.normalize(state.normalizer, pairs.observations, self.config.obs_clip)
         result = expert_responsibilities(
             self.networks.posterior.apply,
             state.posterior.params,
             normalized,
-            expert.actions,
-            expert.episode,
-            expert.episodes,
+            pairs.actions,
+            pairs.episode,
+            pairs.episodes,
             self.config.responsibilities,
-            expert.labels if expert.has_labels else None,
+            pairs.labels if pairs.has_labels else None,
         )
         return jax.device_get(result)
 
@@ -167,11 +168,11 @@ class SavedRun:
         """The clustering accuracies training logs (eq. 29, and in trajectory mode the
         trajectory labels' too) of ``seed``'s current posterior; empty without hidden labels
         or a posterior."""
-        if not (self.algorithm.learns_posterior and self.expert_data.has_labels):
+        if not (self.algorithm.learns_posterior and self.demonstration_pairs.has_labels):
             return {}
         metrics = clustering_metrics(
             self.responsibilities(seed),
-            self.expert_data,
+            self.demonstration_pairs,
             self.num_intentions,
             self.config.responsibilities,
         )

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from emgail_jax import run
+from emgail_jax import train
 
 SEEDS, ITERATIONS = 2, 2
 TINY = [
@@ -21,7 +21,7 @@ TINY = [
 
 def _run(tmp_path, name, *extra):
     out = tmp_path / name
-    code = run.main([*TINY, "--out", str(out), *extra])
+    code = train.main([*TINY, "--out", str(out), *extra])
     return code, out
 
 
@@ -74,14 +74,14 @@ def test_summary_follows_the_run_contract(runs, algo):
 def test_runs_differing_only_in_data_share_one_program(runs, tmp_path, monkeypatch):
     """After the fixture's radius-20 EM-GAIL run, a radius-10 run of this process reuses its
     compiled programs (no program is added) and gives what a run compiling afresh gives."""
-    from emgail_jax import runner as runner_lib
+    from emgail_jax.host import seed_runner
 
-    programs = dict(runner_lib._shared_programs)
+    programs = dict(seed_runner._shared_programs)
     code, shared = _run(tmp_path, "shared", "--radius", "10", "--info-weight", "0.5")
-    assert code == 0 and dict(runner_lib._shared_programs).keys() == programs.keys()
-    monkeypatch.setattr(runner_lib, "_shared_programs", type(runner_lib._shared_programs)())
+    assert code == 0 and dict(seed_runner._shared_programs).keys() == programs.keys()
+    monkeypatch.setattr(seed_runner, "_shared_programs", type(seed_runner._shared_programs)())
     code, fresh = _run(tmp_path, "fresh", "--radius", "10", "--info-weight", "0.5")
-    assert code == 0 and len(runner_lib._shared_programs) == 1
+    assert code == 0 and len(seed_runner._shared_programs) == 1
     assert (shared / "metrics.csv").read_text() == (fresh / "metrics.csv").read_text()
     radius20 = (runs["emgail"] / "metrics.csv").read_text()
     assert (shared / "metrics.csv").read_text() != radius20
@@ -172,7 +172,7 @@ def test_malformed_demonstrations_are_rejected(tmp_path, capsys):
 
 def test_existing_run_is_kept_unless_overwrite(runs, capsys):
     before = (runs["gail"] / "summary.json").read_text()
-    code = run.main([*TINY, "--out", str(runs["gail"])])
+    code = train.main([*TINY, "--out", str(runs["gail"])])
     assert code == 2
     assert "--overwrite" in _error(capsys)
     assert (runs["gail"] / "summary.json").read_text() == before
@@ -181,13 +181,13 @@ def test_existing_run_is_kept_unless_overwrite(runs, capsys):
 def test_out_naming_a_file_is_a_one_line_error(tmp_path, capsys):
     path = tmp_path / "taken"
     path.write_text("keep me")
-    assert run.main([*TINY, "--out", str(path)]) == 2
+    assert train.main([*TINY, "--out", str(path)]) == 2
     assert "is a file, not a directory" in _error(capsys)
     assert path.read_text() == "keep me"
 
 
 def test_a_failed_write_is_a_one_line_error(tmp_path, capsys, monkeypatch):
-    from emgail_jax import records
+    from emgail_jax.host import records
 
     def full_disk(path, data):
         raise OSError(28, "No space left on device", path)
@@ -200,7 +200,7 @@ def test_a_failed_write_is_a_one_line_error(tmp_path, capsys, monkeypatch):
 
 
 def test_demonstrations_without_labels_or_returns(tmp_path, capsys):
-    from emgail_jax.problem import make_problem
+    from emgail_jax.host.problem import make_problem
 
     demos = make_problem("driver", 2).demos
     path = tmp_path / "unlabelled.npz"
@@ -222,16 +222,16 @@ def test_demonstrations_without_labels_or_returns(tmp_path, capsys):
 
 def test_without_out_a_run_takes_the_first_free_directory(tmp_path):
     root = str(tmp_path)
-    assert run.default_output("halfcheetah", "emgail", root) == f"{root}/halfcheetah-emgail"
+    assert train.default_output("halfcheetah", "emgail", root) == f"{root}/halfcheetah-emgail"
     (tmp_path / "halfcheetah-emgail").mkdir()
     (tmp_path / "halfcheetah-emgail-2").mkdir()
-    assert run.default_output("halfcheetah", "emgail", root) == f"{root}/halfcheetah-emgail-3"
+    assert train.default_output("halfcheetah", "emgail", root) == f"{root}/halfcheetah-emgail-3"
 
 
 def test_set_reaches_the_config_and_a_resume_refuses_it(tmp_path):
-    spec = run.spec_from_args(
-        run.parse_args(["--set", "discriminator_steps=3", "--set", "trpo.max_kl=0.02"])
+    spec = train.spec_from_args(
+        train.parse_args(["--set", "discriminator_steps=3", "--set", "trpo.max_kl=0.02"])
     )
     assert spec.config.discriminator_steps == 3 and spec.config.trpo.max_kl == 0.02
-    with pytest.raises(run.RunError, match="drop --set"):
-        run.spec_from_args(run.parse_args(["--resume", str(tmp_path), "--set", "gamma=0.99"]))
+    with pytest.raises(train.RunError, match="drop --set"):
+        train.spec_from_args(train.parse_args(["--resume", str(tmp_path), "--set", "gamma=0.99"]))

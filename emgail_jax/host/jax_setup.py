@@ -6,9 +6,20 @@ from __future__ import annotations
 import dataclasses
 import os
 
-from emgail_jax import _add_xla_flags
-
 DEFAULT_CACHE = os.path.join(os.path.expanduser("~"), ".cache", "emgail_jax", "xla")
+
+
+# XLA:CPU's concurrency-optimised scheduler deadlocks on the vmapped update step with the
+# jaxlib this project pins (every thread idles in BlockUntilReady); the default scheduler does
+# not. Set on `import emgail_jax`, before anything imports JAX.
+XLA_WORKAROUNDS = ("--xla_cpu_enable_concurrency_optimized_scheduler=false",)
+
+
+def add_xla_flags(*flags: str) -> None:
+    current = os.environ.get("XLA_FLAGS", "")
+    missing = [f for f in flags if f.split("=")[0] not in current]
+    if missing:
+        os.environ["XLA_FLAGS"] = " ".join([current, *missing]).strip()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,7 +76,7 @@ def setup(
         then lists every process's devices, and seeds are sharded over all of them.
     """
     devices = host_devices or os.cpu_count() or 1
-    _add_xla_flags(f"--xla_force_host_platform_device_count={devices}")
+    add_xla_flags(f"--xla_force_host_platform_device_count={devices}")
     import jax
 
     if distributed is not None:

@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from emgail_jax.optim import Learner
+from emgail_jax.method.optim import Learner
 
 
 def value_loss(predict: Callable, params, inputs, targets: jax.Array) -> jax.Array:
@@ -29,8 +29,8 @@ def fit_value(
     """Epochs of shuffled minibatch Adam steps on the value loss.
 
     ``inputs`` and ``targets`` have leading dimensions ``[G, M]``: G groups (the intentions, in
-    the layout of :func:`~emgail_jax.rollout.intention_major`) of M samples, shuffled along M,
-    so that every minibatch holds the same number of samples of every group.
+    the layout of :func:`~emgail_jax.method.rollout.intention_major`) of M samples, shuffled
+    along M, so that every minibatch holds the same number of samples of every group.
     Returns the fitted learner and the loss before and after.
     """
     n = targets.shape[1]

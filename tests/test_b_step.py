@@ -7,14 +7,14 @@ import numpy as np
 import optax
 import pytest
 
-from emgail_jax.bstep import PolicySamples, make_b_step
-from emgail_jax.config import Config
-from emgail_jax.gae import generalized_advantages
-from emgail_jax.networks import GaussianPolicy, ValueNet, action_distribution
-from emgail_jax.optim import Learner
-from emgail_jax.rollout import intention_major, time_major
-from emgail_jax.trpo import trpo_step
-from emgail_jax.value import fit_value
+from emgail_jax.method.b_step import PolicySamples, make_b_step
+from emgail_jax.method.config import Config
+from emgail_jax.method.gae import generalized_advantages
+from emgail_jax.method.networks import GaussianPolicy, ValueNet, action_distribution
+from emgail_jax.method.optim import Learner
+from emgail_jax.method.rollout import intention_major, time_major
+from emgail_jax.method.trpo import trpo_step
+from emgail_jax.method.value import fit_value
 
 T, K, B, D, A = 4, 2, 3, 3, 2
 

@@ -13,13 +13,13 @@ import numpy as np
 from flax import struct
 
 import envs
-from emgail_jax import normalizer as obs_norm
-from emgail_jax.demos import Demonstrations
-from emgail_jax.rollout import Transitions
+from emgail_jax.method import normalizer as obs_norm
+from emgail_jax.method.demonstrations import Demonstrations
+from emgail_jax.method.rollout import Transitions
 
 
 @struct.dataclass
-class ExpertData:
+class DemonstrationPairs:
     """The demonstrations, plus the references ERD is normalised with."""
 
     observations: jax.Array  # [N, D] raw
@@ -32,7 +32,9 @@ class ExpertData:
     has_labels: bool = struct.field(pytree_node=False, default=False)
 
     @classmethod
-    def create(cls, demos: Demonstrations, random_returns: np.ndarray, k: int) -> ExpertData:
+    def create(
+        cls, demos: Demonstrations, random_returns: np.ndarray, k: int
+    ) -> DemonstrationPairs:
         n = len(demos)
         labels = demos.intentions if demos.intentions is not None else np.full(n, -1)
         returns = demos.expert_returns

@@ -8,7 +8,7 @@ One loss serves both forms of the paper. Each expert pair is scored under every 
 condition c with a weight w[n, c]: EM-GAIL's conditions are the K one-hot intentions and its
 weights are the responsibilities gamma (eq. 19); the baselines' D(s, a) has a single, empty
 condition with weight one (eq. 22). Policy samples are scored under their own condition only.
-The reward the discriminator defines is in :mod:`emgail_jax.algorithms`.
+The reward the discriminator defines is in :mod:`emgail_jax.method.algorithms`.
 """
 
 from __future__ import annotations
@@ -21,9 +21,9 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from emgail_jax.algorithms import Algorithm
-from emgail_jax.batches import NormalizedBatch
-from emgail_jax.optim import Learner, minimize
+from emgail_jax.method.algorithms import Algorithm
+from emgail_jax.method.batches import NormalizedBatch
+from emgail_jax.method.optim import Learner, minimize
 
 
 def expert_logits(apply: Callable, params, obs, actions, conditions: jax.Array) -> jax.Array:
@@ -51,7 +51,7 @@ def discriminator_loss(
       conditions: ``[C, c]`` the discriminator conditions (one-hot rows, or one empty row).
       policy_obs, policy_actions, policy_conditions: ``[C, M, D]``, ``[C, M, A]``,
         ``[C, M, c]``: M samples of each condition, row c generated under condition c (the
-        intention-major layout of :func:`~emgail_jax.rollout.intention_major`).
+        intention-major layout of :func:`~emgail_jax.method.rollout.intention_major`).
     """
     real = expert_logits(apply, params, expert_obs, expert_actions, conditions)
     fake = apply(params, policy_obs, policy_actions, policy_conditions, intention_major=True)
@@ -132,7 +132,8 @@ def learned_reward(
     under their ``intention [...]``: -log(1 - D(s, a, i)) for EM-GAIL (eq. 20), plus lambda
     log P(i | s, a) (``own_log_posterior [...]``) for Info/IntentionGAIL (eq. 23), and
     -log(1 - D(s, a)) for GAIL. ``intention_major``: the leading axis of the inputs is the
-    intention (the rollouts' layout ``[K, ...]``, see :func:`~emgail_jax.networks.conditioned_mlp`).
+    intention (the rollouts' layout ``[K, ...]``, see
+    :func:`~emgail_jax.method.networks.conditioned_mlp`).
     """
     condition = algorithm.discriminator_condition(intention, num_intentions)
     logit = apply(params, obs, executed, condition, intention_major=intention_major)

@@ -7,16 +7,20 @@ import numpy as np
 import pytest
 from jax.sharding import PartitionSpec
 
-from emgail_jax import runner as runner_lib
-from emgail_jax.runner import (
+import envs
+from emgail_jax.host import seed_runner
+from emgail_jax.host.seed_runner import (
     Runner,
     chunk_length,
     chunks,
     concat_history,
     evaluation_plan,
     final_metrics,
+    intention_runner,
     seed_sharding,
 )
+from emgail_jax.method.config import Config
+from emgail_jax.method.rl import make_rl_train
 
 CHUNK = 3
 INPUTS = np.array([True, False, True])
@@ -165,7 +169,7 @@ def test_adding_seeds_leaves_the_first_seeds_unchanged(three_seeds, four_seeds):
 def test_results_do_not_depend_on_the_number_of_devices(four_seeds, monkeypatch):
     one_device = jax.devices()[:1]
     with monkeypatch.context() as patch:
-        patch.setattr(runner_lib.jax, "devices", lambda *args: one_device)
+        patch.setattr(seed_runner.jax, "devices", lambda *args: one_device)
         runner = Runner(toy_init, toy_update, 4)
     assert runner.sharding.mesh.devices.size == 1
     _, history = run_chunks(runner, 2)
@@ -212,8 +216,8 @@ def test_runners_of_one_program_key_share_their_compiled_programs(four_seeds):
 
 
 def test_shared_programs_keep_the_most_recently_used(monkeypatch):
-    monkeypatch.setattr(runner_lib, "SHARED_PROGRAMS", 2)
-    monkeypatch.setattr(runner_lib, "_shared_programs", type(runner_lib._shared_programs)())
+    monkeypatch.setattr(seed_runner, "SHARED_PROGRAMS", 2)
+    monkeypatch.setattr(seed_runner, "_shared_programs", type(seed_runner._shared_programs)())
     a, b = (Runner(toy_init, toy_update, 2, program_key=k) for k in "ab")
     assert Runner(toy_init, toy_update, 2, program_key="a")._programs is a._programs
     Runner(toy_init, toy_update, 2, program_key="c")  # drops b, the least recently used
@@ -323,7 +327,7 @@ def test_concat_history_appends_along_iterations():
 
 def test_default_seed_batch_is_one_on_cpu():
     assert jax.default_backend() == "cpu"
-    assert runner_lib.default_seed_batch() == 1
+    assert seed_runner.default_seed_batch() == 1
     assert Runner(toy_init, toy_update, 4).seed_batch == 1
 
 
@@ -334,7 +338,7 @@ def test_map_in_batches_equals_vmap_and_keeps_zero_size_leaves(batch):
     (3 of 4 -> groups of 2)."""
     f = lambda tree: {"y": 2.0 * tree["x"] + 1.0, "empty": tree["empty"] + 1.0}
     tree = {"x": jnp.arange(12.0).reshape(4, 3), "empty": jnp.zeros((4, 0, 2))}
-    mapped = jax.jit(runner_lib.map_in_batches(f, batch))(tree)
+    mapped = jax.jit(seed_runner.map_in_batches(f, batch))(tree)
     expected = jax.vmap(f)(tree)
     np.testing.assert_array_equal(mapped["y"], expected["y"])
     assert mapped["empty"].shape == (4, 0, 2)
@@ -348,3 +352,19 @@ def test_vmapped_seed_batches_give_the_sequential_results(four_seeds, seed_batch
     _, _, sequential = four_seeds
     for name in history:
         np.testing.assert_allclose(history[name], sequential[name], rtol=1e-6, atol=1e-6)
+
+
+def test_intention_runner_gives_each_seed_its_own_policies():
+    config = Config(hidden=(8,), num_envs=2, rollout_length=10, value_epochs=1)
+    trainer = make_rl_train(config, envs.make("driver"), eval_episodes=1)
+    runner = intention_runner(trainer, jnp.arange(2), seeds=2)
+    stop_after_first = lambda first, length, states, metrics: False
+    states = runner.run(
+        runner.init(jax.random.PRNGKey(1)),
+        chunks(0, 4, 2),
+        lambda f, n: np.zeros(n, bool),
+        stop_after_first,
+    )
+    assert np.asarray(states.iteration).tolist() == [[2, 2], [2, 2]]  # stopped after one chunk
+    kernel = lambda s: jax.tree.leaves(s.policy)[0]
+    assert not np.allclose(kernel(states)[0], kernel(states)[1])
