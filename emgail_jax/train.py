@@ -33,7 +33,7 @@ DEFAULT_CHECKPOINT_EVERY = 50
 
 def parse_args(argv=None) -> argparse.Namespace:
     from emgail_jax.method.algorithms import NAMES
-    from emgail_jax.method.config import INTENTION_INPUTS, RESPONSIBILITIES
+    from emgail_jax.method.config import INTENTION_INPUTS, PRIORS, RESPONSIBILITIES
 
     parser = argparse.ArgumentParser(
         prog="python -m emgail_jax.train", description=__doc__.split("\n")[0]
@@ -76,6 +76,13 @@ def parse_args(argv=None) -> argparse.Namespace:
         help="E-step: the posterior of each pair's whole demonstration (default; centred over "
         "the demonstrations with trajectory-centered), or of each pair alone (the paper's "
         "eq. 18), or the hidden labels (an oracle, for diagnosis)",
+    )
+    parser.add_argument(
+        "--prior",
+        default=None,
+        choices=PRIORS,
+        help="E-step prior over the intentions: uniform (default, the paper's) or mixture "
+        "weights estimated from the demonstrations (for intentions in unequal shares)",
     )
     parser.add_argument("--num-envs", type=int, default=None, help="envs per intention")
     parser.add_argument("--rollout-length", type=int, default=None, help="steps per rollout")
@@ -134,6 +141,7 @@ _RUN_OPTIONS = (
     "random_episodes",
     "intention_input",
     "responsibilities",
+    "prior",
     "set",
     "num_envs",
     "rollout_length",
@@ -179,6 +187,7 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         "info_weight": args.info_weight,
         "intention_input": args.intention_input,
         "responsibilities": args.responsibilities,
+        "prior": args.prior,
         "num_envs": args.num_envs,
         "rollout_length": args.rollout_length,
         "eval_every": args.eval_every,
@@ -439,6 +448,8 @@ def _final_summary(problem, config, history, timings, spec) -> dict:
         "iteration_time_s": timings["train_time_s"] / max(timings["iterations"], 1),
         "env_steps": env_steps * spec.seeds,
     }
+    if "posterior/intention_weights" in final:  # the mixture prior: [seeds][K]
+        summary["intention_weights"] = final["posterior/intention_weights"]
     name = "trajectory_cluster_accuracy"
     if f"eval/{name}" in final:  # EM-GAIL and Info/IntentionGAIL in trajectory mode
         summary[name] = None if no_accuracy else final[f"eval/{name}"]

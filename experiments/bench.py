@@ -98,7 +98,7 @@ def child(env_name: str, k: int, seed_counts: list[int], chunks: int, cache: str
     batch = LearningBatch.of(transitions, end, env.episode_length)
     algorithm = algorithm_of(config, data)
     seen = jax.jit(steps.normalized)(state, batch, data)
-    e = jax.jit(steps.e_step)(state.posterior, seen, data.demos)
+    e = jax.jit(steps.e_step)(state.posterior, seen, data.demos, state.intention_weights)
     m_step = lambda discriminator, seen, gamma: steps.m_step(discriminator, seen, gamma, algorithm)
     discriminator = jax.jit(m_step)(state.discriminator, seen, e.gamma).discriminator
     phases = evaluation_phases(config, env)
@@ -122,7 +122,7 @@ def child(env_name: str, k: int, seed_counts: list[int], chunks: int, cache: str
 
     pieces = {
         "rollout": (rollout, (state, data)),
-        "E-step": (steps.e_step, (state.posterior, seen, data.demos)),
+        "E-step": (steps.e_step, (state.posterior, seen, data.demos, state.intention_weights)),
         "M-step": (m_step, (state.discriminator, seen, e.gamma)),
         "B-step": (
             lambda *args: steps.improve(*args, algorithm, key),

@@ -118,3 +118,16 @@ def test_first_intentions_keeps_the_first_k(generated):
     np.testing.assert_array_equal(two.intentions, [0, 0, 1, 1])
     np.testing.assert_array_equal(two.expert_returns, [-1.0, -2.0])
     assert two.num_intentions == 2
+
+
+def test_first_episodes_keeps_the_first_n_of_each_intention():
+    starts = np.array([1, 0, 1, 0, 1, 0, 1, 0, 1, 0, 1, 0], bool)  # 6 episodes of 2 pairs
+    intentions = np.array([0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 1, 1])
+    demos = Demonstrations(
+        np.arange(12, dtype=np.float32)[:, None], np.zeros((12, 1)), starts, intentions
+    )
+    kept = demonstrations.first_episodes(demos, [2, 1])
+    np.testing.assert_array_equal(kept.observations[:, 0], [0, 1, 2, 3, 6, 7])
+    np.testing.assert_array_equal(kept.episode_starts, [1, 0, 1, 0, 1, 0])
+    with pytest.raises(ValueError, match="has 3 episodes, not 4"):
+        demonstrations.first_episodes(demos, [4, 1])

@@ -148,3 +148,16 @@ def test_rl_floor_trains_on_the_true_reward(capsys):
     assert rl_floor.main([*args, "--set", "num_envs=2", "--set", "hidden=8,"]) == 0
     (line,) = capsys.readouterr().out.splitlines()
     assert line.startswith("iteration 10: returns ") and "ERD" in line and "entropy" in line
+
+
+def test_unequal_shares_writes_the_asked_episodes(tmp_path, capsys):
+    from emgail_jax.host import demonstration_files
+
+    module = _load("unequal_shares")
+    out = tmp_path / "driver-41.npz"
+    assert module.main(["--env", "driver", "--episodes", "4", "1", "--out", str(out)]) == 0
+    assert "shares 0.800, 0.200" in capsys.readouterr().out
+    demos = demonstration_files.load(str(out))
+    assert np.bincount(demos.intentions).tolist() == [400, 100]
+    assert module.main(["--env", "driver", "--episodes", "9", "1", "--out", str(out)]) == 2
+    assert "has 5 episodes, not 9" in capsys.readouterr().err

@@ -16,12 +16,14 @@ from emgail_jax.method.posterior import (
     expert_responsibilities,
     log_posterior,
     make_e_step,
+    mixture_weights,
     posterior_loss,
     posterior_update,
     trajectory_responsibilities,
 )
 
 LN3 = math.log(3.0)
+UNIFORM3 = jnp.full(3, 1 / 3)
 
 
 def toy_apply(logits, obs, actions):
@@ -201,10 +203,21 @@ def _expert(n, episodes):
 def test_e_step_without_a_posterior_is_uniform_with_zero_log_posterior(random_batch):
     """GAIL's E-step: every pair belongs to every intention alike, and no reward term."""
     e_step = make_e_step(None, optax.adam(1e-3), Config())
-    result = e_step(None, random_batch(3, 4, 6), _expert(6, 2))
+    result = e_step(None, random_batch(3, 4, 6), _expert(6, 2), UNIFORM3)
     np.testing.assert_array_equal(result.gamma, np.full((6, 3), 1 / 3, np.float32))
     np.testing.assert_array_equal(result.own_log_posterior, np.zeros((3, 4)))
     assert result.posterior is None and result.responsibilities is None
+
+
+def _posterior_and_batch(random_batch, k, m, n):
+    """A small posterior network, its optimiser, a random batch and the fresh learner."""
+    net = Posterior(num_intentions=k, hidden=(8,))
+    optimizer = optax.adam(1e-2)
+    batch = random_batch(k, m, n)
+    start = Learner.create(
+        net.init(jax.random.PRNGKey(1), batch.obs[0], batch.executed[0]), optimizer
+    )
+    return net, optimizer, batch, start
 
 
 @pytest.mark.parametrize("reward_from", ["updated", "previous"])
@@ -212,14 +225,9 @@ def test_e_step_trains_on_the_policy_samples_and_scores_their_own_intention(
     reward_from, random_batch
 ):
     k, m, n = 3, 5, 6
-    net = Posterior(num_intentions=k, hidden=(8,))
-    optimizer = optax.adam(1e-2)
-    batch = random_batch(k, m, n)
-    start = Learner.create(
-        net.init(jax.random.PRNGKey(1), batch.obs[0], batch.executed[0]), optimizer
-    )
+    net, optimizer, batch, start = _posterior_and_batch(random_batch, k, m, n)
     config = Config(posterior_steps=7, responsibilities="pair", reward_from=reward_from)
-    result = make_e_step(net.apply, optimizer, config)(start, batch, _expert(n, 2))
+    result = make_e_step(net.apply, optimizer, config)(start, batch, _expert(n, 2), UNIFORM3)
     # The same training, written out: the samples labelled by the row they came from.
     labels = np.repeat(np.arange(k), m)
     flat = lambda x: x.reshape(k * m, -1)
@@ -239,3 +247,50 @@ def test_e_step_trains_on_the_policy_samples_and_scores_their_own_intention(
     log_p = log_posterior(net.apply, scoring.params, batch.obs, batch.executed)  # [K, M, K]
     own = np.stack([log_p[i, :, i] for i in range(k)])
     np.testing.assert_allclose(result.own_log_posterior, own, rtol=1e-5)
+    np.testing.assert_array_equal(result.weights, UNIFORM3)  # the uniform prior passes through
+    assert "posterior/intention_weights" not in result.metrics
+
+
+# ---- the mixture prior (demonstrations in unequal shares) ----------------------------------
+
+
+def test_mixture_weights_are_the_mean_responsibilities_floored():
+    gamma = jnp.array([[0.9, 0.1, 0.0], [0.7, 0.3, 0.0], [0.2, 0.8, 0.0], [1.0, 0.0, 0.0]])
+    weights = mixture_weights(gamma)
+    np.testing.assert_allclose(weights.sum(), 1.0, rtol=1e-6)
+    assert float(weights[2]) > 0  # a weight at 0 could never recover
+    np.testing.assert_allclose(weights[:2] / weights[:2].sum(), [0.7, 0.3], rtol=1e-3)
+
+
+@pytest.mark.parametrize("mode", ["pair", "trajectory"])
+def test_the_prior_reweighs_the_posterior(mode):
+    """gamma_i is proportional to w_i P(i | s, a) (per pair), or to w_i prod_t P(i | s_t, a_t)
+    (per demonstration); a uniform w changes nothing."""
+    p = jnp.array([[0.6, 0.4], [0.5, 0.5], [0.3, 0.7], [0.55, 0.45]])
+    episode, w = jnp.array([0, 0, 1, 1]), jnp.array([0.2, 0.8])
+    gamma = lambda weights: (
+        expert_responsibilities(
+            lambda logits, obs, act: logits, jnp.log(p), p, p, episode, 2, mode, weights=weights
+        ).gamma
+    )
+    if mode == "pair":
+        expected = w * p / (w * p).sum(-1, keepdims=True)
+    else:
+        evidence = w * jnp.stack([p[:2].prod(0), p[2:].prod(0)])
+        expected = (evidence / evidence.sum(-1, keepdims=True))[episode]
+    np.testing.assert_allclose(gamma(w), expected, rtol=1e-5)
+    np.testing.assert_allclose(gamma(jnp.full(2, 0.5)), gamma(None), rtol=1e-6)
+
+
+def test_e_step_with_the_mixture_prior_reestimates_the_weights(random_batch):
+    k, m, n = 3, 5, 6
+    net, optimizer, batch, start = _posterior_and_batch(random_batch, k, m, n)
+    config = Config(posterior_steps=3, responsibilities="pair", prior="mixture")
+    prior = jnp.array([0.6, 0.3, 0.1])
+    result = make_e_step(net.apply, optimizer, config)(start, batch, _expert(n, 2), prior)
+    log_p = log_posterior(
+        net.apply, result.posterior.params, batch.expert_obs, batch.expert_actions
+    )
+    np.testing.assert_allclose(result.gamma, jax.nn.softmax(log_p + jnp.log(prior)), rtol=1e-5)
+    np.testing.assert_allclose(result.weights, mixture_weights(result.gamma), rtol=1e-6)
+    np.testing.assert_allclose(result.metrics["posterior/intention_weights"], result.weights)

@@ -401,3 +401,17 @@ def test_reward_from_previous_changes_only_which_networks_score_the_reward(env, 
     assert metrics_updated["discriminator/loss"] == metrics_previous["discriminator/loss"]
     assert metrics_updated["train/pseudo_reward"] != metrics_previous["train/pseudo_reward"]
     assert not np.array_equal(_leaves(state_updated.policy)[0], _leaves(state_previous.policy)[0])
+
+
+def test_the_mixture_prior_carries_its_weights_from_one_e_step_to_the_next(env, expert, emgail):
+    """Under the uniform prior the weights stay 1/K and are not logged; under the mixture prior
+    each iteration's E-step re-estimates them and the next one starts from them."""
+    first, [(uniform_state, uniform_metrics), _], _ = emgail
+    np.testing.assert_array_equal(first.intention_weights, np.full(K, 1 / K, np.float32))
+    np.testing.assert_array_equal(uniform_state.intention_weights, first.intention_weights)
+    assert "posterior/intention_weights" not in uniform_metrics
+    _, steps, _ = _train(CONFIG.replace(prior="mixture"), env, expert, 2)
+    for state, metrics in steps:
+        weights = metrics["posterior/intention_weights"]
+        assert weights.shape == (K,) and np.isclose(weights.sum(), 1.0, atol=1e-5)
+        np.testing.assert_array_equal(state.intention_weights, weights)

@@ -161,6 +161,7 @@ class SavedRun:
             pairs.episodes,
             self.config.responsibilities,
             pairs.labels if pairs.has_labels else None,
+            state.intention_weights if self.config.prior == "mixture" else None,
         )
         return jax.device_get(result)
 

@@ -13,6 +13,7 @@ from emgail_jax.method.trpo import TRPOConfig
 INTENTION_INPUTS = ("onehot", "heads")
 RESPONSIBILITIES = ("trajectory", "trajectory-centered", "pair", "labels")
 REWARD_FROM = ("updated", "previous")
+PRIORS = ("uniform", "mixture")
 
 
 @dataclass(frozen=True)
@@ -33,7 +34,7 @@ class Config:
     hidden: tuple[int, ...] = (64, 64)
     # How the intention enters the policy, value and EM-GAIL's discriminator: "heads" (one
     # network per intention, as the paper's public code) or "onehot" (an input of one network,
-    # as the paper's Table 2 counts); see emgail_jax.networks. Why heads: docs/defaults.md.
+    # as the paper's Table 2 counts); see emgail_jax.method.networks. Why heads: docs/defaults.md.
     intention_input: str = "heads"
     # The E-step's responsibilities: "trajectory" (each pair takes the posterior of its whole
     # demonstration; emgail_jax.method.posterior.trajectory_responsibilities), "trajectory-centered"
@@ -42,6 +43,10 @@ class Config:
     # is a departure from the paper, made because the per-pair E-step lets hopper-3 and
     # reacher-4 collapse onto one intention: docs/defaults.md.
     responsibilities: str = "trajectory"
+    # The E-step's prior over the intentions: "uniform" (1/K, the paper's) or "mixture" (weights
+    # w_i estimated as EM does for a mixture: each intention's mean responsibility over the
+    # demonstration pairs, updated every E-step), for demonstrations in unequal shares.
+    prior: str = "uniform"
     # The policy's initial log-std, 0 as in the paper's public code: a wide start lets the E-step
     # separate the intentions before the policies commit (docs/defaults.md).
     init_log_std: float = 0.0
@@ -85,6 +90,7 @@ class Config:
         for name, choices in (
             ("intention_input", INTENTION_INPUTS),
             ("responsibilities", RESPONSIBILITIES),
+            ("prior", PRIORS),
             ("reward_from", REWARD_FROM),
             ("reward_form", REWARD_FORMS),
         ):

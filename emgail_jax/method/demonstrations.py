@@ -4,7 +4,7 @@ transforms, and their generation from an expert policy (files: ``host/demonstrat
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -45,6 +45,27 @@ def first_intentions(demos: Demonstrations, k: int) -> Demonstrations:
         episode_starts=demos.episode_starts[keep],
         intentions=demos.intentions[keep],
         expert_returns=returns,
+    )
+
+
+def first_episodes(demos: Demonstrations, episodes: Sequence[int]) -> Demonstrations:
+    """The pairs of the first ``episodes[i]`` demonstrations (episodes) of every intention i
+    (labels required): a set in unequal shares made from a balanced one."""
+    if demos.intentions is None:
+        raise ValueError("keeping episodes per intention needs labelled demonstrations")
+    episode = np.cumsum(demos.episode_starts) - 1
+    keep = np.zeros(len(demos), bool)
+    for intention, count in enumerate(episodes):
+        own = np.unique(episode[demos.intentions == intention])
+        if count > len(own):
+            raise ValueError(f"intention {intention} has {len(own)} episodes, not {count}")
+        keep |= np.isin(episode, own[:count])
+    return Demonstrations(
+        observations=demos.observations[keep],
+        actions=demos.actions[keep],
+        episode_starts=demos.episode_starts[keep],
+        intentions=demos.intentions[keep],
+        expert_returns=demos.expert_returns,
     )
 
 

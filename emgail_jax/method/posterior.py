@@ -54,7 +54,11 @@ def log_posterior(apply: Callable, params, obs: jax.Array, actions: jax.Array) -
 
 
 def trajectory_responsibilities(
-    log_p: jax.Array, episode: jax.Array, episodes: int, centered: bool = False
+    log_p: jax.Array,
+    episode: jax.Array,
+    episodes: int,
+    centered: bool = False,
+    log_prior: jax.Array | None = None,
 ) -> jax.Array:
     """gamma of every expert pair from its whole demonstration: ``[N, K]``.
 
@@ -71,10 +75,13 @@ def trajectory_responsibilities(
     Args:
       log_p: ``[N, K]`` log P(i | s, a) of the expert pairs.
       episode: ``[N]`` index of each pair's episode, in ``[0, episodes)``.
+      log_prior: ``[K]`` log w_i of the mixture prior; None for the uniform prior.
     """
     per_episode = jax.ops.segment_sum(log_p, episode, num_segments=episodes)  # [E, K]
     if centered:
         per_episode = per_episode - per_episode.mean(0, keepdims=True)
+    if log_prior is not None:
+        per_episode = per_episode + log_prior
     return jax.nn.softmax(per_episode, axis=-1)[episode]
 
 
@@ -106,28 +113,37 @@ def expert_responsibilities(
     episodes: int,
     mode: str,
     labels: jax.Array | None = None,
+    weights: jax.Array | None = None,
 ) -> Responsibilities:
     """The E-step's responsibilities of the expert pairs ``obs [N, D]`` (normalised),
     ``actions [N, A]`` (executed) under the posterior ``params``; ``mode`` is ``"pair"``
     (eq. 18), ``"trajectory"`` or ``"trajectory-centered"`` (see
     :func:`trajectory_responsibilities`) or ``"labels"``: the
     hidden ``labels [N]`` themselves, an oracle E-step that bounds what any E-step can give
-    (not the paper's method; the pair labels are still the posterior's, for eq. 29)."""
+    (not the paper's method; the pair labels are still the posterior's, for eq. 29).
+
+    ``weights [K]``, the mixture prior w_i (None: uniform), reweigh the posterior, which was
+    trained on policy samples in equal shares: gamma_i is proportional to w_i P(i | s, a)
+    (per pair, or per demonstration with the product over its pairs), and so are the pair
+    labels."""
     log_p = log_posterior(apply, params, obs, actions)
-    pair_labels = jnp.argmax(log_p, -1)
+    log_prior = None if weights is None else jnp.log(weights)
+    pair_labels = jnp.argmax(log_p if log_prior is None else log_p + log_prior, -1)
     if mode == "labels":
         if labels is None:
             raise ValueError("the labels E-step needs demonstrations with hidden labels")
         return Responsibilities(jax.nn.one_hot(labels, log_p.shape[-1]), pair_labels, labels)
     if mode in TRAJECTORY_MODES:
-        gamma = trajectory_responsibilities(log_p, episode, episodes, mode != "trajectory")
+        centered = mode != "trajectory"
+        gamma = trajectory_responsibilities(log_p, episode, episodes, centered, log_prior)
         return Responsibilities(gamma, pair_labels, jnp.argmax(gamma, -1))
     if mode != "pair":
         raise ValueError(
             f"unknown responsibilities mode '{mode}': choose trajectory, "
             f"trajectory-centered, pair or labels"
         )
-    return Responsibilities(jnp.exp(log_p), pair_labels, pair_labels)
+    gamma = jnp.exp(log_p) if log_prior is None else jax.nn.softmax(log_p + log_prior, -1)
+    return Responsibilities(gamma, pair_labels, pair_labels)
 
 
 @struct.dataclass
@@ -138,29 +154,48 @@ class EStep:
     responsibilities: Responsibilities | None  # None without a posterior
     gamma: jax.Array  # [N, K] the M-step's weights of the expert pairs
     own_log_posterior: jax.Array  # [K, M] log P(i | s, a) of each sample's own intention
+    weights: jax.Array  # [K] the mixture prior for the next E-step (1/K under the uniform prior)
     metrics: dict
 
 
+# A floor for the mixture weights: an intention whose weight reached 0 (log 0) could never
+# take a demonstration back.
+MIN_WEIGHT = 1e-3
+
+
+def mixture_weights(gamma: jax.Array) -> jax.Array:
+    """``[K]`` EM's update of a mixture's weights: each intention's mean responsibility over
+    the demonstration pairs ``gamma [N, K]``, floored at :data:`MIN_WEIGHT`."""
+    weights = jnp.maximum(gamma.mean(0), MIN_WEIGHT)
+    return weights / weights.sum()
+
+
 def make_e_step(apply: Callable, optimizer: optax.GradientTransformation, config: Config):
-    """``e_step(posterior, batch, demos) -> EStep`` (Algorithm 1, E-step).
+    """``e_step(posterior, batch, demos, weights) -> EStep`` (Algorithm 1, E-step).
 
     The posterior ``posterior`` (a :class:`Learner`, or None for GAIL) learns P(i | s, a) on
     the policy samples of ``batch`` (a :class:`NormalizedBatch`), each labelled with the
     intention whose policy made it (eq. 16); gamma is then the posterior of the expert pairs
     in ``config.responsibilities``' mode (eq. 18, or per demonstration). Info/IntentionGAIL's
     reward term, the samples' own log-posterior, comes from the updated posterior or the
-    previous one (``config.reward_from``). Without a posterior: uniform gamma, zero
-    log-posterior.
+    previous one (``config.reward_from``). With ``config.prior == "mixture"`` gamma also
+    weighs each intention by ``weights [K]``, and the E-step re-estimates them from gamma (EM
+    for a mixture's weights); under the uniform prior they pass through unchanged. Without a
+    posterior: uniform gamma, zero log-posterior.
     """
+    mixture = config.prior == "mixture"
 
     def e_step(
-        posterior: Learner | None, batch: NormalizedBatch, demos: DemonstrationPairs
+        posterior: Learner | None,
+        batch: NormalizedBatch,
+        demos: DemonstrationPairs,
+        weights: jax.Array,
     ) -> EStep:
         k, m = batch.obs.shape[:2]
         own_intention = batch.own_intention()
         if posterior is None:
             uniform = jnp.full((demos.episode.shape[0], k), 1.0 / k)
-            return EStep(None, None, uniform, jnp.zeros((k, m)), {})
+            return EStep(None, None, uniform, jnp.zeros((k, m)), weights, {})
         flat = lambda x: x.reshape(k * m, -1)
         trained, metrics = posterior_update(
             apply,
@@ -180,11 +215,16 @@ def make_e_step(apply: Callable, optimizer: optax.GradientTransformation, config
             demos.episodes,
             config.responsibilities,
             demos.labels if demos.has_labels else None,
+            weights if mixture else None,
         )
+        if mixture:
+            weights = mixture_weights(responsibilities.gamma)
+            metrics = {**metrics, "posterior/intention_weights": weights}
         rewarding = trained if config.reward_from == "updated" else posterior
         own = own_log_posterior(apply, rewarding.params, batch.obs, batch.executed, own_intention)
         chex.assert_shape(responsibilities.gamma, (demos.episode.shape[0], k))
-        return EStep(trained, responsibilities, responsibilities.gamma, own, metrics)
+        gamma = responsibilities.gamma
+        return EStep(trained, responsibilities, gamma, own, weights, metrics)
 
     return e_step
 

@@ -78,6 +78,7 @@ class TrainState:
     discriminator: Learner
     posterior: Learner | None  # None for GAIL
     normalizer: obs_norm.RunningStats
+    intention_weights: jax.Array  # [K] the E-step's mixture prior (1/K under the uniform prior)
     env_state: envs.State  # [K, B] auto-resetting training envs
     key: jax.Array
     iteration: jax.Array
@@ -257,6 +258,7 @@ def make_init(config: Config, env: envs.Env, networks: Networks, optimizers: Opt
             discriminator=Learner.create(discriminator, optimizers.discriminator),
             posterior=posterior,
             normalizer=obs_norm.RunningStats.create(env.observation_size),
+            intention_weights=jnp.full(k, 1.0 / k),
             env_state=batch_reset(train_env, keys["env"], (k, b)),
             key=keys["next"],
             iteration=jnp.zeros((), jnp.int32),
@@ -399,7 +401,7 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
         algorithm = algorithm_of(config, data)
         end, batch, evaluation = collector.collect_and_evaluate(state, evaluating, data, key_phases)
         seen = normalized(state, batch, data)
-        e = e_step(state.posterior, seen, data.demos)
+        e = e_step(state.posterior, seen, data.demos, state.intention_weights)
         m = m_step(state.discriminator, seen, e.gamma, algorithm)
         rewarding = m.discriminator if config.reward_from == "updated" else state.discriminator
         b = improve(state, batch, seen, rewarding, e.own_log_posterior, algorithm, key_value)
@@ -409,6 +411,7 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
             discriminator=m.discriminator,
             posterior=e.posterior,
             normalizer=seen.normalizer,
+            intention_weights=e.weights,
             env_state=end,
             key=key_next,
             iteration=state.iteration + 1,
