@@ -12,6 +12,7 @@ run's ``summary.json``) should come out near them.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 
 
@@ -21,6 +22,12 @@ def main(argv=None) -> int:
     parser.add_argument("--episodes", type=int, nargs="+", required=True, help="per intention")
     parser.add_argument("--radius", type=float, default=None, help="the driver's path 2")
     parser.add_argument("--out", required=True, help="the demonstrations file to write")
+    parser.add_argument(
+        "--drop-labels",
+        action="store_true",
+        help="write the pairs without their labels and expert returns, as unlabelled sets come "
+        "(the labels go to OUT.labels.npy, for diagnosis only)",
+    )
     args = parser.parse_args(argv)
 
     from emgail_jax.host import jax_setup
@@ -40,8 +47,11 @@ def main(argv=None) -> int:
     except (envs.EnvError, demonstration_files.DemonstrationError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
-    demonstration_files.save(demos, args.out)
     pairs = np.bincount(demos.intentions, minlength=len(args.episodes))
+    if args.drop_labels:
+        np.save(f"{args.out}.labels.npy", demos.intentions)
+        demos = dataclasses.replace(demos, intentions=None, expert_returns=None)
+    demonstration_files.save(demos, args.out)
     shares = ", ".join(f"{p / pairs.sum():.3f}" for p in pairs)
     print(f"wrote {len(demos)} pairs ({', '.join(map(str, pairs))}; shares {shares}) to {args.out}")
     return 0

@@ -159,5 +159,14 @@ def test_unequal_shares_writes_the_asked_episodes(tmp_path, capsys):
     assert "shares 0.800, 0.200" in capsys.readouterr().out
     demos = demonstration_files.load(str(out))
     assert np.bincount(demos.intentions).tolist() == [400, 100]
+    bare = tmp_path / "bare.npz"
+    assert (
+        module.main(
+            ["--env", "driver", "--episodes", "1", "1", "--out", str(bare), "--drop-labels"]
+        )
+        == 0
+    )
+    assert demonstration_files.load(str(bare)).intentions is None
+    assert np.load(f"{bare}.labels.npy").tolist() == [0] * 100 + [1] * 100
     assert module.main(["--env", "driver", "--episodes", "9", "1", "--out", str(out)]) == 2
     assert "has 5 episodes, not 9" in capsys.readouterr().err
