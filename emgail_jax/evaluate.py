@@ -211,8 +211,11 @@ def seed_line(run, seed: int, result: dict) -> str:
     return " ".join(parts)
 
 
-def write_figures(run, run_dir: str, out: str, seed_results: tuple, args) -> list[str]:
-    """The learning curves, and the paths (driver) or traces (MJX) of seed ``args.seed``."""
+def write_figures(
+    run, run_dir: str, out: str, seed_results: tuple, seed: int, episodes: int
+) -> list[str]:
+    """The learning curves, and the paths (driver) or traces (MJX, beside ``episodes`` of the
+    experts' own) of ``seed``, whose rollouts and scores are ``seed_results``."""
     import jax
 
     os.makedirs(out, exist_ok=True)
@@ -220,13 +223,13 @@ def write_figures(run, run_dir: str, out: str, seed_results: tuple, args) -> lis
     plot_learning_curves(run_dir, written[-1])
     _, alive, trace, result = seed_results
     if run.problem.env.name == "driver":
-        written.append(os.path.join(out, f"paths_seed{args.seed}.png"))
+        written.append(os.path.join(out, f"paths_seed{seed}.png"))
         plot_driver_paths(run, trace, alive, result["matching"], written[-1])
     elif trace:
-        expert = expert_rollouts(run, args.episodes, jax.random.PRNGKey(EVALUATION_SEED))
+        expert = expert_rollouts(run, episodes, jax.random.PRNGKey(EVALUATION_SEED))
         if expert is None:
             print("notice: no expert to replay for this env; the traces show the learner only")
-        written.append(os.path.join(out, f"traces_seed{args.seed}.png"))
+        written.append(os.path.join(out, f"traces_seed{seed}.png"))
         plot_traces(run, trace, alive, expert, result["matching"], written[-1])
     return written
 
@@ -283,7 +286,8 @@ def main(argv=None) -> int:
     )
 
     out = args.out or os.path.join(args.run_dir, "figures")
-    written = [evaluation_path, *write_figures(run, args.run_dir, out, results[args.seed], args)]
+    figures = write_figures(run, args.run_dir, out, results[args.seed], args.seed, args.episodes)
+    written = [evaluation_path, *figures]
     for path in written:
         print(f"wrote {path}")
     return 0

@@ -33,19 +33,25 @@ class Demonstrations:
         return None
 
 
+def _pairs_where(demos: Demonstrations, keep: np.ndarray) -> Demonstrations:
+    """The labelled pairs where ``keep [N]`` is True, in order (whole episodes for the
+    episode starts to stay right); the expert returns unchanged."""
+    return dataclasses.replace(
+        demos,
+        observations=demos.observations[keep],
+        actions=demos.actions[keep],
+        episode_starts=demos.episode_starts[keep],
+        intentions=demos.intentions[keep],
+    )
+
+
 def first_intentions(demos: Demonstrations, k: int) -> Demonstrations:
     """The pairs of the first ``k`` intentions (labels required)."""
     if demos.intentions is None:
         return demos
     keep = demos.intentions < k
     returns = demos.expert_returns[:k] if demos.expert_returns is not None else None
-    return Demonstrations(
-        observations=demos.observations[keep],
-        actions=demos.actions[keep],
-        episode_starts=demos.episode_starts[keep],
-        intentions=demos.intentions[keep],
-        expert_returns=returns,
-    )
+    return dataclasses.replace(_pairs_where(demos, keep), expert_returns=returns)
 
 
 def first_episodes(demos: Demonstrations, episodes: Sequence[int]) -> Demonstrations:
@@ -60,13 +66,7 @@ def first_episodes(demos: Demonstrations, episodes: Sequence[int]) -> Demonstrat
         if count > len(own):
             raise ValueError(f"intention {intention} has {len(own)} episodes, not {count}")
         keep |= np.isin(episode, own[:count])
-    return Demonstrations(
-        observations=demos.observations[keep],
-        actions=demos.actions[keep],
-        episode_starts=demos.episode_starts[keep],
-        intentions=demos.intentions[keep],
-        expert_returns=demos.expert_returns,
-    )
+    return _pairs_where(demos, keep)
 
 
 def executed_actions(demos: Demonstrations, env: envs.Env) -> Demonstrations:

@@ -128,7 +128,8 @@ def expert_responsibilities(
     labels."""
     log_p = log_posterior(apply, params, obs, actions)
     log_prior = None if weights is None else jnp.log(weights)
-    pair_labels = jnp.argmax(log_p if log_prior is None else log_p + log_prior, -1)
+    log_joint = log_p if log_prior is None else log_p + log_prior  # log w_i P(i | s, a) + c
+    pair_labels = jnp.argmax(log_joint, -1)
     if mode == "labels":
         if labels is None:
             raise ValueError("the labels E-step needs demonstrations with hidden labels")
@@ -142,7 +143,7 @@ def expert_responsibilities(
             f"unknown responsibilities mode '{mode}': choose trajectory, "
             f"trajectory-centered, pair or labels"
         )
-    gamma = jnp.exp(log_p) if log_prior is None else jax.nn.softmax(log_p + log_prior, -1)
+    gamma = jnp.exp(log_p) if log_prior is None else jax.nn.softmax(log_joint, -1)
     return Responsibilities(gamma, pair_labels, pair_labels)
 
 
