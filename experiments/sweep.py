@@ -197,11 +197,13 @@ def cell_status(run_dir: str, seeds: int, iterations: int) -> str:
             f"{run_dir} was run with {summary.get('seeds')} seeds, not {seeds}: pass the same "
             f"SEEDS, or another OUT for a new sweep"
         )
-    done = summary.get("iterations_done", 0)
-    if summary.get("status") == "completed" and done >= iterations:
+    if summary.get("status") == "completed" and summary.get("iterations_done", 0) >= iterations:
         return "done"
-    has_checkpoint = os.path.isdir(os.path.join(run_dir, "checkpoints")) and done > 0
-    return "resume" if has_checkpoint else "new"
+    # A killed run never wrote its iterations to summary.json ("running"): its checkpoints
+    # are what it has done.
+    from emgail_jax.host.checkpoints import latest_iteration
+
+    return "resume" if latest_iteration(run_dir) else "new"
 
 
 def estimate_seconds(cell: Cell, seeds: int, iterations: int, measured: dict) -> float:

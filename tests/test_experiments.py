@@ -10,6 +10,8 @@ import sys
 import numpy as np
 import pytest
 
+from emgail_jax.host import checkpoints
+
 EXPERIMENTS = pathlib.Path(__file__).resolve().parents[1] / "experiments"
 
 
@@ -86,6 +88,11 @@ def test_sweep_cell_status_reads_the_run_directory(tmp_path):
     summary(seeds=4, status="interrupted", iterations_done=150)
     assert sweep.cell_status(str(tmp_path), 4, 400) == "new"  # no checkpoint to resume from
     (tmp_path / "checkpoints").mkdir()
+    assert sweep.cell_status(str(tmp_path), 4, 400) == "new"  # nor in an empty directory
+    checkpoints.save(str(tmp_path), 150, {"w": np.zeros(2)}, {"erd": np.zeros((2, 150))})
+    assert sweep.cell_status(str(tmp_path), 4, 400) == "resume"
+    # A killed run (no signal handler ran) left "running" and no iterations: resumed all the same.
+    summary(seeds=4, status="running")
     assert sweep.cell_status(str(tmp_path), 4, 400) == "resume"
     summary(seeds=4, status="completed", iterations_done=400)
     assert sweep.cell_status(str(tmp_path), 4, 600) == "resume"  # a longer sweep continues it
