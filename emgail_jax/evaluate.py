@@ -79,7 +79,8 @@ def score(run, seed: int, returns: np.ndarray) -> dict:
     from emgail_jax.method.metrics import normalized_erd
 
     demos = run.problem.demos
-    mean_returns = returns.mean(1)  # [K learned, K true]
+    mean_returns = returns.mean(1)  # [K learned, K env]
+    in_use = run.intentions_in_use(seed)
     result = {
         "returns": mean_returns,
         "episodes": int(returns.shape[1]),
@@ -88,16 +89,21 @@ def score(run, seed: int, returns: np.ndarray) -> dict:
         "matching": None,
     }
     if demos.expert_returns is not None:
-        erd = normalized_erd(mean_returns, demos.expert_returns, run.problem.random_returns)
+        random_returns = run.problem.random_returns
+        erd = normalized_erd(mean_returns, demos.expert_returns, random_returns, in_use)
         result["erd"] = float(erd.mean)
         result["erd_per_intention"] = np.asarray(erd.per_intention)
         result["matching"] = np.asarray(erd.matching)
     result.update(run.clustering(seed))
     if "cluster_accuracy" in result:
         predicted = run.responsibilities(seed).pair_labels
-        counts = np.zeros((run.num_intentions,) * 2)
+        counts = np.zeros((run.problem.true_intentions, run.num_intentions))
         np.add.at(counts, (demos.intentions, predicted), 1)
+        if in_use is not None:
+            counts[:, ~in_use] = 0  # retired intentions hold no cluster
         result["cluster_of_intention"] = linear_sum_assignment(-counts)[1]
+    if in_use is not None:
+        result["intentions_chosen"] = int(in_use.sum())
     return result
 
 
@@ -124,22 +130,54 @@ def plot_learning_curves(run_dir: str, path: str) -> None:
     plt.close(fig)
 
 
+def plot_intention_weights(run, path: str) -> None:
+    """Each seed's mixture weights against the iteration, with the share an intention needs to
+    be kept when K is chosen from the data: how ``--intentions auto`` decided."""
+    import matplotlib.pyplot as plt
+
+    from emgail_jax.host.seed_runner import FINAL_WINDOW
+
+    weights = np.asarray(run.history["posterior/intention_weights"])  # [S, L, K]
+    seeds, iterations, k = weights.shape
+    fig, axes = plt.subplots(1, seeds, figsize=(3.2 * seeds, 3), sharey=True, squeeze=False)
+    chosen = run.summary.get("final", {}).get("intentions_chosen")
+    for seed, ax in enumerate(axes[0]):
+        for i in range(k):
+            ax.plot(np.arange(1, iterations + 1), weights[seed, :, i], color=COLORS[i],
+                    label=f"learned {i}", lw=1.2)  # fmt: skip
+        if run.config.choose_intentions:
+            ax.axhline(0.5 / run.demonstration_pairs.episodes, color="k", ls=":", lw=1,
+                       label="kept above")  # fmt: skip
+            ax.axvspan(max(iterations - FINAL_WINDOW, 0), iterations, color="0.9")
+        title = f"seed {run.spec.first_seed + seed}"
+        if chosen is not None:
+            title += f": K = {chosen[seed]}"
+        ax.set_title(title, fontsize=9)
+        ax.set_yscale("log")
+        ax.set_xlabel("iteration")
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("mixture weight")
+    axes[0][0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def plot_driver_paths(run, trace, alive, matching, path: str) -> None:
     import matplotlib.pyplot as plt
 
     env = run.problem.env
     demos = run.problem.demos
     fig, ax = plt.subplots(figsize=(6, 5))
-    for i in range(env.num_intentions):
+    for i in range(run.problem.true_intentions):
         points = env.path_points(i)
         ax.plot(points[:, 0], points[:, 1], "--", color=COLORS[i], lw=2.5, alpha=0.5,
                 label=f"expert path {i + 1}")  # fmt: skip
         if demos.intentions is not None:
             mine = demos.observations[demos.intentions == i]
             ax.scatter(mine[:, -2], mine[:, -1], s=2, color=COLORS[i], alpha=0.15)
-    true_of_learned = np.argsort(matching) if matching is not None else np.arange(len(COLORS))
-    for j in range(env.num_intentions):
-        color = COLORS[true_of_learned[j]]
+    colors = learned_colors(matching, env.num_intentions)
+    for j, color in enumerate(colors):
         for e in range(trace["x"].shape[2]):
             steps = alive[:, j, e] > 0
             ax.plot(trace["x"][steps, j, e], trace["y"][steps, j, e], color=color, lw=1,
@@ -160,14 +198,13 @@ def plot_traces(run, trace, alive, expert, matching, path: str) -> None:
     names = list(trace)
     k = run.num_intentions
     fig, axes = plt.subplots(1, len(names), figsize=(5 * len(names), 3.5), squeeze=False)
-    true_of_learned = np.argsort(matching) if matching is not None else np.arange(k)
+    colors = learned_colors(matching, k)
     for ax, name in zip(axes[0], names, strict=True):
-        for j in range(k):
-            _band(ax, trace[name][:, j], alive[:, j], COLORS[true_of_learned[j] % 4],
-                  f"learned {j}", "-")  # fmt: skip
+        for j, color in enumerate(colors):
+            _band(ax, trace[name][:, j], alive[:, j], color, f"learned {j}", "-")
         if expert is not None:
             _, expert_alive, expert_trace = expert
-            for i in range(k):
+            for i in range(run.problem.true_intentions):
                 _band(ax, expert_trace[name][:, i], expert_alive[:, i], COLORS[i % 4],
                       f"expert {run.problem.env.intention_names[i]}", "--")  # fmt: skip
         ax.set_xlabel("step")
@@ -178,6 +215,17 @@ def plot_traces(run, trace, alive, expert, matching, path: str) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def learned_colors(matching: np.ndarray | None, k: int) -> list[str]:
+    """The colour of each of ``k`` learned intentions: its matched true intention's, grey for
+    one left unmatched (more learned than true); in learned order without a matching."""
+    if matching is None:
+        return [COLORS[j % len(COLORS)] for j in range(k)]
+    colors = ["0.6"] * k
+    for i, j in enumerate(matching):
+        colors[j] = COLORS[i % len(COLORS)]
+    return colors
 
 
 def _band(ax, values, alive, color, label, style):
@@ -208,6 +256,8 @@ def seed_line(run, seed: int, result: dict) -> str:
         parts.append(f"accuracy {result['cluster_accuracy']:.3f} [{clusters}]")
     if "trajectory_cluster_accuracy" in result:
         parts.append(f"trajectory accuracy {result['trajectory_cluster_accuracy']:.3f}")
+    if "intentions_chosen" in result:
+        parts.append(f"K chosen {result['intentions_chosen']}")
     return " ".join(parts)
 
 
@@ -221,6 +271,9 @@ def write_figures(
     os.makedirs(out, exist_ok=True)
     written = [os.path.join(out, "learning_curves.png")]
     plot_learning_curves(run_dir, written[-1])
+    if "posterior/intention_weights" in run.history:  # the mixture prior
+        written.append(os.path.join(out, "intention_weights.png"))
+        plot_intention_weights(run, written[-1])
     _, alive, trace, result = seed_results
     if run.problem.env.name == "driver":
         written.append(os.path.join(out, f"paths_seed{seed}.png"))

@@ -52,16 +52,18 @@ def reoptimize(run, seed: int, iterations: int, chunk: int = 10, progress: bool 
     demos = run.problem.demos
     expert_returns = demos.expert_returns
     random_returns = run.problem.random_returns
+    in_use = run.intentions_in_use(seed)  # --intentions auto: the learned ones kept
+    score = lambda r: normalized_erd(r, expert_returns, random_returns, in_use)
     erds, all_returns, earned = [], [], []
     bar = ProgressBar("re-optimising", iterations, {"ERD": "-"}, enabled=progress)
 
     def after_chunk(first, length, states, metrics) -> bool:
-        returns = np.asarray(metrics["eval/returns"])  # [chunk, K learned, K true]
+        returns = np.asarray(metrics["eval/returns"])  # [chunk, K learned, K env]
         all_returns.extend(returns)
         earned.extend(np.asarray(metrics["train/reward"]))  # [chunk, K] learned reward per step
         if expert_returns is not None:
             for r in returns:
-                erds.append(float(normalized_erd(r, expert_returns, random_returns).mean))
+                erds.append(float(score(r).mean))
         bar.update(length, ERD=f"{erds[-1]:.3f}" if erds else "-")
         return True
 
@@ -73,7 +75,7 @@ def reoptimize(run, seed: int, iterations: int, chunk: int = 10, progress: bool 
     result = {
         "run_seed": seed,
         "iterations": iterations,
-        "returns": last,  # [K learned, K true], mean of the last 10 iterations
+        "returns": last,  # [K learned, K env], mean of the last 10 iterations
         "expert_returns": expert_returns,
         "random_returns": random_returns,
         "erd": float(np.mean(erds[-10:])) if erds else None,
@@ -86,7 +88,7 @@ def reoptimize(run, seed: int, iterations: int, chunk: int = 10, progress: bool 
         "train_time_s": train_s,
     }
     if expert_returns is not None:
-        erd = normalized_erd(last, expert_returns, random_returns)
+        erd = score(last)
         result["matching"] = np.asarray(erd.matching)
         result["erd_per_intention"] = np.asarray(erd.per_intention)
     return result

@@ -40,7 +40,17 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     parser.add_argument("--env", default=None, help="env name (default: driver)")
     parser.add_argument(
-        "--intentions", type=int, default=None, help="K: use the first K intentions"
+        "--intentions",
+        type=_intention_count,
+        default=None,
+        help="K: learn the env's first K intentions (default: all), or auto: choose K from the "
+        "demonstrations (starting from --max-intentions, with the mixture prior)",
+    )
+    parser.add_argument(
+        "--max-intentions",
+        type=int,
+        default=None,
+        help="with --intentions auto: the most intentions it may choose (default: the env's all)",
     )
     parser.add_argument("--algo", default=None, choices=NAMES, help="default: emgail")
     parser.add_argument("--seeds", type=int, default=None, help="seeds in parallel (default 4)")
@@ -127,10 +137,20 @@ def parse_args(argv=None) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
+def _intention_count(text: str) -> int | str:
+    if text == "auto":
+        return text
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"a number or auto, not '{text}'") from None
+
+
 # Options that define a run; a resumed run takes them from its summary.json.
 _RUN_OPTIONS = (
     "env",
     "intentions",
+    "max_intentions",
     "algo",
     "seeds",
     "demos",
@@ -176,6 +196,7 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         value = getattr(args, name)
         if value is not None and value < 1:
             raise RunError(f"--{name.replace('_', '-')} must be at least 1")
+    intentions, choosing = _learned_intentions(args, env)
     env_options = {}
     if args.radius is not None:
         if env != "driver":
@@ -187,7 +208,8 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         "info_weight": args.info_weight,
         "intention_input": args.intention_input,
         "responsibilities": args.responsibilities,
-        "prior": args.prior,
+        "prior": "mixture" if choosing else args.prior,
+        "choose_intentions": choosing or None,
         "num_envs": args.num_envs,
         "rollout_length": args.rollout_length,
         "eval_every": args.eval_every,
@@ -201,7 +223,7 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         raise RunError(f"--set: {error}") from None
     return RunSpec(
         env=env,
-        intentions=args.intentions,
+        intentions=intentions,
         env_options=env_options,
         algo=config.algo,
         seeds=args.seeds or 4,
@@ -211,6 +233,28 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         config=config,
         random_episodes=args.random_episodes or DEFAULT_RANDOM_EPISODES,
     )
+
+
+def _learned_intentions(args: argparse.Namespace, env: str) -> tuple[int | None, bool]:
+    """``(K learned or None for the env's default, whether K is chosen from the data)``; auto
+    starts from ``--max-intentions``, by default all the env has."""
+    import envs
+
+    choosing = args.intentions == "auto"
+    if args.max_intentions is not None and not choosing:
+        raise RunError("--max-intentions goes with --intentions auto")
+    count = args.intentions
+    if choosing:
+        count = args.max_intentions
+        if count is None:
+            count = len(envs.env_class(env).intention_names)
+    if count is not None and count < 1:
+        raise RunError("--intentions and --max-intentions must be at least 1")
+    if choosing and args.prior == "uniform":
+        raise RunError("--intentions auto weighs the intentions: drop --prior uniform")
+    if choosing and args.algo == "gail":
+        raise RunError("--intentions auto needs a posterior: use --algo emgail or infogail")
+    return count, choosing
 
 
 def default_output(env: str, algo: str, root: str = "runs") -> str:
@@ -381,7 +425,9 @@ def _runner(spec: RunSpec, problem, config):
     from emgail_jax.method.training import RunData, make_train
 
     env = problem.env
-    pairs = DemonstrationPairs.create(problem.demos, problem.random_returns, env.num_intentions)
+    pairs = DemonstrationPairs.create(
+        problem.demos, problem.random_returns, problem.true_intentions
+    )
     data = RunData.create(pairs, env, config)
     init, update, _ = make_train(config, env)
     # Runs of one process that differ only in data (the sweep's driver radii) share programs.
@@ -416,6 +462,7 @@ def _summary_header(spec: RunSpec, problem, config) -> dict:
             "path": spec.demos_path,
             "seed": spec.demo_seed,
             "pairs": len(problem.demos),
+            "intentions": problem.true_intentions,
             "labels": problem.demos.intentions is not None,
             "expert_returns": problem.demos.expert_returns is not None,
         },
@@ -450,6 +497,8 @@ def _final_summary(problem, config, history, timings, spec) -> dict:
     }
     if "posterior/intention_weights" in final:  # the mixture prior: [seeds][K]
         summary["intention_weights"] = final["posterior/intention_weights"]
+    if "posterior/intentions_in_use" in final:  # --intentions auto: [seeds]
+        summary["intentions_chosen"] = np.rint(final["posterior/intentions_in_use"]).astype(int)
     name = "trajectory_cluster_accuracy"
     if f"eval/{name}" in final:  # EM-GAIL and Info/IntentionGAIL in trajectory mode
         summary[name] = None if no_accuracy else final[f"eval/{name}"]
@@ -499,6 +548,9 @@ def print_summary(summary: dict) -> None:
     table.add_column("per intention", justify="right")
     table.add_column("cluster acc.", justify="right")
     table.add_column("true returns (learned / expert)")
+    chosen = final.get("intentions_chosen")
+    if chosen is not None:
+        table.add_column("K chosen", justify="right")
     erds = final["erd"] or [None] * seeds
     per_intention = final.get("erd_per_intention") or [None] * seeds
     accuracy = final["cluster_accuracy"] or [None] * seeds
@@ -516,6 +568,7 @@ def print_summary(summary: dict) -> None:
             "-" if erd_i is None else " ".join(f"{e:.2f}" for e in erd_i),
             number(acc),
             pairs,
+            *([] if chosen is None else [str(chosen[seed])]),
         )
     console = Console()
     console.print(table)

@@ -39,6 +39,10 @@ ROBOTICS_INTENTIONS = {
     "halfcheetah": (2, 3),
     "reacher": (2, 3, 4),
 }
+# Beyond the paper: K chosen from the demonstrations (`--intentions auto`, starting from the
+# env's maximum) on sets of K true intentions, the first K of each env's (the driver's paths
+# at its default radius), beside the same cell with K given.
+CHOOSING_K = {"driver": (2, 3, 4), "swimmer": (2,), "hopper": (3,), "reacher": (2, 3, 4)}
 # Separability 0.06 to 0.93 (README, "The driver and its separability").
 DRIVER_RADII = (4.0, 5.0, 6.0, 7.0, 8.0, 10.0, 15.0, 20.0)
 ALGOS = ("emgail", "infogail", "gail")
@@ -46,6 +50,7 @@ ALGO_LABELS = {
     "emgail": "EM-GAIL",
     "emgail-onehot": "EM-GAIL (one-hot input)",
     "emgail-pair": "EM-GAIL (per-pair E-step)",
+    "emgail-auto": "EM-GAIL, K chosen (--intentions auto)",
     "infogail": "Info/IntentionGAIL",
     "gail": "GAIL",
     "gmm": "GMM",
@@ -57,7 +62,7 @@ VARIANTS = {
     "pair": ("--responsibilities", "pair"),
 }
 TABLE3_METHODS = ("gmm", "infogail", "emgail", "emgail-onehot", "emgail-pair")
-FIGURES = ("fig4a", "fig4b", "fig5a", "fig5b", "fig6", "table2", "table3")
+FIGURES = ("fig4a", "fig4b", "fig5a", "fig5b", "fig6", "table2", "table3", "choosing-k")
 
 # The paper's Table 3 (clustering accuracy, %) and Table 2 (EM-GAIL seconds per iteration on
 # an RTX 2080 Ti; learnable parameters of GAIL / Info/IntentionGAIL / EM-GAIL).
@@ -103,7 +108,9 @@ class Cell:
     algo: str  # "emgail" | "infogail" | "gail"
     groups: tuple[str, ...]
     radius: float | None = None  # the driver's path-2 radius
-    variant: str = ""  # a key of VARIANTS: one of the paper's choices instead of the default
+    # A key of VARIANTS (one of the paper's choices instead of the default), or "auto": K
+    # chosen from demonstrations of ``intentions`` true ones.
+    variant: str = ""
 
     @property
     def name(self) -> str:
@@ -125,9 +132,32 @@ class Cell:
         """The paper's reward check (§5.2) runs on every default EM-GAIL cell of Table 3."""
         return self.method == "emgail" and "table3" in self.groups
 
-    def run_args(self, settings: tuple[str, ...] = ()) -> list[str]:
+    @property
+    def learned_intentions(self) -> int:
+        """K trained: the env's maximum when K is chosen from the data."""
+        if self.variant == "auto":
+            import envs
+
+            return len(envs.env_class(self.env).intention_names)
+        return self.intentions
+
+    def demonstrations(self, out: str) -> str | None:
+        """The demonstrations file of an auto cell whose true K is not all the env has (and of
+        every driver cell of it, whose demonstrations are generated): written by
+        :func:`write_demonstrations` under ``out/demos``; None for the default ones."""
+        if self.variant != "auto" or (
+            self.env != "driver" and self.intentions == self.learned_intentions
+        ):
+            return None
+        return os.path.join(out, "demos", f"{self.env}-{self.intentions}.npz")
+
+    def run_args(self, settings: tuple[str, ...] = (), out: str = "results") -> list[str]:
         """``python -m emgail_jax.train`` options of a new run; ``settings`` go to ``--set``."""
-        args = ["--env", self.env, "--intentions", str(self.intentions), "--algo", self.algo]
+        intentions = "auto" if self.variant == "auto" else str(self.intentions)
+        args = ["--env", self.env, "--intentions", intentions, "--algo", self.algo]
+        demos = self.demonstrations(out)
+        if demos is not None:
+            args += ["--demos", os.path.abspath(demos)]
         for setting in settings:
             args += ["--set", setting]
         if self.radius is not None:
@@ -149,8 +179,13 @@ def all_cells() -> list[Cell]:
     for radius in DRIVER_RADII:
         for algo in ALGOS:
             cells.append(Cell("driver", 2, algo, ("fig4b", "fig5a"), radius=radius))
-    for env, ks in ROBOTICS_INTENTIONS.items():  # last: the paper's E-step, for comparison
+    for env, ks in ROBOTICS_INTENTIONS.items():  # the paper's E-step, for comparison
         cells += [Cell(env, k, "emgail", ("table3",), variant="pair") for k in ks]
+    for env, ks in CHOOSING_K.items():  # last: beyond the paper
+        for k in ks:
+            cells.append(Cell(env, k, "emgail", ("choosing-k",), variant="auto"))
+            if env == "driver":  # the robotics envs' K-given cells are Table 3's
+                cells.append(Cell(env, k, "emgail", ("choosing-k",)))
     return cells
 
 
@@ -208,7 +243,7 @@ def cell_status(run_dir: str, seeds: int, iterations: int) -> str:
 
 def estimate_seconds(cell: Cell, seeds: int, iterations: int, measured: dict) -> float:
     per_unit, compile_s = measured.get(cell.env, MEASURED_SECONDS[cell.env])
-    seconds = compile_s + per_unit * seeds * iterations * cell.intentions
+    seconds = compile_s + per_unit * seeds * iterations * cell.learned_intentions
     if cell.reoptimized:  # plain TRPO on one seed's K learned rewards, no discriminator
         seconds += compile_s + 0.5 * per_unit * iterations * cell.intentions
     return seconds
@@ -286,7 +321,9 @@ def train_cell(
     if status == "resume":
         args = ["--resume", run_dir, "--iterations", str(iterations)]
     elif status == "new":
-        args = [*cell.run_args(settings), "--seeds", str(seeds), "--iterations", str(iterations)]
+        args = [*cell.run_args(settings, out), "--seeds", str(seeds)]
+        args += ["--iterations", str(iterations)]
+        write_demonstrations(cell, out)
         args += ["--out", run_dir, "--overwrite"]
     if status != "done":
         if cell.shares_programs:
@@ -300,6 +337,19 @@ def train_cell(
         code = run_command(command, log_path)
         if code != 0:
             raise SweepError(f"re-optimising {cell.name} failed (exit {code}): see {log_path}")
+
+
+def write_demonstrations(cell: Cell, out: str) -> None:
+    """The demonstrations of an auto cell's K true intentions, when they are not the default
+    ones: the first K of the env's shipped set (the driver's: generated, as ``train`` does)."""
+    path = cell.demonstrations(out)
+    if path is None or os.path.exists(path):
+        return
+    from emgail_jax.host import demonstration_files
+    from emgail_jax.host.problem import make_problem
+
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    demonstration_files.save(make_problem(cell.env, cell.intentions).demos, path)
 
 
 # ---- separability -------------------------------------------------------------------------------
@@ -361,6 +411,7 @@ class CellResult:
     parameters: int
     seconds_per_iteration: float
     reoptimized_erd: float | None
+    intentions_chosen: np.ndarray | None = None  # [seeds], --intentions auto
 
 
 def collect(out: str, cells: list[Cell], seeds: int, iterations: int) -> dict[str, CellResult]:
@@ -386,6 +437,7 @@ def collect(out: str, cells: list[Cell], seeds: int, iterations: int) -> dict[st
             seconds_per_iteration=summary["timings"]["train_time_s"]
             / summary["timings"]["iterations"],
             reoptimized_erd=reoptimized,
+            intentions_chosen=final.get("intentions_chosen"),
         )
     return results
 
@@ -432,6 +484,48 @@ def write_table3(out: str, results: dict[str, CellResult], separability: dict) -
     _write_text(os.path.join(out, "table3.md"), lines)
 
 
+def write_choosing_k(out: str, results: dict[str, CellResult]) -> None:
+    """``choosing-k.md`` and ``.csv``: the K ``--intentions auto`` chose on every seed of each
+    set of K true intentions, and its accuracy and ERD beside the same cell with K given."""
+    rows = []
+    for env, ks in CHOOSING_K.items():
+        for k in ks:
+            auto, given = results.get(f"{env}-{k}-emgail-auto"), results.get(f"{env}-{k}-emgail")
+            if auto is not None:
+                rows.append((env, k, auto, given))
+    with open(os.path.join(out, "choosing-k.csv"), "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(
+            ["env", "intentions", "chosen", "accuracy_mean", "accuracy_std", "erd_mean",
+             "erd_std", "given_accuracy_mean", "given_erd_mean", "seeds"]
+        )  # fmt: skip
+        for env, k, auto, given in rows:
+            numbers = [auto.accuracy.mean(), auto.accuracy.std(), auto.erd.mean(), auto.erd.std()]
+            numbers += (
+                [math.nan, math.nan] if given is None else [given.accuracy.mean(), given.erd.mean()]
+            )
+            chosen = " ".join(str(c) for c in auto.intentions_chosen)
+            writer.writerow([env, k, chosen, *(f"{v:.4f}" for v in numbers), len(auto.erd)])
+    lines = [
+        "K chosen by `--intentions auto` (from the env's maximum) on demonstrations of K true "
+        "intentions, per seed; its clustering accuracy (%) and ERD, mean ± std over seeds, "
+        "beside the same cell with K given.",
+        "",
+        "| demonstrations | K chosen (per seed) | accuracy, K chosen | accuracy, K given "
+        "| ERD, K chosen | ERD, K given |",
+        "|---|---|---:|---:|---:|---:|",
+    ]
+    for env, k, auto, given in rows:
+        erd = lambda r: "—" if r is None else f"{r.erd.mean():.3f} ± {r.erd.std():.3f}"
+        accuracy = lambda r: "—" if r is None else _mean_std(100 * r.accuracy)
+        lines.append(
+            f"| {env}, {k} of {auto.cell.learned_intentions} | "
+            f"{', '.join(str(c) for c in auto.intentions_chosen)} | {accuracy(auto)} | "
+            f"{accuracy(given)} | {erd(auto)} | {erd(given)} |"
+        )
+    _write_text(os.path.join(out, "choosing-k.md"), lines)
+
+
 def write_table2(out: str, results: dict[str, CellResult], seeds: int) -> None:
     lines = [
         f"Learnable parameters (policy, value, discriminator and posterior, as `summary.json` "
@@ -463,7 +557,7 @@ def write_erd_csvs(out: str, results: dict[str, CellResult], separability: dict)
         f.write("algo,radius,separability,erd_mean,erd_std,seeds\n")
         for result in results.values():
             cell = result.cell
-            if cell.env == "driver":
+            if cell.radius is not None:
                 sep = separability.get(_data_name(cell), {}).get("separability", math.nan)
                 f.write(f"{cell.algo},{cell.radius:g},{sep:.4f},{result.erd.mean():.4f},"
                         f"{result.erd.std():.4f},{len(result.erd)}\n")  # fmt: skip
@@ -567,7 +661,7 @@ def draw_figures(out: str, results: dict[str, CellResult], separability: dict) -
         else:
             plt.close(fig)
 
-    driver_results = [r for r in results.values() if r.cell.env == "driver"]
+    driver_results = [r for r in results.values() if r.cell.radius is not None]
     robotics = [r for r in results.values() if r.cell.env != "driver" and not r.cell.variant]
     erd_against_separability(
         lambda algo: [r for r in driver_results if r.cell.algo == algo], "fig5a.png", "driver"
@@ -619,6 +713,7 @@ def write_report(out: str, cells: list[Cell], seeds: int, iterations: int) -> li
     separability = separability_table(out, cells)
     write_table3(out, results, separability)
     write_table2(out, results, seeds)
+    write_choosing_k(out, results)
     write_erd_csvs(out, results, separability)
     figures = draw_figures(out, results, separability)
     return [
@@ -626,6 +721,8 @@ def write_report(out: str, cells: list[Cell], seeds: int, iterations: int) -> li
         "table2.md",
         "table3.md",
         "table3.csv",
+        "choosing-k.md",
+        "choosing-k.csv",
         "fig5a.csv",
         "fig6.csv",
         *figures,

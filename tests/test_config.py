@@ -109,6 +109,13 @@ def test_intention_input_defaults_to_heads_and_rejects_unknown_values():
         Config(intention_input="twoheads")
 
 
+def test_choosing_k_needs_a_posterior_and_the_mixture_prior():
+    assert Config(prior="mixture", choose_intentions=True).choose_intentions
+    for wrong in ({}, {"prior": "mixture", "algo": "gail"}):
+        with pytest.raises(ValueError, match="needs a posterior and the mixture prior"):
+            Config(choose_intentions=True, **wrong)
+
+
 def test_from_dict_round_trip_and_older_runs_without_the_intention_input():
     config = Config(intention_input="onehot", hidden=(8,))
     assert Config.from_dict(json.loads(json.dumps(config.to_dict()))) == config

@@ -33,32 +33,73 @@ def test_evaluation_json_holds_what_evaluate_prints(tiny_run):
 
 
 @pytest.fixture(scope="module")
-def trajectory_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("trajectory") / "emgail"
+def auto_run(tmp_path_factory):
+    """--intentions auto on demonstrations of the driver's first two paths: three intentions
+    learned for two true ones (in the default trajectory E-step)."""
+    import jax
+
+    import envs
+    from emgail_jax.host import demonstration_files
+    from emgail_jax.method import demonstrations
+
+    tmp = tmp_path_factory.mktemp("auto")
+    env = envs.make("driver", intentions=2)
+    demos = demonstrations.generate(env, env.expert_policy, 2, jax.random.PRNGKey(0))
+    demonstration_files.save(demos, str(tmp / "two-paths.npz"))
+    out = tmp / "emgail"
     args = [
         *("--env", "driver", "--seeds", "2", "--iterations", "3", "--num-envs", "2"),
         *("--rollout-length", "20", "--quiet", "--out", str(out)),
-        *("--responsibilities", "trajectory"),
+        *("--demos", str(tmp / "two-paths.npz"), "--intentions", "auto", "--max-intentions", "3"),
     ]
     assert train.main(args) == 0
     return out
 
 
-def test_trajectory_mode_accuracies_equal_the_logged_ones(trajectory_run):
-    """Both accuracies of a --responsibilities trajectory run, as evaluate recomputes them from
-    the checkpoint, equal those training logged at its last iteration: same posterior, same
-    pairs, same function."""
+def test_auto_run_learns_more_intentions_than_it_scores(auto_run):
+    summary = json.loads((auto_run / "summary.json").read_text())
+    assert summary["intentions"] == 3 and summary["demonstrations"]["intentions"] == 2
+    assert summary["config"]["choose_intentions"] and summary["config"]["prior"] == "mixture"
+    final = summary["final"]
+    assert [len(w) for w in final["intention_weights"]] == [3, 3]
+    assert all(1 <= k <= 3 for k in final["intentions_chosen"])
+    assert [len(e) for e in final["erd_per_intention"]] == [2, 2]
+    assert [len(r) for r in final["returns"]] == [2, 2]
+
+
+def test_evaluate_recomputes_the_logged_accuracies(tiny_run):
+    """Both accuracies of a run in the default trajectory E-step (pairs, and whole
+    demonstrations), as evaluate recomputes them from the checkpoint, equal those training
+    logged at its last iteration: same posterior, same pairs, same function."""
     from emgail_jax.host.saved_run import SavedRun
 
-    assert evaluate.main([str(trajectory_run), "--episodes", "1"]) == 0
-    written = json.loads((trajectory_run / "evaluation.json").read_text())
-    history = SavedRun.open(str(trajectory_run)).history
-    summary = json.loads((trajectory_run / "summary.json").read_text())
+    assert evaluate.main([str(tiny_run), "--episodes", "1", "--out", str(tiny_run / "g")]) == 0
+    written = json.loads((tiny_run / "evaluation.json").read_text())
+    history = SavedRun.open(str(tiny_run)).history
     for name in ("cluster_accuracy", "trajectory_cluster_accuracy"):
         for seed in range(2):
             logged = float(history[f"eval/{name}"][seed, -1])
             assert written["seeds"][str(seed)][name] == logged, name
-        assert len(summary["final"][name]) == 2
+
+
+def test_evaluate_scores_the_intentions_an_auto_run_keeps(auto_run):
+    """evaluate scores the final state: the intentions its weights keep (training logs those
+    the iteration started with, one weight update earlier), and draws the weights."""
+    from emgail_jax.host.saved_run import SavedRun
+
+    out = auto_run / "figures"
+    assert evaluate.main([str(auto_run), "--episodes", "1", "--out", str(out)]) == 0
+    assert (out / "intention_weights.png").read_bytes().startswith(PNG)
+    written = json.loads((auto_run / "evaluation.json").read_text())
+    run = SavedRun.open(str(auto_run))
+    for seed in range(2):
+        result = written["seeds"][str(seed)]
+        in_use = run.intentions_in_use(seed)
+        assert result["intentions_chosen"] == int(in_use.sum())
+        assert len(set(result["matching"])) == 2 and set(result["matching"]) <= {0, 1, 2}
+        if in_use.sum() >= 2:  # every true intention matched to a learned one in use
+            assert all(in_use[j] for j in result["matching"])
+        assert 0.0 <= result["cluster_accuracy"] <= 1.0
 
 
 @pytest.mark.parametrize(

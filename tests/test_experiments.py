@@ -55,7 +55,7 @@ def test_sweep_cells_are_the_papers_experiments():
     sweep = _load("sweep")
     cells = sweep.all_cells()
     names = [cell.name for cell in cells]
-    assert len(names) == len(set(names)) == 68
+    assert len(names) == len(set(names)) == 68 + 11  # the paper's, and choosing K
     for name in ("reacher-2-emgail", "hopper-3-emgail-pair", "swimmer-1-gail", "driver-r20-gail"):
         assert name in names, name
     assert len(sweep.select(cells, "fig5a")) == 3 * len(sweep.DRIVER_RADII)
@@ -67,6 +67,7 @@ def test_sweep_cells_are_the_papers_experiments():
         "reacher-2-emgail",
         "reacher-2-emgail-onehot",
         "reacher-2-emgail-pair",
+        "reacher-2-emgail-auto",
     ]
     reoptimized = [c.name for c in cells if c.reoptimized]
     assert reoptimized == [
@@ -74,6 +75,54 @@ def test_sweep_cells_are_the_papers_experiments():
     ]
     with pytest.raises(sweep.SweepError, match="matches no cell"):
         sweep.select(cells, "walker")
+
+
+def test_choosing_k_cells_train_auto_on_the_first_k_intentions(tmp_path):
+    sweep = _load("sweep")
+    cells = {c.name: c for c in sweep.select(sweep.all_cells(), "choosing-k")}
+    assert sorted(cells) == sorted(
+        [f"{e}-{k}-emgail-auto" for e, ks in sweep.CHOOSING_K.items() for k in ks]
+        + ["driver-2-emgail", "driver-3-emgail", "driver-4-emgail"]
+    )
+    reacher2, reacher4 = cells["reacher-2-emgail-auto"], cells["reacher-4-emgail-auto"]
+    assert reacher2.learned_intentions == reacher4.learned_intentions == 4
+    args = reacher2.run_args((), str(tmp_path))
+    assert args[:4] == ["--env", "reacher", "--intentions", "auto"]
+    assert args[args.index("--demos") + 1] == str(tmp_path / "demos" / "reacher-2.npz")
+    assert "--demos" not in reacher4.run_args((), str(tmp_path))  # the shipped set, all 4
+    assert "--demos" not in cells["driver-3-emgail"].run_args((), str(tmp_path))
+    sweep.write_demonstrations(cells["driver-3-emgail-auto"], str(tmp_path))
+    written = np.load(tmp_path / "demos" / "driver-3.npz")
+    assert sorted(set(written["intentions"].tolist())) == [0, 1, 2]
+
+
+def test_choosing_k_table_sets_the_chosen_k_beside_k_given(tmp_path):
+    sweep = _load("sweep")
+    cells = {c.name: c for c in sweep.all_cells()}
+
+    def result(name, accuracy, erd, chosen=None):
+        return sweep.CellResult(
+            cells[name], np.asarray(erd), np.asarray(accuracy), 0, 1.0, None, chosen
+        )
+
+    results = {
+        "reacher-2-emgail-auto": result("reacher-2-emgail-auto", [0.9, 1.0], [0.1, 0.2], [2, 3]),
+        "reacher-2-emgail": result("reacher-2-emgail", [0.95, 0.95], [0.1, 0.1]),
+        "hopper-3-emgail-auto": result("hopper-3-emgail-auto", [1.0, 1.0], [0.0, 0.0], [3, 3]),
+    }
+    sweep.write_choosing_k(str(tmp_path), results)
+    table = (tmp_path / "choosing-k.md").read_text()
+    assert (
+        "| reacher, 2 of 4 | 2, 3 | 95.0 ± 5.0 | 95.0 ± 0.0 | 0.150 ± 0.050 | 0.100 ± 0.000 |"
+        in table
+    )
+    assert "| hopper, 3 of 3 | 3, 3 | 100.0 ± 0.0 | — |" in table
+    rows = list(csv.DictReader((tmp_path / "choosing-k.csv").open()))
+    assert [(r["env"], r["intentions"], r["chosen"]) for r in rows] == [
+        ("hopper", "3", "3 3"),
+        ("reacher", "2", "2 3"),
+    ]
+    assert rows[1]["given_accuracy_mean"] == "0.9500" and rows[0]["given_erd_mean"] == "nan"
 
 
 def test_sweep_cell_status_reads_the_run_directory(tmp_path):

@@ -185,6 +185,58 @@ def test_erd_jit_matches_eager():
     np.testing.assert_array_equal(eager.matching, jitted.matching)
 
 
+# ---- more intentions learned than demonstrated (--intentions auto) --------------------------
+
+
+def test_matchings_are_the_one_to_one_maps_of_true_to_learned_intentions():
+    maps = metrics.matchings(4, 2)
+    assert maps.shape == (12, 2)  # 4 * 3
+    assert {tuple(m) for m in maps} == set(itertools.permutations(range(4), 2))
+    np.testing.assert_array_equal(metrics.matchings(3, 3), metrics.permutations(3))
+
+
+def test_erd_matches_each_true_intention_to_its_own_learned_one_and_leaves_the_rest():
+    expert, random = EXPERT[:2], RANDOM[:2]
+    # Four learned intentions, two true: learned 3 is true 0's expert, learned 1 true 1's; the
+    # columns past the true ones (the env's other intentions) do not count.
+    returns = jnp.array(
+        [[0.0, -5.0, 99.0], [3.0, 20.0, 99.0], [5.0, 0.0, 99.0], [10.0, 10.0, 99.0]]
+    )
+    erd = metrics.normalized_erd(returns, expert, random)
+    np.testing.assert_array_equal(erd.matching, [3, 1])
+    assert float(erd.mean) == 0.0
+    # Learned 3 retired: true 0 takes the best learned one still in use (2: e = 0.5).
+    in_use = jnp.array([True, True, True, False])
+    erd = jax.jit(metrics.normalized_erd)(returns, expert, random, in_use)
+    np.testing.assert_array_equal(erd.matching, [2, 1])
+    np.testing.assert_allclose(erd.per_intention, [0.5, 0.0])
+    # One kept for two true intentions: the other is scored as random actions (e = 1), even
+    # though a retired one would have matched it better.
+    erd = metrics.normalized_erd(returns, expert, random, jnp.array([False, True, False, False]))
+    np.testing.assert_allclose(erd.per_intention, [1.0, 0.0])
+    np.testing.assert_array_equal(erd.matching[1], 1)
+
+
+def test_erd_with_every_intention_in_use_is_the_plain_erd():
+    returns = jnp.array([[1.0, 17.0, 2.0], [6.0, 3.0, 9.0], [0.0, 4.0, 25.0]])
+    plain = metrics.normalized_erd(returns, EXPERT, RANDOM)
+    masked = metrics.normalized_erd(returns, EXPERT, RANDOM, jnp.ones(3, bool))
+    np.testing.assert_array_equal(plain.per_intention, masked.per_intention)
+    np.testing.assert_array_equal(plain.matching, masked.matching)
+
+
+def test_cluster_accuracy_with_more_clusters_than_intentions():
+    labels = jnp.array([0, 0, 0, 1, 1, 1])
+    predicted = jnp.array([3, 3, 1, 1, 1, 2])  # true 0 -> cluster 3, true 1 -> cluster 1
+    assert float(metrics.cluster_accuracy(predicted, labels, 4, 2)) == pytest.approx(4 / 6)
+    assert metrics.hungarian_accuracy(predicted, labels) == pytest.approx(4 / 6)
+    # Cluster 3 retired: its pairs count as misclustered, and true 0 takes cluster 1's one
+    # pair of it, or another cluster: at best 1 + 1 (true 1 -> cluster 2) or 0 + 2.
+    in_use = jnp.array([True, True, True, False])
+    accuracy = jax.jit(metrics.cluster_accuracy, static_argnums=(2, 3))
+    assert float(accuracy(predicted, labels, 4, 2, in_use)) == pytest.approx(2 / 6)
+
+
 # ---- separability ---------------------------------------------------------------------------
 
 separability = functools.partial(metrics.separability, seeds=(0, 1, 2))

@@ -14,6 +14,7 @@ from emgail_jax.method.networks import Posterior
 from emgail_jax.method.optim import Learner
 from emgail_jax.method.posterior import (
     expert_responsibilities,
+    intentions_in_use,
     log_posterior,
     make_e_step,
     mixture_weights,
@@ -260,6 +261,13 @@ def test_mixture_weights_are_the_mean_responsibilities_floored():
     np.testing.assert_allclose(weights.sum(), 1.0, rtol=1e-6)
     assert float(weights[2]) > 0  # a weight at 0 could never recover
     np.testing.assert_allclose(weights[:2] / weights[:2].sum(), [0.7, 0.3], rtol=1e-3)
+
+
+def test_intentions_in_use_hold_half_a_demonstration_share():
+    # 10 demonstrations: an intention is kept from a weight of 1/20 on.
+    weights = jnp.array([0.6, 0.349, 0.05, 0.001])
+    np.testing.assert_array_equal(intentions_in_use(weights, 10), [True, True, True, False])
+    np.testing.assert_array_equal(intentions_in_use(weights, 5), [True, True, False, False])
 
 
 @pytest.mark.parametrize("mode", ["pair", "trajectory"])

@@ -94,12 +94,11 @@ def test_a_file_with_more_intentions_gives_the_first_k(driver, tmp_path):
     assert make_problem("driver", None, path).num_intentions == 3
 
 
-def test_asking_for_more_intentions_than_the_file_holds_is_an_error(demos_file):
-    with pytest.raises(
-        DemonstrationError,
-        match=r"hold 2 intentions but 3 were asked for; pass --intentions 2 or fewer",
-    ):
-        make_problem("driver", 3, demos_file)
+def test_more_intentions_than_the_file_holds_are_learned_and_the_true_ones_scored(demos_file):
+    problem = make_problem("driver", 3, demos_file)
+    assert problem.num_intentions == 3 and problem.true_intentions == 2
+    assert problem.demos.num_intentions == 2
+    assert problem.random_returns.shape == (2,) and np.all(np.isfinite(problem.random_returns))
 
 
 def test_zero_intentions_with_a_demos_file_is_rejected(demos_file):

@@ -153,6 +153,11 @@ def _error(capsys):
         (["--eval-every", "0"], "--eval-every must be at least 1"),
         (["--random-episodes", "0"], "--random-episodes must be at least 1"),
         (["--set", "trpo.dampng=0"], "--set: unknown setting 'trpo.dampng'"),
+        (["--max-intentions", "3"], "--max-intentions goes with --intentions auto"),
+        (["--intentions", "auto", "--prior", "uniform"], "drop --prior uniform"),
+        (["--intentions", "auto", "--algo", "gail"], "needs a posterior"),
+        (["--intentions", "auto", "--max-intentions", "0"], "must be at least 1"),
+        (["--intentions", "auto", "--max-intentions", "5"], "has 4 intentions"),
     ],
 )
 def test_bad_input_gives_one_line_and_exit_code_2(tmp_path, capsys, extra, message):
@@ -226,6 +231,20 @@ def test_without_out_a_run_takes_the_first_free_directory(tmp_path):
     (tmp_path / "halfcheetah-emgail").mkdir()
     (tmp_path / "halfcheetah-emgail-2").mkdir()
     assert train.default_output("halfcheetah", "emgail", root) == f"{root}/halfcheetah-emgail-3"
+
+
+def test_intentions_auto_starts_from_the_env_maximum_with_the_mixture_prior():
+    spec = train.spec_from_args(train.parse_args(["--env", "hopper", "--intentions", "auto"]))
+    assert spec.intentions == 3
+    assert spec.config.choose_intentions and spec.config.prior == "mixture"
+    spec = train.spec_from_args(
+        train.parse_args(["--intentions", "auto", "--max-intentions", "3", "--algo", "infogail"])
+    )
+    assert spec.intentions == 3 and spec.config.algo == "infogail"
+    spec = train.spec_from_args(train.parse_args(["--intentions", "2"]))
+    assert spec.intentions == 2 and not spec.config.choose_intentions
+    with pytest.raises(SystemExit):
+        train.parse_args(["--intentions", "two"])
 
 
 def test_set_reaches_the_config_and_a_resume_refuses_it(tmp_path):

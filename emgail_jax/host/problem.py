@@ -29,11 +29,18 @@ class Problem:
 
     @property
     def num_intentions(self) -> int:
+        """K learned: the env's."""
         return self.env.num_intentions
+
+    @property
+    def true_intentions(self) -> int:
+        """K of the demonstrations (the env's when they carry neither labels nor returns): the
+        env's first ones, and fewer than it has when ``--intentions auto`` learns more."""
+        return self.demos.num_intentions or self.env.num_intentions
 
     @functools.cached_property
     def random_returns(self) -> np.ndarray:
-        """``[K]`` mean true return of uniformly random actions (ERD's reference point 1);
+        """``[K true]`` mean true return of uniformly random actions (ERD's reference point 1);
         computed on first use, as it costs a compile of the env's rollout."""
         env = self.env
         policy = uniform_random_policy(env)
@@ -41,7 +48,7 @@ class Problem:
         returns = jax.jit(
             lambda key: episode_returns(envs.EpisodeWrapper(env), policy, key, 1, episodes)
         )(jax.random.PRNGKey(self.random_seed))
-        return np.asarray(returns[0])
+        return np.asarray(returns[0, : self.true_intentions])
 
 
 def shipped_demos_path(env_name: str) -> str:
@@ -105,11 +112,7 @@ def problem_of(spec: RunSpec) -> Problem:
 
 
 def _first_intentions(demos: demonstrations.Demonstrations, env: envs.Env):
-    k = env.num_intentions
-    available = demos.num_intentions
-    if available is not None and available < k:
-        raise demonstration_files.DemonstrationError(
-            f"the demonstrations hold {available} intentions but {k} were asked for; "
-            f"pass --intentions {available} or fewer"
-        )
-    return demonstrations.first_intentions(demos, k)
+    """The demonstrations of the env's first K intentions; all of them when they hold fewer
+    (more intentions are learned than demonstrated: ERD and accuracy match them, see
+    ``emgail_jax.method.metrics``)."""
+    return demonstrations.first_intentions(demos, env.num_intentions)

@@ -29,7 +29,12 @@ from emgail_jax.method.batches import DemonstrationPairs
 from emgail_jax.method.config import Config
 from emgail_jax.method.discriminator import learned_reward
 from emgail_jax.method.networks import policy_action
-from emgail_jax.method.posterior import Responsibilities, expert_responsibilities, own_log_posterior
+from emgail_jax.method.posterior import (
+    Responsibilities,
+    expert_responsibilities,
+    intentions_in_use,
+    own_log_posterior,
+)
 from emgail_jax.method.training import (
     Networks,
     RunData,
@@ -68,9 +73,8 @@ class SavedRun:
         env = problem.env
         config = spec.config.resolved(env)
         # Only `init`'s shapes are needed; ERD's references do not enter them.
-        pairs = DemonstrationPairs.create(
-            problem.demos, np.full(env.num_intentions, np.nan), env.num_intentions
-        )
+        k_true = problem.true_intentions
+        pairs = DemonstrationPairs.create(problem.demos, np.full(k_true, np.nan), k_true)
         init, update, _ = make_train(config, env)
         runner = Runner(init, update, spec.seeds, RunData.create(pairs, env, config))
         target = runner.abstract_state(jax.random.PRNGKey(spec.first_seed))
@@ -92,6 +96,14 @@ class SavedRun:
     @property
     def num_intentions(self) -> int:
         return self.problem.env.num_intentions
+
+    def intentions_in_use(self, seed: int = 0) -> np.ndarray | None:
+        """``[K]`` bool, the learned intentions ``seed`` keeps when K is chosen from the data
+        (``--intentions auto``); None when K was given."""
+        if not self.config.choose_intentions:
+            return None
+        weights = self.seed_state(seed).intention_weights
+        return np.asarray(intentions_in_use(weights, self.demonstration_pairs.episodes))
 
     def seed_state(self, seed: int = 0) -> TrainState:
         """The train state of the run's ``seed``-th seed (0 .. seeds-1)."""
@@ -176,6 +188,7 @@ class SavedRun:
             self.demonstration_pairs,
             self.num_intentions,
             self.config.responsibilities,
+            self.intentions_in_use(seed),
         )
         return {name.removeprefix("eval/"): float(value) for name, value in metrics.items()}
 

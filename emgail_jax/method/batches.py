@@ -26,10 +26,15 @@ class DemonstrationPairs:
     actions: jax.Array  # [N, A] executed (clipped to the env's range)
     episode: jax.Array  # [N] index of each pair's demonstration (episode)
     labels: jax.Array  # [N] hidden intention labels, -1 when unknown
-    expert_returns: jax.Array  # [K] NaN when unknown
-    random_returns: jax.Array  # [K]
+    expert_returns: jax.Array  # [K true] NaN when unknown
+    random_returns: jax.Array  # [K true]
     episodes: int = struct.field(pytree_node=False, default=1)  # demonstrations (episodes)
     has_labels: bool = struct.field(pytree_node=False, default=False)
+
+    @property
+    def true_intentions(self) -> int:
+        """K of the demonstrations: at most the learned K (``--intentions auto`` learns more)."""
+        return self.random_returns.shape[0]
 
     @classmethod
     def create(

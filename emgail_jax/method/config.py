@@ -47,6 +47,10 @@ class Config:
     # w_i estimated as EM does for a mixture: each intention's mean responsibility over the
     # demonstration pairs, updated every E-step), for demonstrations in unequal shares.
     prior: str = "uniform"
+    # Whether K is chosen from the data (`--intentions auto`): training starts with the most
+    # intentions allowed and keeps those whose mixture weight holds at least half a
+    # demonstration's share (emgail_jax.method.posterior.intentions_in_use): docs/choosing-k.md.
+    choose_intentions: bool = False
     # The policy's initial log-std, 0 as in the paper's public code: a wide start lets the E-step
     # separate the intentions before the policies commit (docs/defaults.md).
     init_log_std: float = 0.0
@@ -99,6 +103,12 @@ class Config:
                     f"unknown {name.replace('_', ' ')} '{getattr(self, name)}': choose one of "
                     f"{', '.join(choices)}"
                 )
+
+        if self.choose_intentions and (self.prior != "mixture" or self.algo == "gail"):
+            raise ValueError(
+                "choosing the number of intentions needs a posterior and the mixture prior: "
+                "an algo other than gail, and prior mixture"
+            )
 
     def replace(self, **changes) -> Config:
         return dataclasses.replace(self, **changes)

@@ -171,6 +171,15 @@ def mixture_weights(gamma: jax.Array) -> jax.Array:
     return weights / weights.sum()
 
 
+def intentions_in_use(weights: jax.Array, episodes: int) -> jax.Array:
+    """``[K]`` bool: the intentions ``--intentions auto`` keeps, those whose mixture weight
+    holds at least half a demonstration's share of the pairs (``1 / (2 episodes)``, for
+    demonstrations of equal length). One below it explains no demonstration: the trajectory
+    E-step gives each demonstration to its intentions whole, so a kept intention's weight is
+    about a multiple of one demonstration's share, and a retired one's falls to the floor."""
+    return weights >= 0.5 / episodes
+
+
 def make_e_step(apply: Callable, optimizer: optax.GradientTransformation, config: Config):
     """``e_step(posterior, batch, demos, weights) -> EStep`` (Algorithm 1, E-step).
 

@@ -56,7 +56,12 @@ from emgail_jax.method.networks import (
     policy_action,
 )
 from emgail_jax.method.optim import Learner
-from emgail_jax.method.posterior import TRAJECTORY_MODES, Responsibilities, make_e_step
+from emgail_jax.method.posterior import (
+    TRAJECTORY_MODES,
+    Responsibilities,
+    intentions_in_use,
+    make_e_step,
+)
 from emgail_jax.method.rollout import (
     Transitions,
     batch_reset,
@@ -154,11 +159,16 @@ def policy_function(networks: Networks, algorithm: Algorithm, config: Config, k:
 
 
 def clustering_metrics(
-    e_step: Responsibilities | None, demos: DemonstrationPairs, k: int, mode: str
+    e_step: Responsibilities | None,
+    demos: DemonstrationPairs,
+    k: int,
+    mode: str,
+    in_use: jax.Array | None = None,
 ) -> dict:
     """The clustering accuracy of eq. 29 (the posterior's argmax on every expert pair) and, when
     the E-step works on whole demonstrations, the accuracy of those trajectory labels too; NaN
-    without a posterior (GAIL, which has no trajectory labels either) or without hidden labels."""
+    without a posterior (GAIL, which has no trajectory labels either) or without hidden labels.
+    ``k`` learned intentions, of which ``in_use [K]`` (None: all) are kept."""
     names = ["eval/cluster_accuracy"]
     if mode in TRAJECTORY_MODES and e_step is not None:
         names.append("eval/trajectory_cluster_accuracy")
@@ -166,19 +176,22 @@ def clustering_metrics(
         return {name: jnp.float32(jnp.nan) for name in names}
     labels = (e_step.pair_labels, e_step.trajectory_labels)
     return {
-        name: cluster_accuracy(predicted, demos.labels, k)
+        name: cluster_accuracy(predicted, demos.labels, k, demos.true_intentions, in_use)
         for name, predicted in zip(names, labels, strict=False)
     }
 
 
-def evaluation_metrics(returns: jax.Array, demos: DemonstrationPairs) -> dict:
-    """ERD (eq. 28) of ``returns [K learned, K true]``, per true intention and matched."""
-    k = returns.shape[-1]
-    erd = normalized_erd(returns, demos.expert_returns, demos.random_returns)
+def evaluation_metrics(
+    returns: jax.Array, demos: DemonstrationPairs, in_use: jax.Array | None = None
+) -> dict:
+    """ERD (eq. 28) of ``returns [K learned, K env]``, per true intention and matched (to the
+    learned intentions ``in_use [K learned]``, None: all)."""
+    k = demos.true_intentions
+    erd = normalized_erd(returns, demos.expert_returns, demos.random_returns, in_use)
     return {
         "eval/erd": erd.mean,
-        "eval/erd_per_intention": erd.per_intention,  # [K] per true intention
-        "eval/returns": returns[erd.matching, jnp.arange(k)],  # [K] per true intention
+        "eval/erd_per_intention": erd.per_intention,  # [K true]
+        "eval/returns": returns[erd.matching, jnp.arange(k)],  # [K true]
         "eval/matching": erd.matching,
     }
 
@@ -292,10 +305,11 @@ def make_collector(config: Config, env: envs.Env, networks: Networks) -> Collect
             state.policy, state.normalizer
         )
 
-    def collect_and_evaluate(state: TrainState, evaluating, data: RunData, key):
+    def collect_and_evaluate(state: TrainState, evaluating, data: RunData, key, in_use=None):
         """1. The rollout for learning and, when ``evaluating`` (5.), the deterministic
         evaluation episodes: phases of one loop whose body steps the env once. Returns
-        ``(end_state, rollout, evaluation metrics)``."""
+        ``(end_state, rollout, evaluation metrics)``, the ERD matched to the learned intentions
+        ``in_use`` (None: all)."""
         policy = acting(state, data)
 
         def phase(index, carry):
@@ -326,8 +340,8 @@ def make_collector(config: Config, env: envs.Env, networks: Networks) -> Collect
         end, batch, _, totals, _ = jax.lax.fori_loop(0, phases, phase, carry)
         evaluation = jax.lax.cond(
             evaluating,
-            lambda: evaluation_metrics(totals.mean(1), data.demos),
-            lambda: no_evaluation(k),
+            lambda: evaluation_metrics(totals.mean(1), data.demos, in_use),
+            lambda: no_evaluation(data.demos.true_intentions),
         )
         return end, LearningBatch.of(batch, end, env.episode_length), evaluation
 
@@ -393,13 +407,24 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
             expert_actions=data.demos.actions,
         ).check()
 
+    def kept_intentions(state: TrainState, data: RunData) -> jax.Array | None:
+        """``[K]`` the learned intentions in use when K is chosen from the data, from the
+        weights the iteration starts with (the policies evaluated are the state's); None when K
+        is given."""
+        if not config.choose_intentions:
+            return None
+        return intentions_in_use(state.intention_weights, data.demos.episodes)
+
     def update(state: TrainState, evaluating: jax.Array, data: RunData) -> tuple[TrainState, dict]:
         """One iteration of Algorithm 1; ``evaluating`` (a bool scalar, not batched over seeds,
         so that the evaluation phases are really skipped) says whether to run the evaluation
         episodes."""
         key_next, key_phases, key_value = jax.random.split(state.key, 3)
         algorithm = algorithm_of(config, data)
-        end, batch, evaluation = collector.collect_and_evaluate(state, evaluating, data, key_phases)
+        in_use = kept_intentions(state, data)
+        end, batch, evaluation = collector.collect_and_evaluate(
+            state, evaluating, data, key_phases, in_use
+        )
         seen = normalized(state, batch, data)
         e = e_step(state.posterior, seen, data.demos, state.intention_weights)
         m = m_step(state.discriminator, seen, e.gamma, algorithm)
@@ -416,8 +441,13 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
             key=key_next,
             iteration=state.iteration + 1,
         )
-        clustering = clustering_metrics(e.responsibilities, data.demos, k, config.responsibilities)
-        return new_state, {**evaluation, **clustering, **e.metrics, **m.metrics, **b.metrics}
+        clustering = clustering_metrics(
+            e.responsibilities, data.demos, k, config.responsibilities, in_use
+        )
+        metrics = {**evaluation, **clustering, **e.metrics, **m.metrics, **b.metrics}
+        if in_use is not None:
+            metrics["posterior/intentions_in_use"] = in_use.sum()
+        return new_state, metrics
 
     steps = Steps(collector, normalized, e_step, m_step, improve)
     return Trainer(init, update, steps)
