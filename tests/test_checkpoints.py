@@ -58,3 +58,9 @@ def test_a_checkpoint_of_another_structure_is_a_clear_error_and_stays(tmp_path):
     assert "delete" not in str(error.value) and "\n" not in str(error.value)
     assert sorted(p.name for p in (tmp_path / "checkpoints").iterdir()) == before
     assert checkpoints.restore(str(tmp_path), state)[2] == 4
+    grown = {**state, "weights": np.zeros(3, np.float32)}  # a field a newer version added
+    with pytest.raises(checkpoints.CheckpointError, match="another structure"):
+        checkpoints.restore(str(tmp_path), grown)
+    resized = {**state, "params": np.zeros((3, 5), np.float32)}
+    with pytest.raises(checkpoints.CheckpointError, match="another structure"):
+        checkpoints.restore(str(tmp_path), resized)

@@ -6,7 +6,9 @@ so an interrupted save never replaces the last complete checkpoint. A checkpoint
 - ``state``: the ``TrainState`` pytree with the seeds as leading axis, as host arrays (the
   caller gathers the seeds from their devices, and places them back after a restore);
 - ``history``: every metric so far, ``{name: [S, iterations, ...]}`` (exact, unlike the CSV);
-- ``meta``: ``{"iteration": n}``.
+- ``meta``: ``{"iteration": n, "layout": ...}``, the layout a fingerprint of the state's leaves
+  (paths, shapes, dtypes), so that a state of another layout (an older version's) is named as
+  such before orbax tries to read it.
 
 Orbax refuses zero-size arrays, which MJX states hold (``physics.act`` of a model without
 actuator activations, ``mocap_pos`` of one without mocap bodies); they carry no values, so they
@@ -18,6 +20,7 @@ In a run of several processes, process 0 alone writes checkpoints; every process
 
 from __future__ import annotations
 
+import hashlib
 import os
 
 import jax
@@ -50,6 +53,16 @@ def _with_empty(restored, target):
     return jax.tree.map(leaf, target)
 
 
+def layout(state) -> str:
+    """A fingerprint of a train state's layout: every leaf's path, shape and dtype."""
+    leaves = jax.tree_util.tree_flatten_with_path(state)[0]
+    text = "\n".join(
+        f"{jax.tree_util.keystr(path)} {tuple(leaf.shape)} {np.dtype(leaf.dtype)}"
+        for path, leaf in leaves
+    )
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
 def directory(run_dir: str) -> str:
     return os.path.join(os.path.abspath(run_dir), "checkpoints")
 
@@ -78,7 +91,7 @@ def save(run_dir: str, iteration: int, state, history: dict[str, np.ndarray]) ->
             args=ocp.args.Composite(
                 state=ocp.args.StandardSave(_without_empty(state)),
                 history=ocp.args.StandardSave(history),
-                meta=ocp.args.JsonSave({"iteration": iteration}),
+                meta=ocp.args.JsonSave({"iteration": iteration, "layout": layout(state)}),
             ),
         )
         manager.wait_until_finished()
@@ -102,8 +115,17 @@ def restore(run_dir: str, target_state, iteration: int | None = None):
     if iteration is None:
         raise CheckpointError(f"'{run_dir}' holds no checkpoint to resume or evaluate")
     target_state = jax.tree.map(lambda x: np.zeros(x.shape, x.dtype), target_state)
+    another_structure = CheckpointError(
+        f"the checkpoint of iteration {iteration} in '{directory(run_dir)}' holds a train "
+        f"state of another structure than this version of emgail-jax builds for the run "
+        f"(written by another version?); read it with the version that wrote it, or "
+        f"train afresh in a new directory"
+    )
     try:
         with _manager(run_dir) as manager:
+            meta = manager.restore(iteration, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))
+            if meta["meta"].get("layout", layout(target_state)) != layout(target_state):
+                raise another_structure
             restored = manager.restore(
                 iteration,
                 args=ocp.args.Composite(
@@ -112,15 +134,14 @@ def restore(run_dir: str, target_state, iteration: int | None = None):
                     meta=ocp.args.JsonRestore(),
                 ),
             )
+    except CheckpointError:
+        raise
     except Exception as error:  # orbax raises many types for damaged or foreign files
         message = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
-        if "tree structures do not match" in message:
-            raise CheckpointError(
-                f"the checkpoint of iteration {iteration} in '{directory(run_dir)}' holds a train "
-                f"state of another structure than this version of emgail-jax builds for the run "
-                f"(written by another version?); read it with the version that wrote it, or "
-                f"train afresh in a new directory"
-            ) from None
+        # Checkpoints written without a layout: orbax names the mismatch, or fails while
+        # formatting it (its diff report tests array leaves for truth).
+        if "tree structures do not match" in message or "truth value of an array" in message:
+            raise another_structure from None
         raise CheckpointError(
             f"the checkpoint of iteration {iteration} in '{directory(run_dir)}' cannot be "
             f"read ({message[:200]}); delete it to fall back to an older one"
