@@ -136,6 +136,7 @@ def plot_intention_weights(run, path: str) -> None:
     import matplotlib.pyplot as plt
 
     from emgail_jax.host.seed_runner import FINAL_WINDOW
+    from emgail_jax.method.posterior import kept_share
 
     weights = np.asarray(run.history["posterior/intention_weights"])  # [S, L, K]
     seeds, iterations, k = weights.shape
@@ -146,7 +147,7 @@ def plot_intention_weights(run, path: str) -> None:
             ax.plot(np.arange(1, iterations + 1), weights[seed, :, i], color=COLORS[i],
                     label=f"learned {i}", lw=1.2)  # fmt: skip
         if run.config.choose_intentions:
-            ax.axhline(0.5 / run.demonstration_pairs.episodes, color="k", ls=":", lw=1,
+            ax.axhline(kept_share(run.demonstration_pairs.episodes), color="k", ls=":", lw=1,
                        label="kept above")  # fmt: skip
             ax.axvspan(max(iterations - FINAL_WINDOW, 0), iterations, color="0.9")
         title = f"seed {run.spec.first_seed + seed}"

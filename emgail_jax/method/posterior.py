@@ -177,7 +177,12 @@ def intentions_in_use(weights: jax.Array, episodes: int) -> jax.Array:
     demonstrations of equal length). One below it explains no demonstration: the trajectory
     E-step gives each demonstration to its intentions whole, so a kept intention's weight is
     about a multiple of one demonstration's share, and a retired one's falls to the floor."""
-    return weights >= 0.5 / episodes
+    return weights >= kept_share(episodes)
+
+
+def kept_share(episodes: int) -> float:
+    """The weight :func:`intentions_in_use` asks of an intention: half a demonstration's share."""
+    return 0.5 / episodes
 
 
 def make_e_step(apply: Callable, optimizer: optax.GradientTransformation, config: Config):
