@@ -96,11 +96,11 @@ def score(run, seed: int, returns: np.ndarray) -> dict:
         result["matching"] = np.asarray(erd.matching)
     result.update(run.clustering(seed))
     if "cluster_accuracy" in result:
-        predicted = run.responsibilities(seed).pair_labels
-        counts = np.zeros((run.problem.true_intentions, run.num_intentions))
-        np.add.at(counts, (demos.intentions, predicted), 1)
+        responsibilities = run.responsibilities(seed)
         if in_use is not None:
-            counts[:, ~in_use] = 0  # retired intentions hold no cluster
+            responsibilities = responsibilities.kept_only(in_use)
+        counts = np.zeros((run.problem.true_intentions, run.num_intentions))
+        np.add.at(counts, (demos.intentions, responsibilities.pair_labels), 1)
         result["cluster_of_intention"] = linear_sum_assignment(-counts)[1]
     if in_use is not None:
         result["intentions_chosen"] = int(in_use.sum())
@@ -132,27 +132,29 @@ def plot_learning_curves(run_dir: str, path: str) -> None:
 
 def plot_intention_weights(run, path: str) -> None:
     """Each seed's mixture weights against the iteration, with the share an intention needs to
-    be kept when K is chosen from the data: how ``--intentions auto`` decided."""
+    be kept when K is chosen from the data: how ``--intentions auto`` decided. An intention
+    retired at the end (too light, or a duplicate the seeds' consensus merged) is dashed."""
     import matplotlib.pyplot as plt
 
     from emgail_jax.host.seed_runner import FINAL_WINDOW
-    from emgail_jax.method.posterior import kept_share
+    from emgail_jax.method.choosing import kept_share
 
     weights = np.asarray(run.history["posterior/intention_weights"])  # [S, L, K]
     seeds, iterations, k = weights.shape
     fig, axes = plt.subplots(1, seeds, figsize=(3.2 * seeds, 3), sharey=True, squeeze=False)
-    chosen = run.summary.get("final", {}).get("intentions_chosen")
     for seed, ax in enumerate(axes[0]):
+        kept = run.intentions_in_use(seed)  # None when K was given
         for i in range(k):
+            style = "-" if kept is None or kept[i] else "--"
             ax.plot(np.arange(1, iterations + 1), weights[seed, :, i], color=COLORS[i],
-                    label=f"learned {i}", lw=1.2)  # fmt: skip
+                    ls=style, label=f"learned {i}", lw=1.2)  # fmt: skip
         if run.config.choose_intentions:
             ax.axhline(kept_share(run.demonstration_pairs.episodes), color="k", ls=":", lw=1,
                        label="kept above")  # fmt: skip
             ax.axvspan(max(iterations - FINAL_WINDOW, 0), iterations, color="0.9")
         title = f"seed {run.spec.first_seed + seed}"
-        if chosen is not None:
-            title += f": K = {chosen[seed]}"
+        if kept is not None:
+            title += f": K = {kept.sum()}"
         ax.set_title(title, fontsize=9)
         ax.set_yscale("log")
         ax.set_xlabel("iteration")

@@ -323,7 +323,7 @@ def train(
     import jax
 
     from emgail_jax.host import records
-    from emgail_jax.host.seed_runner import chunks, evaluation_plan
+    from emgail_jax.host.seed_runner import chunks, evaluation_plan, gather
 
     config = spec.config.resolved(problem.env)
     runner, parameters = _runner(spec, problem, config)
@@ -363,6 +363,10 @@ def train(
     else:
         summary["status"] = "completed"
     summary["final"] = _final_summary(problem, config, history, timings, spec)
+    if config.choose_intentions:
+        final_state = recorder.host_state if recorder.host_state is not None else gather(state)
+        chosen = _chosen_final(problem, config, runner.data.demos, final_state, history)
+        summary["final"].update(chosen)
     write_json(summary_path, summary)
     return records.to_json_value(summary)
 
@@ -383,6 +387,7 @@ class _ChunkRecorder:
 
     def __post_init__(self):
         self.last_saved = self.iteration
+        self.host_state = None  # every seed's state as last saved, on the host
 
     @contextlib.contextmanager
     def open(self, progress: bool):
@@ -414,7 +419,7 @@ class _ChunkRecorder:
             host_state = gather(state)  # every process takes part
             if self.writes:
                 checkpoints.save(self.out, self.iteration, host_state, self.history)
-            self.last_saved = self.iteration
+            self.last_saved, self.host_state = self.iteration, host_state
         return self.stop.signal is None
 
 
@@ -498,11 +503,66 @@ def _final_summary(problem, config, history, timings, spec) -> dict:
     if "posterior/intention_weights" in final:  # the mixture prior: [seeds][K]
         summary["intention_weights"] = final["posterior/intention_weights"]
     if "posterior/intentions_in_use" in final:  # --intentions auto: [seeds]
-        summary["intentions_chosen"] = np.rint(final["posterior/intentions_in_use"]).astype(int)
+        summary["intentions_held"] = np.rint(final["posterior/intentions_in_use"]).astype(int)
     name = "trajectory_cluster_accuracy"
     if f"eval/{name}" in final:  # EM-GAIL and Info/IntentionGAIL in trajectory mode
         summary[name] = None if no_accuracy else final[f"eval/{name}"]
     return summary
+
+
+def _chosen_final(problem, config, demos, states, history) -> dict:
+    """The final metrics of a run that chooses K: the seeds together decide, on the final
+    state, the intentions each keeps (:func:`~emgail_jax.method.training.chosen_intentions`);
+    the ERD is then that of the last evaluations matched to those, the accuracies the final
+    state's (a retired intention's demonstrations go to the kept one the posterior ranks
+    next)."""
+    import jax
+
+    from emgail_jax.host.seed_runner import FINAL_WINDOW
+    from emgail_jax.method.metrics import normalized_erd
+    from emgail_jax.method.training import (
+        chosen_intentions,
+        clustering_metrics,
+        make_networks,
+        responsibilities_of,
+    )
+
+    networks = make_networks(config, problem.env)
+    kept = chosen_intentions(networks, config, states, demos)  # [S, M]
+    seeds, m = kept.shape
+    k = problem.true_intentions
+    returns = history["eval/learned_returns"]
+    returns = returns.reshape(*returns.shape[:2], m, k)  # [S, L, M learned, K true]
+    final = {"intentions_kept": kept, "intentions_chosen": kept.sum(1)}
+    per_seed = []
+    for seed in range(seeds):
+        values = {}
+        if problem.demos.expert_returns is not None:
+            evaluated = np.flatnonzero(~np.isnan(returns[seed, :, 0, 0]))[-FINAL_WINDOW:]
+            erds = [
+                normalized_erd(
+                    returns[seed, i], demos.expert_returns, demos.random_returns, kept[seed]
+                )
+                for i in evaluated
+            ]
+            values["erd"] = np.mean([float(e.mean) for e in erds])
+            values["erd_per_intention"] = np.mean([e.per_intention for e in erds], 0)
+            matched = [
+                returns[seed, i][np.asarray(e.matching), np.arange(k)]
+                for i, e in zip(evaluated, erds, strict=True)
+            ]
+            values["returns"] = np.mean(matched, 0)
+        if demos.has_labels:
+            state = jax.tree.map(lambda x, s=seed: x[s], states)
+            responsibilities = responsibilities_of(networks, config, state, demos)
+            clustering = clustering_metrics(
+                responsibilities, demos, m, config.responsibilities, kept[seed]
+            )
+            values.update({name[5:]: float(v) for name, v in clustering.items()})
+        per_seed.append(values)
+    for name in per_seed[0]:
+        final[name] = np.stack([values[name] for values in per_seed])
+    return final
 
 
 def _progress_fields(history: dict[str, np.ndarray]) -> dict[str, str]:

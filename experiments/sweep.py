@@ -412,6 +412,7 @@ class CellResult:
     seconds_per_iteration: float
     reoptimized_erd: float | None
     intentions_chosen: np.ndarray | None = None  # [seeds], --intentions auto
+    intentions_held: np.ndarray | None = None  # [seeds], by the weights alone
 
 
 def collect(out: str, cells: list[Cell], seeds: int, iterations: int) -> dict[str, CellResult]:
@@ -438,6 +439,7 @@ def collect(out: str, cells: list[Cell], seeds: int, iterations: int) -> dict[st
             / summary["timings"]["iterations"],
             reoptimized_erd=reoptimized,
             intentions_chosen=final.get("intentions_chosen"),
+            intentions_held=final.get("intentions_held"),
         )
     return results
 
@@ -496,7 +498,7 @@ def write_choosing_k(out: str, results: dict[str, CellResult]) -> None:
     with open(os.path.join(out, "choosing-k.csv"), "w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(
-            ["env", "intentions", "chosen", "accuracy_mean", "accuracy_std", "erd_mean",
+            ["env", "intentions", "chosen", "held", "accuracy_mean", "accuracy_std", "erd_mean",
              "erd_std", "given_accuracy_mean", "given_erd_mean", "seeds"]
         )  # fmt: skip
         for env, k, auto, given in rows:
@@ -504,26 +506,31 @@ def write_choosing_k(out: str, results: dict[str, CellResult]) -> None:
             numbers += (
                 [math.nan, math.nan] if given is None else [given.accuracy.mean(), given.erd.mean()]
             )
-            chosen = " ".join(str(c) for c in auto.intentions_chosen)
-            writer.writerow([env, k, chosen, *(f"{v:.4f}" for v in numbers), len(auto.erd)])
+            counts = [_per_seed(auto.intentions_chosen, " "), _per_seed(auto.intentions_held, " ")]
+            writer.writerow([env, k, *counts, *(f"{v:.4f}" for v in numbers), len(auto.erd)])
     lines = [
         "K chosen by `--intentions auto` (from the env's maximum) on demonstrations of K true "
-        "intentions, per seed; its clustering accuracy (%) and ERD, mean ± std over seeds, "
-        "beside the same cell with K given.",
+        "intentions, per seed (and before the seeds' consensus, by the weights alone); its "
+        "clustering accuracy (%) and ERD, mean ± std over seeds, beside the same cell with K "
+        "given.",
         "",
-        "| demonstrations | K chosen (per seed) | accuracy, K chosen | accuracy, K given "
-        "| ERD, K chosen | ERD, K given |",
-        "|---|---|---:|---:|---:|---:|",
+        "| demonstrations | K chosen (per seed) | held by weights | accuracy, K chosen "
+        "| accuracy, K given | ERD, K chosen | ERD, K given |",
+        "|---|---|---|---:|---:|---:|---:|",
     ]
     for env, k, auto, given in rows:
         erd = lambda r: "—" if r is None else f"{r.erd.mean():.3f} ± {r.erd.std():.3f}"
         accuracy = lambda r: "—" if r is None else _mean_std(100 * r.accuracy)
         lines.append(
             f"| {env}, {k} of {auto.cell.learned_intentions} | "
-            f"{', '.join(str(c) for c in auto.intentions_chosen)} | {accuracy(auto)} | "
-            f"{accuracy(given)} | {erd(auto)} | {erd(given)} |"
+            f"{_per_seed(auto.intentions_chosen)} | {_per_seed(auto.intentions_held)} | "
+            f"{accuracy(auto)} | {accuracy(given)} | {erd(auto)} | {erd(given)} |"
         )
     _write_text(os.path.join(out, "choosing-k.md"), lines)
+
+
+def _per_seed(counts, separator: str = ", ") -> str:
+    return "—" if counts is None else separator.join(str(c) for c in counts)
 
 
 def write_table2(out: str, results: dict[str, CellResult], seeds: int) -> None:

@@ -2,6 +2,7 @@
 
 import json
 
+import numpy as np
 import pytest
 
 from emgail_jax import evaluate, train
@@ -100,6 +101,41 @@ def test_evaluate_scores_the_intentions_an_auto_run_keeps(auto_run):
         if in_use.sum() >= 2:  # every true intention matched to a learned one in use
             assert all(in_use[j] for j in result["matching"])
         assert 0.0 <= result["cluster_accuracy"] <= 1.0
+
+
+def test_an_auto_run_reports_what_the_seeds_agree_on(auto_run):
+    """The intentions each seed keeps, as training wrote them at its end, equal those the
+    saved run recomputes from the final state: held by their weights, then the seeds'
+    consensus on each demonstration's intention; the final accuracies are the final state's
+    with those kept."""
+    from emgail_jax.host.saved_run import SavedRun
+    from emgail_jax.method.choosing import (
+        consensus_intentions,
+        demonstration_intentions,
+        holds_demonstrations,
+    )
+
+    summary = json.loads((auto_run / "summary.json").read_text())
+    final = summary["final"]
+    run = SavedRun.open(str(auto_run))
+    pairs = run.demonstration_pairs
+    weights = np.asarray(run.state.intention_weights)
+    labels = [
+        demonstration_intentions(
+            run.responsibilities(seed).gamma,
+            pairs.episode,
+            pairs.episodes,
+            np.asarray(holds_demonstrations(weights[seed], pairs.episodes)),
+        )
+        for seed in range(2)
+    ]
+    expected = consensus_intentions(np.stack(labels), weights)
+    for seed in range(2):
+        np.testing.assert_array_equal(run.intentions_in_use(seed), expected[seed])
+        np.testing.assert_array_equal(final["intentions_kept"][seed], expected[seed])
+        assert final["intentions_chosen"][seed] == expected[seed].sum()
+        assert final["cluster_accuracy"][seed] == run.clustering(seed)["cluster_accuracy"]
+    assert all(1 <= k <= 3 for k in final["intentions_held"])
 
 
 @pytest.mark.parametrize(

@@ -14,7 +14,6 @@ from emgail_jax.method.networks import Posterior
 from emgail_jax.method.optim import Learner
 from emgail_jax.method.posterior import (
     expert_responsibilities,
-    intentions_in_use,
     log_posterior,
     make_e_step,
     mixture_weights,
@@ -263,11 +262,23 @@ def test_mixture_weights_are_the_mean_responsibilities_floored():
     np.testing.assert_allclose(weights[:2] / weights[:2].sum(), [0.7, 0.3], rtol=1e-3)
 
 
-def test_intentions_in_use_hold_half_a_demonstration_share():
-    # 10 demonstrations: an intention is kept from a weight of 1/20 on.
-    weights = jnp.array([0.6, 0.349, 0.05, 0.001])
-    np.testing.assert_array_equal(intentions_in_use(weights, 10), [True, True, True, False])
-    np.testing.assert_array_equal(intentions_in_use(weights, 5), [True, True, False, False])
+def test_kept_only_relabels_to_the_most_likely_kept_intention():
+    """Two demonstrations of two pairs; intention 1 retired: its pairs and its demonstration go
+    to the next most likely intention, pair by pair and demonstration by demonstration."""
+    p = jnp.array([[0.6, 0.3, 0.1], [0.3, 0.5, 0.2], [0.2, 0.7, 0.1], [0.2, 0.5, 0.3]])
+    episode = jnp.array([0, 0, 1, 1])
+    apply = lambda logits, obs, act: logits
+    result = expert_responsibilities(apply, jnp.log(p), p, p, episode, 2, "trajectory")
+    np.testing.assert_array_equal(result.pair_labels, [0, 1, 1, 1])  # demonstration 0: 0.18 for 0
+    np.testing.assert_array_equal(result.trajectory_labels, [0, 0, 1, 1])
+    kept = result.kept_only(jnp.array([True, False, True]))
+    np.testing.assert_array_equal(kept.pair_labels, [0, 0, 0, 2])
+    # Demonstration 1: 0.2 * 0.2 = 0.04 for intention 0 against 0.1 * 0.3 = 0.03 for 2.
+    np.testing.assert_array_equal(kept.trajectory_labels, [0, 0, 0, 0])
+    np.testing.assert_array_equal(kept.gamma, result.gamma)
+    everything = result.kept_only(jnp.ones(3, bool))
+    np.testing.assert_array_equal(everything.pair_labels, result.pair_labels)
+    np.testing.assert_array_equal(everything.trajectory_labels, result.trajectory_labels)
 
 
 @pytest.mark.parametrize("mode", ["pair", "trajectory"])

@@ -31,17 +31,17 @@ from emgail_jax.method.discriminator import learned_reward
 from emgail_jax.method.networks import policy_action
 from emgail_jax.method.posterior import (
     Responsibilities,
-    expert_responsibilities,
-    intentions_in_use,
     own_log_posterior,
 )
 from emgail_jax.method.training import (
     Networks,
     RunData,
     TrainState,
+    chosen_intentions,
     clustering_metrics,
     make_networks,
     make_train,
+    responsibilities_of,
 )
 
 
@@ -59,6 +59,7 @@ class SavedRun:
     iteration: int
     # The demonstrations as training sees them (no ERD references).
     demonstration_pairs: DemonstrationPairs
+    _kept: np.ndarray | None = None  # [seeds, K] the intentions kept, once computed
 
     @classmethod
     def open(cls, run_dir: str) -> SavedRun:
@@ -99,11 +100,16 @@ class SavedRun:
 
     def intentions_in_use(self, seed: int = 0) -> np.ndarray | None:
         """``[K]`` bool, the learned intentions ``seed`` keeps when K is chosen from the data
-        (``--intentions auto``); None when K was given."""
+        (``--intentions auto``), decided by all the run's seeds together as training decided
+        at its end (:func:`~emgail_jax.method.training.chosen_intentions`); None when K was
+        given."""
         if not self.config.choose_intentions:
             return None
-        weights = self.seed_state(seed).intention_weights
-        return np.asarray(intentions_in_use(weights, self.demonstration_pairs.episodes))
+        self.seed_state(seed)  # checks the seed
+        if self._kept is None:
+            pairs = self.demonstration_pairs
+            self._kept = chosen_intentions(self.networks, self.config, self.state, pairs)
+        return self._kept[seed]
 
     def seed_state(self, seed: int = 0) -> TrainState:
         """The train state of the run's ``seed``-th seed (0 .. seeds-1)."""
@@ -162,19 +168,7 @@ class SavedRun:
         if not self.algorithm.learns_posterior:
             raise RunError(f"{self.config.algo} learns no posterior")
         state = self.seed_state(seed)
-        pairs = self.demonstration_pairs
-        normalized = obs_norm.normalize(state.normalizer, pairs.observations, self.config.obs_clip)
-        result = expert_responsibilities(
-            self.networks.posterior.apply,
-            state.posterior.params,
-            normalized,
-            pairs.actions,
-            pairs.episode,
-            pairs.episodes,
-            self.config.responsibilities,
-            pairs.labels if pairs.has_labels else None,
-            state.intention_weights if self.config.prior == "mixture" else None,
-        )
+        result = responsibilities_of(self.networks, self.config, state, self.demonstration_pairs)
         return jax.device_get(result)
 
     def clustering(self, seed: int = 0) -> dict[str, float]:

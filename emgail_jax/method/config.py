@@ -48,8 +48,8 @@ class Config:
     # demonstration pairs, updated every E-step), for demonstrations in unequal shares.
     prior: str = "uniform"
     # Whether K is chosen from the data (`--intentions auto`): training starts with the most
-    # intentions allowed and keeps those whose mixture weight holds at least half a
-    # demonstration's share (emgail_jax.method.posterior.intentions_in_use): docs/choosing-k.md.
+    # intentions allowed, keeps those whose mixture weight holds demonstrations, and at the end
+    # those the seeds agree on (emgail_jax.method.choosing): docs/choosing-k.md.
     choose_intentions: bool = False
     # The policy's initial log-std, 0 as in the paper's public code: a wide start lets the E-step
     # separate the intentions before the policies commit (docs/defaults.md).

@@ -97,11 +97,21 @@ class Responsibilities:
         accuracy (eq. 29) scores, in either mode.
       trajectory_labels: ``[N]`` ``argmax_i gamma``: the labels the M-step acts on; equal to
         ``pair_labels`` in pair mode.
+      pair_scores: ``[N, K]`` log w_i P(i | s, a) (up to a constant per pair), whose argmax
+        the pair labels are.
     """
 
     gamma: jax.Array
     pair_labels: jax.Array
     trajectory_labels: jax.Array
+    pair_scores: jax.Array
+
+    def kept_only(self, in_use: jax.Array) -> Responsibilities:
+        """The labels when only the intentions ``in_use [K]`` are kept (``--intentions
+        auto``): each pair, and each demonstration, goes to its most likely kept intention."""
+        pair_labels = jnp.argmax(jnp.where(in_use, self.pair_scores, -jnp.inf), -1)
+        trajectory_labels = jnp.argmax(jnp.where(in_use, self.gamma, -1.0), -1)
+        return self.replace(pair_labels=pair_labels, trajectory_labels=trajectory_labels)
 
 
 def expert_responsibilities(
@@ -133,18 +143,19 @@ def expert_responsibilities(
     if mode == "labels":
         if labels is None:
             raise ValueError("the labels E-step needs demonstrations with hidden labels")
-        return Responsibilities(jax.nn.one_hot(labels, log_p.shape[-1]), pair_labels, labels)
+        gamma = jax.nn.one_hot(labels, log_p.shape[-1])
+        return Responsibilities(gamma, pair_labels, labels, log_joint)
     if mode in TRAJECTORY_MODES:
         centered = mode != "trajectory"
         gamma = trajectory_responsibilities(log_p, episode, episodes, centered, log_prior)
-        return Responsibilities(gamma, pair_labels, jnp.argmax(gamma, -1))
+        return Responsibilities(gamma, pair_labels, jnp.argmax(gamma, -1), log_joint)
     if mode != "pair":
         raise ValueError(
             f"unknown responsibilities mode '{mode}': choose trajectory, "
             f"trajectory-centered, pair or labels"
         )
     gamma = jnp.exp(log_p) if log_prior is None else jax.nn.softmax(log_joint, -1)
-    return Responsibilities(gamma, pair_labels, pair_labels)
+    return Responsibilities(gamma, pair_labels, pair_labels, log_joint)
 
 
 @struct.dataclass
@@ -169,20 +180,6 @@ def mixture_weights(gamma: jax.Array) -> jax.Array:
     the demonstration pairs ``gamma [N, K]``, floored at :data:`MIN_WEIGHT`."""
     weights = jnp.maximum(gamma.mean(0), MIN_WEIGHT)
     return weights / weights.sum()
-
-
-def intentions_in_use(weights: jax.Array, episodes: int) -> jax.Array:
-    """``[K]`` bool: the intentions ``--intentions auto`` keeps, those whose mixture weight
-    holds at least half a demonstration's share of the pairs (``1 / (2 episodes)``, for
-    demonstrations of equal length). One below it explains no demonstration: the trajectory
-    E-step gives each demonstration to its intentions whole, so a kept intention's weight is
-    about a multiple of one demonstration's share, and a retired one's falls to the floor."""
-    return weights >= kept_share(episodes)
-
-
-def kept_share(episodes: int) -> float:
-    """The weight :func:`intentions_in_use` asks of an intention: half a demonstration's share."""
-    return 0.5 / episodes
 
 
 def make_e_step(apply: Callable, optimizer: optax.GradientTransformation, config: Config):

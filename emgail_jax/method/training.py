@@ -45,6 +45,11 @@ from emgail_jax.method import normalizer as obs_norm
 from emgail_jax.method.algorithms import Algorithm, make_algorithm
 from emgail_jax.method.b_step import BStep, PolicySamples, make_b_step
 from emgail_jax.method.batches import DemonstrationPairs, LearningBatch, NormalizedBatch
+from emgail_jax.method.choosing import (
+    consensus_intentions,
+    demonstration_intentions,
+    holds_demonstrations,
+)
 from emgail_jax.method.config import Config
 from emgail_jax.method.discriminator import learned_reward, make_m_step
 from emgail_jax.method.metrics import cluster_accuracy, normalized_erd
@@ -59,7 +64,7 @@ from emgail_jax.method.optim import Learner
 from emgail_jax.method.posterior import (
     TRAJECTORY_MODES,
     Responsibilities,
-    intentions_in_use,
+    expert_responsibilities,
     make_e_step,
 )
 from emgail_jax.method.rollout import (
@@ -168,12 +173,15 @@ def clustering_metrics(
     """The clustering accuracy of eq. 29 (the posterior's argmax on every expert pair) and, when
     the E-step works on whole demonstrations, the accuracy of those trajectory labels too; NaN
     without a posterior (GAIL, which has no trajectory labels either) or without hidden labels.
-    ``k`` learned intentions, of which ``in_use [K]`` (None: all) are kept."""
+    ``k`` learned intentions, of which ``in_use [K]`` (None: all) are kept: each pair and
+    demonstration is then labelled with its most likely kept intention."""
     names = ["eval/cluster_accuracy"]
     if mode in TRAJECTORY_MODES and e_step is not None:
         names.append("eval/trajectory_cluster_accuracy")
     if e_step is None or not demos.has_labels:
         return {name: jnp.float32(jnp.nan) for name in names}
+    if in_use is not None:
+        e_step = e_step.kept_only(in_use)
     labels = (e_step.pair_labels, e_step.trajectory_labels)
     return {
         name: cluster_accuracy(predicted, demos.labels, k, demos.true_intentions, in_use)
@@ -181,31 +189,76 @@ def clustering_metrics(
     }
 
 
+def responsibilities_of(
+    networks: Networks, config: Config, state: TrainState, demos: DemonstrationPairs
+) -> Responsibilities:
+    """The E-step's responsibilities of ``demos`` under one seed's ``state`` (its posterior,
+    observation statistics and mixture weights), computed as training computes them."""
+    expert_obs = obs_norm.normalize(state.normalizer, demos.observations, config.obs_clip)
+    return expert_responsibilities(
+        networks.posterior.apply,
+        state.posterior.params,
+        expert_obs,
+        demos.actions,
+        demos.episode,
+        demos.episodes,
+        config.responsibilities,
+        demos.labels if demos.has_labels else None,
+        state.intention_weights if config.prior == "mixture" else None,
+    )
+
+
+def chosen_intentions(
+    networks: Networks, config: Config, states: TrainState, demos: DemonstrationPairs
+) -> np.ndarray:
+    """``[S, K]`` bool: the learned intentions each seed keeps at the end of a run that chooses
+    K from the data, from every seed's ``states`` (leading axis: seed) together: the
+    intentions holding demonstrations by their weights, then the seeds' consensus
+    (:mod:`emgail_jax.method.choosing`)."""
+    weights = np.asarray(states.intention_weights)
+    labels = []
+    for seed in range(weights.shape[0]):
+        state = jax.tree.map(lambda x, s=seed: x[s], states)
+        gamma = responsibilities_of(networks, config, state, demos).gamma
+        held = np.asarray(holds_demonstrations(weights[seed], demos.episodes))
+        labels.append(demonstration_intentions(gamma, demos.episode, demos.episodes, held))
+    return consensus_intentions(np.stack(labels), weights)
+
+
 def evaluation_metrics(
     returns: jax.Array, demos: DemonstrationPairs, in_use: jax.Array | None = None
 ) -> dict:
     """ERD (eq. 28) of ``returns [K learned, K env]``, per true intention and matched (to the
-    learned intentions ``in_use [K learned]``, None: all)."""
+    learned intentions ``in_use [K learned]``, None: all). When K is chosen from the data, also
+    every learned intention's returns, flattened ``[K learned * K true]``: the run's K is
+    decided at its end, and its final ERD matched again then (``train``)."""
     k = demos.true_intentions
     erd = normalized_erd(returns, demos.expert_returns, demos.random_returns, in_use)
-    return {
+    metrics = {
         "eval/erd": erd.mean,
         "eval/erd_per_intention": erd.per_intention,  # [K true]
         "eval/returns": returns[erd.matching, jnp.arange(k)],  # [K true]
         "eval/matching": erd.matching,
     }
+    if in_use is not None:
+        metrics["eval/learned_returns"] = returns[:, :k].reshape(-1)
+    return metrics
 
 
-def no_evaluation(k: int) -> dict:
-    """What :func:`evaluation_metrics` gives for an iteration without evaluation: NaN (matching
-    -1), never stale values."""
+def no_evaluation(k: int, learned: int | None = None) -> dict:
+    """What :func:`evaluation_metrics` gives for an iteration without evaluation (``k`` true
+    intentions; ``learned`` ones when K is chosen from the data): NaN (matching -1), never
+    stale values."""
     missing = jnp.full(k, jnp.nan, jnp.float32)
-    return {
+    metrics = {
         "eval/erd": jnp.float32(jnp.nan),
         "eval/erd_per_intention": missing,
         "eval/returns": missing,
         "eval/matching": jnp.full(k, -1, jnp.int32),
     }
+    if learned is not None:
+        metrics["eval/learned_returns"] = jnp.full(learned * k, jnp.nan, jnp.float32)
+    return metrics
 
 
 def evaluation_phases(config: Config, env: envs.Env) -> int:
@@ -341,7 +394,9 @@ def make_collector(config: Config, env: envs.Env, networks: Networks) -> Collect
         evaluation = jax.lax.cond(
             evaluating,
             lambda: evaluation_metrics(totals.mean(1), data.demos, in_use),
-            lambda: no_evaluation(data.demos.true_intentions),
+            lambda: no_evaluation(
+                data.demos.true_intentions, None if in_use is None else in_use.shape[0]
+            ),
         )
         return end, LearningBatch.of(batch, end, env.episode_length), evaluation
 
@@ -408,12 +463,12 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
         ).check()
 
     def kept_intentions(state: TrainState, data: RunData) -> jax.Array | None:
-        """``[K]`` the learned intentions in use when K is chosen from the data, from the
-        weights the iteration starts with (the policies evaluated are the state's); None when K
-        is given."""
+        """``[K]`` the learned intentions holding demonstrations when K is chosen from the data,
+        from the weights the iteration starts with (the policies evaluated are the state's);
+        None when K is given. The seeds' consensus decides the run's K at the end."""
         if not config.choose_intentions:
             return None
-        return intentions_in_use(state.intention_weights, data.demos.episodes)
+        return holds_demonstrations(state.intention_weights, data.demos.episodes)
 
     def update(state: TrainState, evaluating: jax.Array, data: RunData) -> tuple[TrainState, dict]:
         """One iteration of Algorithm 1; ``evaluating`` (a bool scalar, not batched over seeds,
