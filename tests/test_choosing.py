@@ -47,6 +47,13 @@ def test_the_seeds_agree_on_the_true_intentions_when_each_splits_one_differently
     assert groups[0] != groups[6]
 
 
+def test_one_seed_of_four_merging_two_intentions_does_not_merge_them():
+    labels = np.array([[0] * 4 + [1] * 4, [0] * 4 + [1] * 4, [2] * 4 + [3] * 4, [1] * 8])
+    groups = agreed_groups(labels, 4)
+    assert len(set(groups[:4])) == 1 and len(set(groups[4:])) == 1
+    assert groups[0] != groups[4]
+
+
 def test_a_split_every_seed_makes_is_kept():
     """Three groups of 4 demonstrations, told apart by every seed (under other numbers): three
     intentions, whatever the seeds call them."""

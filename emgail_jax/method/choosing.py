@@ -45,16 +45,20 @@ def agreed_groups(labels: np.ndarray, intentions: int) -> np.ndarray:
     each demonstration ``labels [S, E]`` (of ``intentions`` learned ones).
 
     Two demonstrations' agreement is the share of seeds that give them one intention. Groups
-    are merged by average linkage while their mean agreement is at least ``1 / intentions``:
-    the least the demonstrations of one true intention share when a seed spreads them evenly
-    over all its intentions; demonstrations of distinct intentions share about none.
+    are merged by average linkage while their mean agreement is above ``1 / intentions``. With
+    K >= 2 true intentions a seed can spread one over at most M - 1 of its M intentions, so
+    its demonstrations agree at least 1 / (M - 1) on average; those of distinct intentions
+    agree only as often as seeds put them together, e.g. 1/4 when one seed of four merges two,
+    which stays two.
     """
     episodes = labels.shape[1]
     if episodes < 2:
         return np.zeros(episodes, int)
     together = (labels[:, :, None] == labels[:, None, :]).mean(0)  # [E, E]
     tree = linkage(squareform(1.0 - together, checks=False), "average")
-    return fcluster(tree, t=1.0 - 1.0 / intentions, criterion="distance") - 1
+    # Merging goes on while the distance, 1 - agreement, is below 1 - 1/M (strictly).
+    below = np.nextafter(1.0 - 1.0 / intentions, 0.0)
+    return fcluster(tree, t=below, criterion="distance") - 1
 
 
 def consensus_intentions(labels: np.ndarray, weights: np.ndarray) -> np.ndarray:
