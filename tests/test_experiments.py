@@ -100,27 +100,29 @@ def test_choosing_k_table_sets_the_chosen_k_beside_k_given(tmp_path):
     sweep = _load("sweep")
     cells = {c.name: c for c in sweep.all_cells()}
 
-    def result(name, accuracy, erd, chosen=None):
+    def result(name, accuracy, erd, chosen=None, held=None):
         return sweep.CellResult(
-            cells[name], np.asarray(erd), np.asarray(accuracy), 0, 1.0, None, chosen
+            cells[name], np.asarray(erd), np.asarray(accuracy), 0, 1.0, None, chosen, held
         )
 
     results = {
-        "reacher-2-emgail-auto": result("reacher-2-emgail-auto", [0.9, 1.0], [0.1, 0.2], [2, 3]),
+        "reacher-2-emgail-auto": result(
+            "reacher-2-emgail-auto", [0.9, 1.0], [0.1, 0.2], [2, 3], [4, 3]
+        ),
         "reacher-2-emgail": result("reacher-2-emgail", [0.95, 0.95], [0.1, 0.1]),
         "hopper-3-emgail-auto": result("hopper-3-emgail-auto", [1.0, 1.0], [0.0, 0.0], [3, 3]),
     }
     sweep.write_choosing_k(str(tmp_path), results)
     table = (tmp_path / "choosing-k.md").read_text()
-    assert (
-        "| reacher, 2 of 4 | 2, 3 | 95.0 ± 5.0 | 95.0 ± 0.0 | 0.150 ± 0.050 | 0.100 ± 0.000 |"
-        in table
+    row = (
+        "| reacher, 2 of 4 | 2, 3 | 4, 3 | 95.0 ± 5.0 | 95.0 ± 0.0 | 0.150 ± 0.050 | 0.100 ± 0.000"
     )
-    assert "| hopper, 3 of 3 | 3, 3 | 100.0 ± 0.0 | — |" in table
+    assert row + " |" in table
+    assert "| hopper, 3 of 3 | 3, 3 | — | 100.0 ± 0.0 | — |" in table
     rows = list(csv.DictReader((tmp_path / "choosing-k.csv").open()))
-    assert [(r["env"], r["intentions"], r["chosen"]) for r in rows] == [
-        ("hopper", "3", "3 3"),
-        ("reacher", "2", "2 3"),
+    assert [(r["env"], r["intentions"], r["chosen"], r["held"]) for r in rows] == [
+        ("hopper", "3", "3 3", "—"),
+        ("reacher", "2", "2 3", "4 3"),
     ]
     assert rows[1]["given_accuracy_mean"] == "0.9500" and rows[0]["given_erd_mean"] == "nan"
 
