@@ -512,24 +512,30 @@ def _final_summary(problem, config, history, timings, spec) -> dict:
 
 def _chosen_final(problem, config, demos, states, history) -> dict:
     """The final metrics of a run that chooses K: the seeds together decide, on the final
-    state, the intentions each keeps (:func:`~emgail_jax.method.training.chosen_intentions`);
+    state, the intentions each keeps (:func:`~emgail_jax.method.choosing.chosen_intentions`);
     the ERD is then that of the last evaluations matched to those, the accuracies the final
     state's (a retired intention's demonstrations go to the kept one the posterior ranks
     next)."""
-    import jax
-
     from emgail_jax.host.seed_runner import FINAL_WINDOW
+    from emgail_jax.method.choosing import chosen_intentions
     from emgail_jax.method.metrics import normalized_erd
     from emgail_jax.method.training import (
-        chosen_intentions,
         clustering_metrics,
         make_networks,
         responsibilities_of,
+        seed_state,
     )
 
     networks = make_networks(config, problem.env)
-    kept = chosen_intentions(networks, config, states, demos)  # [S, M]
-    seeds, m = kept.shape
+    seeds = states.intention_weights.shape[0]
+    responsibilities = [
+        responsibilities_of(networks, config, seed_state(states, seed), demos)
+        for seed in range(seeds)
+    ]
+    gamma = np.stack([np.asarray(r.gamma) for r in responsibilities])
+    weights = np.asarray(states.intention_weights)
+    kept = chosen_intentions(gamma, weights, demos.episode, demos.episodes)  # [S, M]
+    m = kept.shape[1]
     k = problem.true_intentions
     returns = history["eval/learned_returns"]
     returns = returns.reshape(*returns.shape[:2], m, k)  # [S, L, M learned, K true]
@@ -553,10 +559,8 @@ def _chosen_final(problem, config, demos, states, history) -> dict:
             ]
             values["returns"] = np.mean(matched, 0)
         if demos.has_labels:
-            state = jax.tree.map(lambda x, s=seed: x[s], states)
-            responsibilities = responsibilities_of(networks, config, state, demos)
             clustering = clustering_metrics(
-                responsibilities, demos, m, config.responsibilities, kept[seed]
+                responsibilities[seed], demos, m, config.responsibilities, kept[seed]
             )
             values.update({name[5:]: float(v) for name, v in clustering.items()})
         per_seed.append(values)

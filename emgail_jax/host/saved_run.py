@@ -26,6 +26,7 @@ from emgail_jax.host.seed_runner import Runner
 from emgail_jax.method import normalizer as obs_norm
 from emgail_jax.method.algorithms import Algorithm, make_algorithm
 from emgail_jax.method.batches import DemonstrationPairs
+from emgail_jax.method.choosing import chosen_intentions
 from emgail_jax.method.config import Config
 from emgail_jax.method.discriminator import learned_reward
 from emgail_jax.method.networks import policy_action
@@ -37,11 +38,11 @@ from emgail_jax.method.training import (
     Networks,
     RunData,
     TrainState,
-    chosen_intentions,
     clustering_metrics,
     make_networks,
     make_train,
     responsibilities_of,
+    seed_state,
 )
 
 
@@ -101,21 +102,23 @@ class SavedRun:
     def intentions_in_use(self, seed: int = 0) -> np.ndarray | None:
         """``[K]`` bool, the learned intentions ``seed`` keeps when K is chosen from the data
         (``--intentions auto``), decided by all the run's seeds together as training decided
-        at its end (:func:`~emgail_jax.method.training.chosen_intentions`); None when K was
+        at its end (:func:`~emgail_jax.method.choosing.chosen_intentions`); None when K was
         given."""
         if not self.config.choose_intentions:
             return None
         self.seed_state(seed)  # checks the seed
         if self._kept is None:
             pairs = self.demonstration_pairs
-            self._kept = chosen_intentions(self.networks, self.config, self.state, pairs)
+            gamma = np.stack([self.responsibilities(s).gamma for s in range(self.spec.seeds)])
+            weights = np.asarray(self.state.intention_weights)
+            self._kept = chosen_intentions(gamma, weights, pairs.episode, pairs.episodes)
         return self._kept[seed]
 
     def seed_state(self, seed: int = 0) -> TrainState:
         """The train state of the run's ``seed``-th seed (0 .. seeds-1)."""
         if not 0 <= seed < self.spec.seeds:
             raise RunError(f"the run has seeds 0..{self.spec.seeds - 1}; got seed {seed}")
-        return jax.tree.map(lambda x: x[seed], self.state)
+        return seed_state(self.state, seed)
 
     def policy(self, seed: int = 0) -> Callable[[jax.Array, jax.Array], jax.Array]:
         """Deterministic ``pi(obs [..., D], intention [...]) -> action [..., A]`` (raw obs)."""

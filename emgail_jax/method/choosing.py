@@ -87,3 +87,17 @@ def demonstration_intentions(
     per_demonstration = np.zeros((episodes, gamma.shape[-1]))
     np.add.at(per_demonstration, np.asarray(episode), np.asarray(gamma))
     return np.argmax(np.where(held, per_demonstration, -1.0), -1)
+
+
+def chosen_intentions(
+    gamma: np.ndarray, weights: np.ndarray, episode: np.ndarray, episodes: int
+) -> np.ndarray:
+    """``[S, K]`` bool: the intentions each seed keeps at the end of a run, from every seed's
+    responsibilities of the expert pairs ``gamma [S, N, K]`` and mixture weights
+    ``weights [S, K]``: those holding demonstrations by their weights, then the seeds'
+    consensus on the intention of each demonstration (``episode [N]``)."""
+    labels = [
+        demonstration_intentions(g, episode, episodes, holds_demonstrations(w, episodes))
+        for g, w in zip(gamma, weights, strict=True)
+    ]
+    return consensus_intentions(np.stack(labels), weights)

@@ -45,11 +45,7 @@ from emgail_jax.method import normalizer as obs_norm
 from emgail_jax.method.algorithms import Algorithm, make_algorithm
 from emgail_jax.method.b_step import BStep, PolicySamples, make_b_step
 from emgail_jax.method.batches import DemonstrationPairs, LearningBatch, NormalizedBatch
-from emgail_jax.method.choosing import (
-    consensus_intentions,
-    demonstration_intentions,
-    holds_demonstrations,
-)
+from emgail_jax.method.choosing import holds_demonstrations
 from emgail_jax.method.config import Config
 from emgail_jax.method.discriminator import learned_reward, make_m_step
 from emgail_jax.method.metrics import cluster_accuracy, normalized_erd
@@ -208,21 +204,9 @@ def responsibilities_of(
     )
 
 
-def chosen_intentions(
-    networks: Networks, config: Config, states: TrainState, demos: DemonstrationPairs
-) -> np.ndarray:
-    """``[S, K]`` bool: the learned intentions each seed keeps at the end of a run that chooses
-    K from the data, from every seed's ``states`` (leading axis: seed) together: the
-    intentions holding demonstrations by their weights, then the seeds' consensus
-    (:mod:`emgail_jax.method.choosing`)."""
-    weights = np.asarray(states.intention_weights)
-    labels = []
-    for seed in range(weights.shape[0]):
-        state = jax.tree.map(lambda x, s=seed: x[s], states)
-        gamma = responsibilities_of(networks, config, state, demos).gamma
-        held = np.asarray(holds_demonstrations(weights[seed], demos.episodes))
-        labels.append(demonstration_intentions(gamma, demos.episode, demos.episodes, held))
-    return consensus_intentions(np.stack(labels), weights)
+def seed_state(states: TrainState, seed: int) -> TrainState:
+    """One seed's state out of every seed's ``states`` (leading axis: seed)."""
+    return jax.tree.map(lambda x: x[seed], states)
 
 
 def evaluation_metrics(
