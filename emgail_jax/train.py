@@ -333,6 +333,7 @@ def train(
     summary = _summary_header(spec, problem, config)
     summary["devices"] = [str(d) for d in runner.sharding.mesh.devices.flat]
     summary["processes"] = jax.process_count()
+    summary["machine"] = records.machine_facts()
     summary["parameters"] = parameters
     timings = {"compile_time_s": 0.0, "train_time_s": 0.0, "iterations": 0}
     if resume:

@@ -160,3 +160,22 @@ def test_write_json_failure_keeps_the_previous_file(tmp_path):
     with pytest.raises(TypeError):
         records.write_json(str(path), {"status": object()})
     assert _strict_load(path) == {"status": "running"}
+
+
+def test_machine_facts_name_the_cpu_its_vector_extensions_and_the_packages(tmp_path):
+    cpuinfo = tmp_path / "cpuinfo"
+    cpuinfo.write_text(
+        "processor\t: 0\nmodel name\t: Some CPU 9000\n"
+        "flags\t\t: fpu sse2 sse4_2 avx2 fma avx512f ht\n\n"
+        "processor\t: 1\nmodel name\t: Some CPU 9000\nflags\t\t: fpu\n"
+    )
+    facts = records.machine_facts(str(cpuinfo))
+    assert facts["cpu"] == "Some CPU 9000"
+    assert facts["cpu_features"] == ["avx2", "avx512f", "fma", "sse4_2"]  # codegen-relevant only
+    assert facts["packages"]["jax"] == __import__("jax").__version__
+    json.dumps(facts)  # fits summary.json as it is
+
+
+def test_machine_facts_without_cpuinfo_still_name_the_machine(tmp_path):
+    facts = records.machine_facts(str(tmp_path / "missing"))
+    assert facts["cpu"] and facts["cpu_features"] == []

@@ -10,6 +10,9 @@ import csv
 import json
 import math
 import os
+import platform
+import subprocess
+from importlib import metadata
 from typing import Any
 
 import numpy as np
@@ -96,6 +99,58 @@ class MetricsLog:
     def close(self) -> None:
         for writer in self._writers.values():
             writer.close()
+
+
+# XLA:CPU compiles for the host's vector extensions, so the same code and seeds give results
+# that differ in the last bits from one CPU to another; a summary names what it ran on.
+_CODEGEN_FLAGS = ("sse4", "avx", "fma", "f16c", "amx")
+_PACKAGES = ("jax", "jaxlib", "mujoco", "mujoco-mjx", "flax", "optax", "distrax")
+
+
+def machine_facts(cpuinfo: str = "/proc/cpuinfo") -> dict:
+    """What a run was computed on: the CPU and the vector extensions XLA compiles for, the
+    package versions, and the project's commit (None where unknown). Same code, seeds and
+    facts: bit-identical results."""
+    model, flags = None, []
+    try:
+        with open(cpuinfo) as f:
+            for line in f:
+                key, _, value = (part.strip() for part in line.partition(":"))
+                if key == "model name" and model is None:
+                    model = value
+                elif key == "flags":
+                    flags = sorted(f for f in value.split() if f.startswith(_CODEGEN_FLAGS))
+                    break
+    except OSError:
+        pass
+    versions = {}
+    for name in _PACKAGES:
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            versions[name] = None
+    return {
+        "cpu": model or platform.machine(),
+        "cpu_features": flags,
+        "python": platform.python_version(),
+        "packages": versions,
+        "commit": _commit(),
+    }
+
+
+def _commit() -> str | None:
+    """``git describe --always --dirty`` of the checkout this package runs from, if any."""
+    try:
+        result = subprocess.run(
+            ["git", "describe", "--always", "--dirty", "--abbrev=12"],
+            cwd=os.path.dirname(os.path.abspath(__file__)),
+            capture_output=True,
+            text=True,
+            timeout=10,
+        )
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return result.stdout.strip() or None if result.returncode == 0 else None
 
 
 def _cell(value) -> str:
