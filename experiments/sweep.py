@@ -538,7 +538,10 @@ def write_table2(out: str, results: dict[str, CellResult], seeds: int) -> None:
         f"Learnable parameters (policy, value, discriminator and posterior, as `summary.json` "
         f"counts them) and seconds per iteration of the K = 2 cells on this machine's CPU "
         f"({seeds} seeds over 2 cores; per seed in brackets), beside the paper's (one seed, "
-        f"RTX 2080 Ti).",
+        f"RTX 2080 Ti). The seconds are each cell's training wall time as it ran, with whatever "
+        f"else shared the cores (the committed sweep mostly ran two cells at a time, and paused "
+        f"for test-suite measurements): an upper bound, not a benchmark; `make bench` measures "
+        f"on a quiet machine (README, Speed).",
         "",
         "| env | algorithm | parameters | paper | s / iteration | paper (GPU) |",
         "|---|---|---:|---:|---:|---:|",
