@@ -109,8 +109,8 @@ _PACKAGES = ("jax", "jaxlib", "mujoco", "mujoco-mjx", "flax", "optax", "distrax"
 
 def machine_facts(cpuinfo: str = "/proc/cpuinfo") -> dict:
     """What a run was computed on: the CPU and the vector extensions XLA compiles for, the
-    package versions, and the project's commit (None where unknown). Same code, seeds and
-    facts: bit-identical results."""
+    package versions, and the project's commit (None where unknown): what a bit-for-bit re-run
+    of the same seeds has to match. A resumed run records the machine it finished on."""
     model, flags = None, []
     try:
         with open(cpuinfo) as f:
@@ -119,7 +119,7 @@ def machine_facts(cpuinfo: str = "/proc/cpuinfo") -> dict:
                 if key == "model name" and model is None:
                     model = value
                 elif key == "flags":
-                    flags = sorted(f for f in value.split() if f.startswith(_CODEGEN_FLAGS))
+                    flags = sorted(x for x in value.split() if x.startswith(_CODEGEN_FLAGS))
                     break
     except OSError:
         pass
@@ -150,7 +150,9 @@ def _commit() -> str | None:
         )
     except (OSError, subprocess.SubprocessError):
         return None
-    return result.stdout.strip() or None if result.returncode == 0 else None
+    if result.returncode != 0:
+        return None
+    return result.stdout.strip() or None
 
 
 def _cell(value) -> str:
