@@ -228,3 +228,23 @@ def test_unequal_shares_writes_the_asked_episodes(tmp_path, capsys):
     assert np.load(f"{bare}.labels.npy").tolist() == [0] * 100 + [1] * 100
     assert module.main(["--env", "driver", "--episodes", "9", "1", "--out", str(out)]) == 2
     assert "has 5 episodes, not 9" in capsys.readouterr().err
+
+
+def test_posterior_ceiling_scores_the_demonstrations_by_step(capsys):
+    """The supervised posterior on a few fresh reacher episodes: an accuracy for the whole set
+    and for each shown step, all of them fractions."""
+    module = _load("posterior_ceiling")
+    assert module.main(["--env", "reacher", "--intentions", "2", "--episodes", "3"]) == 0
+    out = capsys.readouterr().out
+    overall = float(out.split("posterior scores ")[1].split()[0])
+    assert 0.5 <= overall <= 1.0  # two intentions: better than chance on shipped demos
+    per_step = out.split("accuracy by step:")[1].splitlines()[0].split()
+    steps, values = per_step[0::2], [float(v) for v in per_step[1::2]]
+    assert steps[0] == "0:" and len(steps) == len(module.STEPS_SHOWN)
+    assert all(0.0 <= v <= 1.0 for v in values)
+
+
+def test_step_in_episode_restarts_at_each_demonstration():
+    module = _load("posterior_ceiling")
+    starts = np.array([1, 0, 0, 1, 0, 1], bool)
+    assert module.step_in_episode(starts).tolist() == [0, 1, 2, 0, 1, 0]
