@@ -603,7 +603,7 @@ def draw_figures(out: str, results: dict[str, CellResult], separability: dict) -
 
     def save(fig, name):
         fig.tight_layout()
-        fig.savefig(os.path.join(out, name), dpi=120)
+        fig.savefig(os.path.join(out, name), dpi=120, bbox_inches="tight")
         plt.close(fig)
         written.append(name)
 
@@ -613,9 +613,20 @@ def draw_figures(out: str, results: dict[str, CellResult], separability: dict) -
         (line,) = ax.plot(x, mean, marker="o", **style)
         ax.fill_between(x, mean - std, mean + std, alpha=0.2, color=line.get_color())
 
-    def erd_axis(ax, values):
-        ax.set_ylim(0, max(1.05, max(values, default=0) + 0.05))
+    def erd_axis(ax):
+        """The paper's ERD scale, 0 to 1 (random actions); a mean beyond it (a policy worse
+        than random on some intention) is marked at the top edge with its value."""
+        top = 1.05
+        ax.set_ylim(0, top)
         ax.set_ylabel("normalised ERD")
+        for line in list(ax.lines):
+            for x, y in zip(*line.get_data(), strict=True):
+                if y > top:
+                    ax.plot(x, top, marker="^", color=line.get_color(), clip_on=False)
+                    ax.annotate(
+                        f"{y:.2f}", (x, top), xytext=(-6, -3), textcoords="offset points",
+                        ha="right", va="top", color=line.get_color(), fontsize=8,
+                    )  # fmt: skip
 
     # fig4a: separability of the shipped demonstrations against K, per env.
     fig, ax = plt.subplots(figsize=(5, 3.5))
@@ -651,7 +662,7 @@ def draw_figures(out: str, results: dict[str, CellResult], separability: dict) -
         save(fig, "fig4b.png")
 
     def erd_against_separability(cells_of, name, title):
-        fig, ax = plt.subplots(figsize=(5, 3.5))
+        fig, ax = plt.subplots(figsize=(6.5, 3.5))
         plotted = []
         for algo in ALGOS:
             points = [
@@ -665,8 +676,8 @@ def draw_figures(out: str, results: dict[str, CellResult], separability: dict) -
                 plotted += list(mean)
         if plotted:
             ax.set(xlabel="separability", title=title)
-            erd_axis(ax, plotted)
-            ax.legend()
+            erd_axis(ax)
+            ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1))  # clear of the lines
             save(fig, name)
         else:
             plt.close(fig)
@@ -706,7 +717,7 @@ def draw_figures(out: str, results: dict[str, CellResult], separability: dict) -
                 values += [e.mean() for e in erds]
         any_point |= bool(values)
         ax.set(title=env, xlabel="number of intentions", xticks=(1, *ks))
-        erd_axis(ax, values)
+        erd_axis(ax)
     if any_point:
         axes[0].legend()
         save(fig, "fig6.png")
