@@ -25,12 +25,6 @@ import numpy as np
 STEPS_SHOWN = (0, 1, 2, 3, 5, 8, 12, 20, 30, 45)
 
 
-def step_in_episode(episode_starts: np.ndarray) -> np.ndarray:
-    """``[N]`` each pair's step within its demonstration."""
-    episode = np.maximum(np.cumsum(episode_starts) - 1, 0)
-    return np.arange(len(episode_starts)) - np.flatnonzero(episode_starts)[episode]
-
-
 def by_step(values: np.ndarray, step: np.ndarray) -> str:
     """The mean of ``values`` at each of STEPS_SHOWN that the episodes reach."""
     shown = [s for s in STEPS_SHOWN if (step == s).any()]
@@ -70,7 +64,7 @@ def main(argv=None) -> int:
         env, lambda state, i, _: expert(state.obs, i), args.episodes, jax.random.PRNGKey(12345)
     )
     pair = lambda d: np.concatenate([d.observations, d.actions], 1)
-    step = step_in_episode(demos.episode_starts)
+    step = demos.step_in_episode
     labels = np.asarray(demos.intentions)
 
     scaler = StandardScaler().fit(pair(fresh))

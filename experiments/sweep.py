@@ -663,7 +663,6 @@ def draw_figures(out: str, results: dict[str, CellResult], separability: dict) -
 
     def erd_against_separability(cells_of, name, title):
         fig, ax = plt.subplots(figsize=(6.5, 3.5))
-        plotted = []
         for algo in ALGOS:
             points = [
                 (separability[_data_name(r.cell)]["separability"], r.erd.mean(), r.erd.std())
@@ -673,8 +672,7 @@ def draw_figures(out: str, results: dict[str, CellResult], separability: dict) -
             if points:
                 x, mean, std = zip(*points, strict=True)
                 band(ax, x, mean, std, color=colors[algo], label=ALGO_LABELS[algo])
-                plotted += list(mean)
-        if plotted:
+        if ax.lines:
             ax.set(xlabel="separability", title=title)
             erd_axis(ax)
             ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1))  # clear of the lines
@@ -698,7 +696,6 @@ def draw_figures(out: str, results: dict[str, CellResult], separability: dict) -
     any_point = False
     for ax, (env, ks) in zip(axes, ROBOTICS_INTENTIONS.items(), strict=True):
         floor = results.get(f"{env}-1-gail")
-        values = []
         for algo in ALGOS:
             points = [(1, floor.erd)] if floor is not None else []
             points += [
@@ -714,8 +711,7 @@ def draw_figures(out: str, results: dict[str, CellResult], separability: dict) -
                     color=colors[algo],
                     label=ALGO_LABELS[algo],
                 )
-                values += [e.mean() for e in erds]
-        any_point |= bool(values)
+        any_point |= bool(ax.lines)
         ax.set(title=env, xlabel="number of intentions", xticks=(1, *ks))
         erd_axis(ax)
     if any_point:

@@ -131,3 +131,10 @@ def test_first_episodes_keeps_the_first_n_of_each_intention():
     np.testing.assert_array_equal(kept.episode_starts, [1, 0, 1, 0, 1, 0])
     with pytest.raises(ValueError, match="has 3 episodes, not 4"):
         demonstrations.first_episodes(demos, [4, 1])
+
+
+def test_episode_and_step_in_episode_restart_at_each_demonstration():
+    starts = np.array([1, 0, 0, 1, 0, 1], bool)
+    demos = Demonstrations(np.zeros((6, 2)), np.zeros((6, 1)), starts)
+    assert demos.episode.tolist() == [0, 0, 0, 1, 1, 2]
+    assert demos.step_in_episode.tolist() == [0, 1, 2, 0, 1, 0]

@@ -242,9 +242,3 @@ def test_posterior_ceiling_scores_the_demonstrations_by_step(capsys):
     steps, values = per_step[0::2], [float(v) for v in per_step[1::2]]
     assert steps[0] == "0:" and len(steps) == len(module.STEPS_SHOWN)
     assert all(0.0 <= v <= 1.0 for v in values)
-
-
-def test_step_in_episode_restarts_at_each_demonstration():
-    module = _load("posterior_ceiling")
-    starts = np.array([1, 0, 0, 1, 0, 1], bool)
-    assert module.step_in_episode(starts).tolist() == [0, 1, 2, 0, 1, 0]

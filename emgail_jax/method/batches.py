@@ -44,7 +44,7 @@ class DemonstrationPairs:
         labels = demos.intentions if demos.intentions is not None else np.full(n, -1)
         returns = demos.expert_returns
         returns = np.full(k, np.nan) if returns is None else returns
-        episode = np.maximum(np.cumsum(demos.episode_starts) - 1, 0).astype(np.int32)
+        episode = demos.episode.astype(np.int32)
         return cls(
             observations=np.asarray(demos.observations, np.float32),
             actions=np.asarray(demos.actions, np.float32),

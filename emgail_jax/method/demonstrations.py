@@ -25,6 +25,17 @@ class Demonstrations:
         return len(self.observations)
 
     @property
+    def episode(self) -> np.ndarray:
+        """``[N]`` the index of each pair's demonstration (episode), pairs before the first
+        episode start counted in the first."""
+        return np.maximum(np.cumsum(self.episode_starts) - 1, 0)
+
+    @property
+    def step_in_episode(self) -> np.ndarray:
+        """``[N]`` each pair's step within its demonstration."""
+        return np.arange(len(self)) - np.flatnonzero(self.episode_starts)[self.episode]
+
+    @property
     def num_intentions(self) -> int | None:
         if self.intentions is not None:
             return int(self.intentions.max()) + 1
