@@ -18,7 +18,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 run: $(STAMP)
-	$(PY) -m emgail_jax.train --env driver --algo emgail --seeds $(SEEDS) \
+	$(PY) -m emgail_jax.run --env driver --algo emgail --seeds $(SEEDS) \
 		--iterations $(ITERATIONS) --out $(OUT) --overwrite
 
 test: $(STAMP)

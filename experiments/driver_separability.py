@@ -2,7 +2,7 @@
 
     python experiments/driver_separability.py [--radii 3.6 4 5 ...] [--out DIR]
 
-For every radius: the demonstrations `emgail_jax.train` would use (500 pairs per intention), their
+For every radius: the demonstrations `emgail_jax.run` would use (500 pairs per intention), their
 separability (Gaussian mixture, mean and std over 5 mixture seeds), and, for reference, the
 accuracy a supervised classifier reaches with the hidden labels (3-fold cross-validated MLP): an
 upper bound on what any clustering of these pairs can reach.

@@ -6,7 +6,7 @@
 Every cell is a normal run directory, ``OUT/runs/<cell>`` (``ENV-K-ALGO``, ``-onehot`` for
 EM-GAIL with the paper's one-network architecture, ``-pair`` for EM-GAIL with the paper's
 per-pair E-step, ``driver-rRADIUS-ALGO``), trained by
-``python -m emgail_jax.train`` with the defaults. A finished cell is skipped, an interrupted one
+``python -m emgail_jax.run`` with the defaults. A finished cell is skipped, an interrupted one
 resumed from its last checkpoint, so the sweep can be stopped (Ctrl-C) and started again at will.
 ``--only`` takes comma-separated patterns, each a figure or table (fig4a, fig4b, fig5a, fig5b,
 fig6, table2, table3) or a part of cell names (``halfcheetah``, ``reacher-2``, ``driver-r*-gail``).
@@ -85,7 +85,7 @@ PAPER_TABLE2 = {  # env: {algo: (parameters, seconds per iteration)}
 
 # For the time estimate before any cell of an env has finished: seconds per seed, iteration
 # and intention with the seeds on both cores, and seconds to compile (warm cache), measured
-# here with `python -m emgail_jax.train` at the defaults.
+# here with `python -m emgail_jax.run` at the defaults.
 MEASURED_SECONDS = {  # env: (per seed-iteration-intention, compile)
     "driver": (0.020, 10.0),
     "swimmer": (0.21, 60.0),
@@ -152,7 +152,7 @@ class Cell:
         return os.path.join(out, "demos", f"{self.env}-{self.intentions}.npz")
 
     def run_args(self, settings: tuple[str, ...] = (), out: str = "results") -> list[str]:
-        """``python -m emgail_jax.train`` options of a new run; ``settings`` go to ``--set``."""
+        """``python -m emgail_jax.run`` options of a new run; ``settings`` go to ``--set``."""
         intentions = "auto" if self.variant == "auto" else str(self.intentions)
         args = ["--env", self.env, "--intentions", intentions, "--algo", self.algo]
         demos = self.demonstrations(out)
@@ -289,18 +289,18 @@ def run_command(command: list[str], log_path: str) -> int:
 
 
 def run_in_process(args: list[str], log_path: str) -> int:
-    """``python -m emgail_jax.train ARGS`` in this process, its output to ``log_path``. Ctrl-C or
+    """``python -m emgail_jax.run ARGS`` in this process, its output to ``log_path``. Ctrl-C or
     SIGTERM lets the run checkpoint its chunk, then stops the sweep."""
-    from emgail_jax import train
+    from emgail_jax import run
 
     with (
         open(log_path, "a") as log,
         contextlib.redirect_stdout(log),
         contextlib.redirect_stderr(log),
     ):
-        print(f"\n$ python -m emgail_jax.train {' '.join(args)}", flush=True)
+        print(f"\n$ python -m emgail_jax.run {' '.join(args)}", flush=True)
         try:
-            code = train.main(args)
+            code = run.main(args)
         except Exception:  # a crash fails this cell as a crashed child process would
             traceback.print_exc()
             code = 1
@@ -329,7 +329,7 @@ def train_cell(
         if cell.shares_programs:
             code = run_in_process([*args, "--quiet"], log_path)
         else:
-            code = run_command([*python, "emgail_jax.train", *args, "--quiet"], log_path)
+            code = run_command([*python, "emgail_jax.run", *args, "--quiet"], log_path)
         if code != 0:
             raise SweepError(f"cell {cell.name} failed (exit {code}): see {log_path}")
     if cell.reoptimized and not os.path.exists(os.path.join(run_dir, "reoptimize.json")):

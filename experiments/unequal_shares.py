@@ -1,9 +1,9 @@
 """Demonstrations in unequal shares, made from a balanced set: the first N_i episodes of every
 intention i of the shipped (or generated, for the driver) demonstrations, written as a
-demonstrations file for ``python -m emgail_jax.train --demos FILE``.
+demonstrations file for ``python -m emgail_jax.run --demos FILE``.
 
     python experiments/unequal_shares.py --env hopper --episodes 5 3 1 --out /tmp/hopper-531.npz
-    python -m emgail_jax.train --env hopper --demos /tmp/hopper-531.npz --prior mixture
+    python -m emgail_jax.run --env hopper --demos /tmp/hopper-531.npz --prior mixture
 
 The true shares are printed; the mixture prior's weights (``final.intention_weights`` in the
 run's ``summary.json``) should come out near them.

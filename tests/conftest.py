@@ -28,14 +28,14 @@ def tiny_run(tmp_path_factory):
     """A finished tiny EM-GAIL driver run (2 seeds, 4 iterations) with its checkpoint. Its sizes
     and chunk are those of the other tiny driver runs (test_run, test_resume, test_distributed),
     so that they all share one compiled program through the persistent compilation cache."""
-    from emgail_jax import train
+    from emgail_jax import run
 
     out = tmp_path_factory.mktemp("tiny") / "emgail"
     args = [
         *("--env", "driver", "--seeds", "2", "--iterations", "4", "--num-envs", "2"),
         *("--rollout-length", "20", "--chunk-size", "2", "--quiet", "--out", str(out)),
     ]
-    assert train.main(args) == 0
+    assert run.main(args) == 0
     return out
 
 

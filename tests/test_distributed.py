@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from emgail_jax import train
+from emgail_jax import run
 from emgail_jax.host import jax_setup
 
 TINY = [
@@ -39,8 +39,8 @@ def _environment(devices: int) -> dict:
 
 def test_two_processes_give_the_one_process_results(tmp_path):
     one = tmp_path / "one"  # in this process, whose two host devices the conftest made
-    assert train.main([*TINY, "--out", str(one)]) == 0
-    command = [sys.executable, "-m", "emgail_jax.train", *TINY]
+    assert run.main([*TINY, "--out", str(one)]) == 0
+    command = [sys.executable, "-m", "emgail_jax.run", *TINY]
 
     two = tmp_path / "two"
     coordinator = f"127.0.0.1:{_free_port()}"

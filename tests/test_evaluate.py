@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from emgail_jax import evaluate, train
+from emgail_jax import evaluate, run
 
 PNG = b"\x89PNG\r\n\x1a\n"
 
@@ -53,7 +53,7 @@ def auto_run(tmp_path_factory):
         *("--rollout-length", "20", "--quiet", "--out", str(out)),
         *("--demos", str(tmp / "two-paths.npz"), "--intentions", "auto", "--max-intentions", "3"),
     ]
-    assert train.main(args) == 0
+    assert run.main(args) == 0
     return out
 
 

@@ -9,6 +9,7 @@ import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 COMMANDS = {
+    "emgail_jax.run",
     "emgail_jax.train",
     "emgail_jax.evaluate",
     "emgail_jax.reoptimize",

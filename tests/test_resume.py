@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from emgail_jax import train
+from emgail_jax import run
 from emgail_jax.host import checkpoints
 
 TINY = [
@@ -27,9 +27,9 @@ TINY = [
 def straight_and_resumed(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("resume")
     straight, resumed = tmp / "straight", tmp / "resumed"
-    assert train.main([*TINY, "--iterations", "8", "--out", str(straight)]) == 0
-    assert train.main([*TINY, "--iterations", "4", "--out", str(resumed)]) == 0
-    assert train.main(["--resume", str(resumed), "--iterations", "8", "--quiet"]) == 0
+    assert run.main([*TINY, "--iterations", "8", "--out", str(straight)]) == 0
+    assert run.main([*TINY, "--iterations", "4", "--out", str(resumed)]) == 0
+    assert run.main(["--resume", str(resumed), "--iterations", "8", "--quiet"]) == 0
     return straight, resumed
 
 
@@ -54,7 +54,7 @@ def test_resumed_summary_accumulates(straight_and_resumed):
 def test_resume_of_a_finished_run_changes_nothing(straight_and_resumed, capsys):
     _, resumed = straight_and_resumed
     before = (resumed / "metrics.csv").read_text()
-    assert train.main(["--resume", str(resumed), "--quiet"]) == 0
+    assert run.main(["--resume", str(resumed), "--quiet"]) == 0
     assert (resumed / "metrics.csv").read_text() == before
 
 
@@ -66,19 +66,19 @@ def _one_line_error(capsys):
 
 def test_resume_refuses_other_settings(straight_and_resumed, capsys):
     _, resumed = straight_and_resumed
-    assert train.main(["--resume", str(resumed), "--algo", "gail"]) == 2
+    assert run.main(["--resume", str(resumed), "--algo", "gail"]) == 2
     assert "drop --algo" in _one_line_error(capsys)
 
 
 def test_resume_without_a_run_or_checkpoint(straight_and_resumed, tmp_path, capsys):
-    assert train.main(["--resume", str(tmp_path)]) == 2
+    assert run.main(["--resume", str(tmp_path)]) == 2
     assert "no summary.json" in _one_line_error(capsys)
     (tmp_path / "summary.json").write_text("{}")
-    assert train.main(["--resume", str(tmp_path)]) == 2
+    assert run.main(["--resume", str(tmp_path)]) == 2
     assert "does not describe a run" in _one_line_error(capsys)
     straight, _ = straight_and_resumed
     (tmp_path / "summary.json").write_text((straight / "summary.json").read_text())
-    assert train.main(["--resume", str(tmp_path)]) == 2
+    assert run.main(["--resume", str(tmp_path)]) == 2
     assert "no checkpoint" in _one_line_error(capsys)
 
 
@@ -94,7 +94,7 @@ def test_corrupt_checkpoint_is_reported(straight_and_resumed, tmp_path, capsys):
             if name not in ("_METADATA", "commit_success.txt"):
                 open(os.path.join(root, name), "wb").close()  # truncate the array data
     summary_before = (broken / "summary.json").read_text()
-    assert train.main(["--resume", str(broken), "--iterations", "10", "--quiet"]) == 2
+    assert run.main(["--resume", str(broken), "--iterations", "10", "--quiet"]) == 2
     assert "cannot be read" in _one_line_error(capsys)
     assert (broken / "summary.json").read_text() == summary_before
 
@@ -104,7 +104,7 @@ def test_sigterm_leaves_a_valid_checkpoint_and_an_interrupted_summary(tmp_path):
     command = [
         sys.executable,
         "-m",
-        "emgail_jax.train",
+        "emgail_jax.run",
         *TINY,
         "--iterations",
         "400",
@@ -124,5 +124,5 @@ def test_sigterm_leaves_a_valid_checkpoint_and_an_interrupted_summary(tmp_path):
     done = summary["iterations_done"]
     assert 0 < done < 400 and checkpoints.latest_iteration(str(out)) == done
     # The interrupted run resumes (here to a shorter total, so the test stays quick).
-    assert train.main(["--resume", str(out), "--iterations", str(done + 2), "--quiet"]) == 0
+    assert run.main(["--resume", str(out), "--iterations", str(done + 2), "--quiet"]) == 0
     assert json.loads((out / "summary.json").read_text())["status"] == "completed"

@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from emgail_jax import evaluate, train
+from emgail_jax import evaluate, run
 from emgail_jax.host import checkpoints
 
 TINY = [
@@ -26,9 +26,9 @@ TINY = [
 @pytest.fixture(scope="module")
 def resumed_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("swimmer") / "emgail"
-    assert train.main([*TINY, "--iterations", "2", "--out", str(out)]) == 0
+    assert run.main([*TINY, "--iterations", "2", "--out", str(out)]) == 0
     # Two chunks after the resume: the restored state must fit the program the run compiled.
-    assert train.main(["--resume", str(out), "--iterations", "4", "--quiet"]) == 0
+    assert run.main(["--resume", str(out), "--iterations", "4", "--quiet"]) == 0
     return out
 
 

@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from emgail_jax import train
+from emgail_jax import run
 
 pytestmark = pytest.mark.slow
 
@@ -15,7 +15,7 @@ def finals(tmp_path_factory):
     out = {}
     for algo in ("emgail", "gail"):
         args = ["--env", "driver", "--algo", algo, "--seeds", "4", "--iterations", "400"]
-        assert train.main([*args, "--out", str(tmp / algo), "--quiet"]) == 0
+        assert run.main([*args, "--out", str(tmp / algo), "--quiet"]) == 0
         out[algo] = json.loads((tmp / algo / "summary.json").read_text())["final"]
     return out
 

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from emgail_jax import train
+from emgail_jax import run
 
 SEEDS, ITERATIONS = 2, 2
 TINY = [
@@ -21,7 +21,7 @@ TINY = [
 
 def _run(tmp_path, name, *extra):
     out = tmp_path / name
-    code = train.main([*TINY, "--out", str(out), *extra])
+    code = run.main([*TINY, "--out", str(out), *extra])
     return code, out
 
 
@@ -179,7 +179,7 @@ def test_malformed_demonstrations_are_rejected(tmp_path, capsys):
 
 def test_existing_run_is_kept_unless_overwrite(runs, capsys):
     before = (runs["gail"] / "summary.json").read_text()
-    code = train.main([*TINY, "--out", str(runs["gail"])])
+    code = run.main([*TINY, "--out", str(runs["gail"])])
     assert code == 2
     assert "--overwrite" in _error(capsys)
     assert (runs["gail"] / "summary.json").read_text() == before
@@ -188,7 +188,7 @@ def test_existing_run_is_kept_unless_overwrite(runs, capsys):
 def test_out_naming_a_file_is_a_one_line_error(tmp_path, capsys):
     path = tmp_path / "taken"
     path.write_text("keep me")
-    assert train.main([*TINY, "--out", str(path)]) == 2
+    assert run.main([*TINY, "--out", str(path)]) == 2
     assert "is a file, not a directory" in _error(capsys)
     assert path.read_text() == "keep me"
 
@@ -229,30 +229,50 @@ def test_demonstrations_without_labels_or_returns(tmp_path, capsys):
 
 def test_without_out_a_run_takes_the_first_free_directory(tmp_path):
     root = str(tmp_path)
-    assert train.default_output("halfcheetah", "emgail", root) == f"{root}/halfcheetah-emgail"
+    assert run.default_output("halfcheetah", "emgail", root) == f"{root}/halfcheetah-emgail"
     (tmp_path / "halfcheetah-emgail").mkdir()
     (tmp_path / "halfcheetah-emgail-2").mkdir()
-    assert train.default_output("halfcheetah", "emgail", root) == f"{root}/halfcheetah-emgail-3"
+    assert run.default_output("halfcheetah", "emgail", root) == f"{root}/halfcheetah-emgail-3"
 
 
 def test_intentions_auto_starts_from_the_env_maximum_with_the_mixture_prior():
-    spec = train.spec_from_args(train.parse_args(["--env", "hopper", "--intentions", "auto"]))
+    spec = run.spec_from_args(run.parse_args(["--env", "hopper", "--intentions", "auto"]))
     assert spec.intentions == 3
     assert spec.config.choose_intentions and spec.config.prior == "mixture"
-    spec = train.spec_from_args(
-        train.parse_args(["--intentions", "auto", "--max-intentions", "3", "--algo", "infogail"])
+    spec = run.spec_from_args(
+        run.parse_args(["--intentions", "auto", "--max-intentions", "3", "--algo", "infogail"])
     )
     assert spec.intentions == 3 and spec.config.algo == "infogail"
-    spec = train.spec_from_args(train.parse_args(["--intentions", "2"]))
+    spec = run.spec_from_args(run.parse_args(["--intentions", "2"]))
     assert spec.intentions == 2 and not spec.config.choose_intentions
     with pytest.raises(SystemExit):
-        train.parse_args(["--intentions", "two"])
+        run.parse_args(["--intentions", "two"])
 
 
 def test_set_reaches_the_config_and_a_resume_refuses_it(tmp_path):
-    spec = train.spec_from_args(
-        train.parse_args(["--set", "discriminator_steps=3", "--set", "trpo.max_kl=0.02"])
+    spec = run.spec_from_args(
+        run.parse_args(["--set", "discriminator_steps=3", "--set", "trpo.max_kl=0.02"])
     )
     assert spec.config.discriminator_steps == 3 and spec.config.trpo.max_kl == 0.02
-    with pytest.raises(train.RunError, match="drop --set"):
-        train.spec_from_args(train.parse_args(["--resume", str(tmp_path), "--set", "gamma=0.99"]))
+    with pytest.raises(run.RunError, match="drop --set"):
+        run.spec_from_args(run.parse_args(["--resume", str(tmp_path), "--set", "gamma=0.99"]))
+
+
+def test_the_cards_command_and_its_aliases_are_one_main():
+    """``python -m emgail_jax.run`` is the training command as the model card spells it;
+    ``emgail_jax.train`` and the console scripts reach the same ``main``."""
+    import importlib.metadata
+    import subprocess
+    import sys
+
+    from emgail_jax import train
+
+    assert train.main is run.main
+    scripts = {e.name: e.value for e in importlib.metadata.entry_points(group="console_scripts")}
+    assert scripts["emgail-run"] == "emgail_jax.run:main"
+    assert scripts["emgail-evaluate"] == "emgail_jax.evaluate:main"
+    assert scripts["emgail-reoptimize"] == "emgail_jax.reoptimize:main"
+    shown = subprocess.run(
+        [sys.executable, "-m", "emgail_jax.run", "--help"], capture_output=True, text=True
+    )
+    assert shown.returncode == 0 and "python -m emgail_jax.run" in shown.stdout
