@@ -1,4 +1,4 @@
-"""``python -m emgail_jax.train``: an alias of ``python -m emgail_jax.run``, the training command."""
+"""``python -m emgail_jax.train``: an alias of ``python -m emgail_jax.run``."""
 
 import sys
 
