@@ -55,11 +55,14 @@ separability: $(STAMP)
 
 # The paper's Tables 2-3 and Figures 4-6, cell by cell into OUT/runs; stop and start at
 # will: finished cells are skipped, an interrupted one resumed. ONLY=fig5a, ONLY=hopper-3, ...
-# OUT defaults to results here (given on the command line, it wins).
+# OUT defaults to results here (given on the command line, it wins). ENGINE=ray runs every
+# cell as a Ray task, on a Ray started here or on the cluster at RAY_ADDRESS=HOST:PORT.
 SWEEP_OUT := $(if $(filter command line environment,$(origin OUT)),$(OUT),results)
+ENGINE ?= local
 sweep: $(STAMP)
 	$(PY) experiments/sweep.py --seeds $(SEEDS) --iterations $(ITERATIONS) --out $(SWEEP_OUT) \
-		$(if $(ONLY),--only '$(ONLY)')
+		$(if $(ONLY),--only '$(ONLY)') --engine $(ENGINE) \
+		$(if $(RAY_ADDRESS),--ray-address $(RAY_ADDRESS))
 
 # Retrains every MJX env's experts and rewrites the shipped demonstrations (emgail_jax/data).
 experts: $(STAMP)

@@ -22,14 +22,17 @@ import contextlib
 import csv
 import dataclasses
 import fnmatch
+import functools
 import json
 import math
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
 import traceback
+from collections.abc import Callable, Iterator
 
 import numpy as np
 
@@ -277,7 +280,9 @@ def run_command(command: list[str], log_path: str) -> int:
     with open(log_path, "a") as log:
         log.write(f"\n$ {' '.join(command)}\n")
         log.flush()
-        child = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
+        child = subprocess.Popen(
+            command, stdout=log, stderr=subprocess.STDOUT, preexec_fn=_die_with_parent
+        )
         previous = signal.signal(signal.SIGTERM, forward)
         try:
             return child.wait()
@@ -286,6 +291,17 @@ def run_command(command: list[str], log_path: str) -> int:
             raise
         finally:
             signal.signal(signal.SIGTERM, previous)
+
+
+def _die_with_parent() -> None:
+    """In a cell's child process: SIGKILL once the process that started it dies (a Ray worker
+    lost with its cell, a killed sweep), so no orphan writes on in a run directory that a
+    retried cell resumes from its last checkpoint."""
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        pr_set_pdeathsig = 1
+        ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, signal.SIGKILL)
 
 
 def run_in_process(args: list[str], log_path: str) -> int:
@@ -350,6 +366,164 @@ def write_demonstrations(cell: Cell, out: str) -> None:
 
     os.makedirs(os.path.dirname(path), exist_ok=True)
     demonstration_files.save(make_problem(cell.env, cell.intentions).demos, path)
+
+
+# ---- engines: where the cells run ---------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class CellJob:
+    """What every cell of one sweep is trained with (:func:`train_cell` but the cell)."""
+
+    out: str
+    seeds: int
+    iterations: int
+    settings: tuple[str, ...] = ()
+
+    def __call__(self, cell: Cell) -> None:
+        train_cell(cell, self.out, self.seeds, self.iterations, self.settings)
+
+
+# An engine trains ``cells`` with ``job`` and yields each cell as it finishes; a cell that fails
+# raises SweepError (the Ray engine: once the others have finished).
+Engine = Callable[[list[Cell], CellJob], Iterator[Cell]]
+
+
+def train_here(cells: list[Cell], job: CellJob) -> Iterator[Cell]:
+    """The local engine: one cell after the other, from this process."""
+    for cell in cells:
+        job(cell)
+        yield cell
+
+
+RAY_EXTRA = "pip install -e '.[ray]'"
+# Retries of a cell whose worker or node was lost (a failing cell is not retried: its error
+# would recur); each retry resumes the cell from its last checkpoint.
+RAY_MAX_RETRIES = 3
+RAY_WAIT_S = 5.0  # between looks at the cells, so that Ctrl-C is seen at once
+
+
+def import_ray():
+    try:
+        import ray
+    except ImportError:
+        raise SweepError(f"--engine ray needs Ray: {RAY_EXTRA}") from None
+    return ray
+
+
+@contextlib.contextmanager
+def ray_engine(
+    address: str | None, seeds: int, cpus: int | None = None, gpus: int | None = None
+) -> Iterator[Engine]:
+    """The Ray engine: every cell a Ray task, on the cluster at ``address`` (``None``: a Ray
+    started here for the sweep). A cell reserves ``cpus`` (default: a core per seed, as many as
+    the largest node has) and ``gpus`` (default: one if the cluster has any). Every node runs
+    the sweep's checkout and sees ``out`` at the same path."""
+    ray = import_ray()
+    if __name__ != "__main__":  # imported (the tests): the workers cannot import this file
+        ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    if address is not None:
+        _check_reachable(address)
+    local = {"include_dashboard": False} if address is None else {}
+    ray.init(address=address or "local", log_to_driver=False, **local)
+    try:
+        nodes = [node["Resources"] for node in ray.nodes() if node["Alive"]]
+        most = {key: max(node.get(key, 0) for node in nodes) for key in ("CPU", "GPU")}
+        cpus = cpus or max(1, min(seeds, int(most["CPU"])))
+        gpus = (1 if most["GPU"] else 0) if gpus is None else gpus
+        if cpus > most["CPU"] or gpus > most["GPU"]:
+            raise SweepError(
+                f"a cell cannot reserve {cpus} CPUs and {gpus} GPUs: the cluster's largest "
+                f"node has {most['CPU']:g} and {most['GPU']:g}; lower --cpus-per-cell or "
+                f"--gpus-per-cell"
+            )
+        task = ray.remote(
+            num_cpus=cpus, num_gpus=gpus, max_retries=RAY_MAX_RETRIES, retry_exceptions=False
+        )(train_cell_task)
+        yield functools.partial(_train_on_ray, ray, task)
+    finally:
+        ray.shutdown()
+
+
+def _check_reachable(address: str, timeout_s: float = 10.0) -> None:
+    """A HOST:PORT that nothing answers at is refused here: Ray would wait for it forever."""
+    host, _, port = address.rpartition(":")
+    if not host or not port.isdigit():
+        return  # "auto", "ray://...": Ray's own forms, which fail by themselves
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout_s).close()
+    except OSError as error:
+        raise SweepError(
+            f"no Ray cluster answers at {address} ({error.strerror or error}): start one "
+            f"(ray start --head) or leave out the address for a Ray started here"
+        ) from None
+
+
+def _train_on_ray(ray, task, cells: list[Cell], job: CellJob) -> Iterator[Cell]:
+    job = dataclasses.replace(job, out=os.path.abspath(job.out))  # workers have other cwds
+    code = code_fingerprint()
+    pending = {task.options(name=cell.name).remote(job, cell, code): cell for cell in cells}
+    failures = []
+    try:
+        while pending:
+            finished, _ = ray.wait(list(pending), num_returns=1, timeout=RAY_WAIT_S)
+            for ref in finished:
+                cell = pending.pop(ref)
+                try:
+                    error = ray.get(ref, timeout=RAY_WAIT_S)
+                except ray.exceptions.RayTaskError:  # a crash, not a lost worker: its traceback
+                    raise
+                except ray.exceptions.RayError as lost:
+                    error = f"cell {cell.name} was lost ({type(lost).__name__}) after "
+                    error += f"{RAY_MAX_RETRIES} retries"
+                if error is None:
+                    yield cell
+                else:
+                    failures.append(error)
+    finally:  # stopped (Ctrl-C): the cells still running resume from their last checkpoints
+        for ref in pending:
+            ray.cancel(ref, force=True)
+    if failures:
+        raise SweepError("; ".join(failures))
+
+
+def train_cell_task(job: CellJob, cell: Cell, code: str) -> str | None:
+    """One cell on a Ray worker; returns the cell's error, or None. ``code`` is the sweep's
+    :func:`code_fingerprint`: a node on other code would give other results."""
+    import ray
+
+    node = ray.get_runtime_context().get_node_id()
+    log_path = os.path.join(job.out, "logs", f"{cell.name}.log")
+    os.makedirs(os.path.dirname(log_path), exist_ok=True)
+    with open(log_path, "a") as log:
+        log.write(f"\n# on Ray node {node}\n")
+    if code_fingerprint() != code:
+        return (
+            f"cell {cell.name}: Ray node {node} runs other emgail_jax code than the sweep; start "
+            f"every node from the sweep's checkout"
+        )
+    try:
+        job(cell)
+    except SweepError as error:
+        return str(error)
+    return None
+
+
+def code_fingerprint() -> str:
+    """A hash of the training code this process imports: the files of the emgail_jax and envs
+    packages (sources and shipped demonstrations)."""
+    import hashlib
+    import importlib.util
+    import pathlib
+
+    digest = hashlib.sha256()
+    for package in ("emgail_jax", "envs"):
+        root = pathlib.Path(importlib.util.find_spec(package).origin).parent
+        for path in sorted(root.rglob("*")):
+            if path.is_file() and "__pycache__" not in path.parts:
+                digest.update(str(path.relative_to(root)).encode())
+                digest.update(path.read_bytes())
+    return digest.hexdigest()
 
 
 # ---- separability -------------------------------------------------------------------------------
@@ -767,6 +941,20 @@ def main(argv=None) -> int:
         metavar="KEY=VALUE",
         help="a hyper-parameter for every new cell, as `run --set` (repeatable)",
     )
+    parser.add_argument(
+        "--engine",
+        choices=("local", "ray"),
+        default="local",
+        help="local: one cell after the other here; ray: every cell a Ray task",
+    )
+    parser.add_argument(
+        "--ray-address",
+        default=os.environ.get("RAY_ADDRESS"),
+        metavar="HOST:PORT",
+        help="the Ray cluster of --engine ray (default RAY_ADDRESS, else a Ray started here)",
+    )
+    parser.add_argument("--cpus-per-cell", type=int, default=None, help="default: one per seed")
+    parser.add_argument("--gpus-per-cell", type=int, default=None, help="default: 1 if any")
     parser.add_argument("--list", action="store_true", help="list the cells and stop")
     parser.add_argument("--report-only", action="store_true", help="tables and figures only")
     args = parser.parse_args(argv)
@@ -779,6 +967,10 @@ def main(argv=None) -> int:
     try:
         if args.seeds < 1 or args.iterations < 1:
             raise SweepError("--seeds and --iterations must be at least 1")
+        if (args.cpus_per_cell or 1) < 1 or (args.gpus_per_cell or 0) < 0:
+            raise SweepError("--cpus-per-cell must be at least 1, --gpus-per-cell at least 0")
+        if args.engine == "ray":
+            import_ray()
         everything = all_cells()
         cells = select(everything, args.only)
         runs_dir = os.path.join(args.out, "runs")
@@ -815,21 +1007,39 @@ def main(argv=None) -> int:
             TextColumn("{task.completed}/{task.total} cells"),
             TimeElapsedColumn(),
         )
+        job = CellJob(args.out, args.seeds, args.iterations, tuple(args.set))
+        on_ray = args.engine == "ray"
+        engine_context = contextlib.ExitStack()
+        try:  # the Ray engine starts or joins Ray here and checks what a cell can reserve
+            engine = engine_context.enter_context(
+                ray_engine(args.ray_address, args.seeds, args.cpus_per_cell, args.gpus_per_cell)
+                if on_ray
+                else contextlib.nullcontext(train_here)
+            )
+        except SweepError as error:
+            print(f"error: {error}", file=sys.stderr)
+            return 2
+
+        def describe(remaining: list[Cell]) -> str:
+            if on_ray:  # the cells run at once, as the cluster has room
+                return f"{len(remaining)} cells on Ray"
+            return f"{remaining[0].name} ({statuses[remaining[0].name]})" if remaining else ""
+
         started = time.monotonic()
         try:
-            with Progress(*columns, console=console) as progress:
-                task = progress.add_task("", total=len(todo))
-                for cell in todo:
-                    progress.update(task, description=f"{cell.name} ({statuses[cell.name]})")
-                    train_cell(cell, args.out, args.seeds, args.iterations, tuple(args.set))
-                    progress.advance(task)
+            with engine_context, Progress(*columns, console=console) as progress:
+                remaining = list(todo)
+                task = progress.add_task(describe(remaining), total=len(todo))
+                for cell in engine(todo, job):
+                    remaining.remove(cell)
+                    progress.update(task, description=describe(remaining), advance=1)
         except SweepError as error:
             print(f"error: {error}", file=sys.stderr)
             return 1
         except KeyboardInterrupt:
-            console.print(
-                "interrupted: the cell in progress is checkpointed; run the same command to resume"
-            )
+            kept = "the running cells keep their last checkpoints"
+            kept = kept if on_ray else "the cell in progress is checkpointed"
+            console.print(f"interrupted: {kept}; run the same command to resume")
             return 130
         console.print(f"ran {len(todo)} cells in {_format_duration(time.monotonic() - started)}")
 
