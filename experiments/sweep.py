@@ -1,7 +1,8 @@
 """The paper's experiments in one command: Tables 2-3 and Figures 4-6, cell by cell, resumable.
 
     python experiments/sweep.py [--seeds 4] [--iterations 400] [--only PATTERN] [--out results]
-    make sweep SEEDS=4 [ONLY=PATTERN] [ITERATIONS=400] [OUT=results]
+        [--engine ray [--ray-address HOST:PORT]]
+    make sweep SEEDS=4 [ONLY=PATTERN] [ITERATIONS=400] [OUT=results] [ENGINE=ray [RAY_ADDRESS=..]]
 
 Every cell is a normal run directory, ``OUT/runs/<cell>`` (``ENV-K-ALGO``, ``-onehot`` for
 EM-GAIL with the paper's one-network architecture, ``-pair`` for EM-GAIL with the paper's
@@ -13,6 +14,8 @@ fig6, table2, table3) or a part of cell names (``halfcheetah``, ``reacher-2``, `
 From whatever cells are finished it writes ``OUT/table2.md``, ``OUT/table3.md`` and ``.csv``,
 ``OUT/fig5a.csv``, ``OUT/fig6.csv``, ``OUT/separability.csv`` and the figures
 ``fig4a.png`` ... ``fig6.png``; ``--report-only`` writes them without training anything.
+``--engine ray`` runs every cell as a Ray task, several at once, on a Ray started here or on the
+cluster at ``--ray-address`` (README, "The sweep on Ray").
 """
 
 from __future__ import annotations
@@ -123,6 +126,9 @@ class Cell:
     @property
     def method(self) -> str:
         return self.algo + (f"-{self.variant}" if self.variant else "")
+
+    def log_path(self, out: str) -> str:
+        return os.path.join(out, "logs", f"{self.name}.log")
 
     @property
     def shares_programs(self) -> bool:
@@ -330,7 +336,7 @@ def train_cell(
 ) -> None:
     """Trains, resumes or skips ``cell``, then re-optimises its reward if the paper does."""
     run_dir = os.path.join(out, "runs", cell.name)
-    log_path = os.path.join(out, "logs", f"{cell.name}.log")
+    log_path = cell.log_path(out)
     os.makedirs(os.path.dirname(log_path), exist_ok=True)
     python = [sys.executable, "-m"]
     status = cell_status(run_dir, seeds, iterations)
@@ -425,7 +431,10 @@ def ray_engine(
     if address is not None:
         _check_reachable(address)
     local = {"include_dashboard": False} if address is None else {}
-    ray.init(address=address or "local", log_to_driver=False, **local)
+    try:
+        ray.init(address=address or "local", log_to_driver=False, **local)
+    except ConnectionError as error:  # address "auto" and no Ray running here
+        raise SweepError(f"cannot join Ray at {address}: {str(error).splitlines()[0]}") from None
     try:
         nodes = [node["Resources"] for node in ray.nodes() if node["Alive"]]
         most = {key: max(node.get(key, 0) for node in nodes) for key in ("CPU", "GPU")}
@@ -475,7 +484,7 @@ def _train_on_ray(ray, task, cells: list[Cell], job: CellJob) -> Iterator[Cell]:
                     raise
                 except ray.exceptions.RayError as lost:
                     error = f"cell {cell.name} was lost ({type(lost).__name__}) after "
-                    error += f"{RAY_MAX_RETRIES} retries"
+                    error += f"{RAY_MAX_RETRIES} retries: see {cell.log_path(job.out)}"
                 if error is None:
                     yield cell
                 else:
@@ -493,7 +502,7 @@ def train_cell_task(job: CellJob, cell: Cell, code: str) -> str | None:
     import ray
 
     node = ray.get_runtime_context().get_node_id()
-    log_path = os.path.join(job.out, "logs", f"{cell.name}.log")
+    log_path = cell.log_path(job.out)
     os.makedirs(os.path.dirname(log_path), exist_ok=True)
     with open(log_path, "a") as log:
         log.write(f"\n# on Ray node {node}\n")
