@@ -435,6 +435,7 @@ def ray_engine(
         ray.init(address=address or "local", log_to_driver=False, **local)
     except ConnectionError as error:  # address "auto" and no Ray running here
         raise SweepError(f"cannot join Ray at {address}: {str(error).splitlines()[0]}") from None
+    previous = signal.signal(signal.SIGTERM, _interrupt)  # not ray.init's exit: as Ctrl-C
     try:
         nodes = [node["Resources"] for node in ray.nodes() if node["Alive"]]
         most = {key: max(node.get(key, 0) for node in nodes) for key in ("CPU", "GPU")}
@@ -451,7 +452,12 @@ def ray_engine(
         )(train_cell_task)
         yield functools.partial(_train_on_ray, ray, task)
     finally:
+        signal.signal(signal.SIGTERM, previous)
         ray.shutdown()
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
 
 
 def _check_reachable(address: str, timeout_s: float = 10.0) -> None:

@@ -99,9 +99,8 @@ def test_sweep_on_a_two_node_ray_cluster_equals_the_local_engine(tmp_path):
     for cell in cells:
         _assert_same_results(cell, tmp_path / "ray", tmp_path / "local")
     for report in ("fig5a.csv", "table3.csv", "separability.csv"):
-        assert (tmp_path / "ray" / report).read_bytes() == (
-            tmp_path / "local" / report
-        ).read_bytes()
+        written = [(tmp_path / out / report).read_bytes() for out in ("ray", "local")]
+        assert written[0] == written[1], report
 
 
 def _wait_for(condition, what: str, timeout_s: float = TIMEOUT_S):
@@ -119,11 +118,12 @@ def test_sweep_on_ray_resumes_a_cell_whose_node_was_lost(tmp_path):
     cell, iterations = "driver-r20-gail", 200
     run_dir = tmp_path / "ray" / "runs" / cell
     log = tmp_path / "ray" / "logs" / f"{cell}.log"
-    with _cluster(0, (1, 1)) as cluster:
+    output = tmp_path / "sweep.out"
+    with _cluster(0, (1, 1)) as cluster, output.open("w") as sweep_output:
         command = _sweep(tmp_path / "ray", cell, iterations, "--engine", "ray")
         sweep = subprocess.Popen(
             [*command, "--ray-address", cluster.address],
-            env=ENV, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+            env=ENV, stdout=sweep_output, stderr=subprocess.STDOUT,
         )  # fmt: skip
         try:
             first = _wait_for(lambda: log.exists() and _nodes_in(log), "Ray node in the log")[0]
@@ -132,11 +132,12 @@ def test_sweep_on_ray_resumes_a_cell_whose_node_was_lost(tmp_path):
             assert summary["status"] == "running", "the cell ended before its node was lost"
             (node,) = [n for n in cluster.worker_nodes if n.node_id == first]
             cluster.remove_node(node, allow_graceful=False)
-            output, _ = sweep.communicate(timeout=TIMEOUT_S)
+            sweep.wait(timeout=TIMEOUT_S)
         finally:
             if sweep.poll() is None:
                 sweep.kill()
-    assert sweep.returncode == 0, output[-3000:]
+                sweep.wait(timeout=60)
+    assert sweep.returncode == 0, output.read_text()[-3000:]
     nodes = _nodes_in(log)
     assert len(nodes) == 2 and nodes[0] == first != nodes[1]
     retried = log.read_text().split(f"# on Ray node {nodes[1]}")[1]
