@@ -286,9 +286,7 @@ def run_command(command: list[str], log_path: str) -> int:
     with open(log_path, "a") as log:
         log.write(f"\n$ {' '.join(command)}\n")
         log.flush()
-        child = subprocess.Popen(
-            command, stdout=log, stderr=subprocess.STDOUT, preexec_fn=_die_with_parent
-        )
+        child = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
         previous = signal.signal(signal.SIGTERM, forward)
         try:
             return child.wait()
@@ -297,17 +295,6 @@ def run_command(command: list[str], log_path: str) -> int:
             raise
         finally:
             signal.signal(signal.SIGTERM, previous)
-
-
-def _die_with_parent() -> None:
-    """In a cell's child process: SIGKILL once the process that started it dies (a Ray worker
-    lost with its cell, a killed sweep), so no orphan writes on in a run directory that a
-    retried cell resumes from its last checkpoint."""
-    if sys.platform.startswith("linux"):
-        import ctypes
-
-        pr_set_pdeathsig = 1
-        ctypes.CDLL(None, use_errno=True).prctl(pr_set_pdeathsig, signal.SIGKILL)
 
 
 def run_in_process(args: list[str], log_path: str) -> int:

@@ -4,13 +4,9 @@ of the package, so nothing else would notice when one of them no longer runs."""
 import csv
 import importlib.util
 import json
-import os
 import pathlib
-import signal
 import socket
-import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -212,41 +208,6 @@ def test_sweep_engine_ray_is_refused_without_ray_or_a_cluster(tmp_path, monkeypa
     error = capsys.readouterr().err.strip().splitlines()[-1]
     assert error.startswith(f"error: no Ray cluster answers at {address} (")
     assert not (tmp_path / "out").exists()
-
-
-def test_sweep_cell_process_dies_with_the_sweep(tmp_path):
-    """A cell's child process is killed with the process that started it (a lost Ray worker,
-    a killed sweep), so that no orphan writes on in a run directory another attempt resumes."""
-    pid_file, log = tmp_path / "child.pid", tmp_path / "cell.log"
-    child = (
-        f"import os, time; open({str(pid_file)!r}, 'w').write(str(os.getpid())); time.sleep(120)"
-    )
-    parent = subprocess.Popen(
-        [sys.executable, "-c", f"import sys; sys.path.insert(0, {str(EXPERIMENTS)!r}); "
-         f"import sweep; sweep.run_command([sys.executable, '-c', {child!r}], {str(log)!r})"]
-    )  # fmt: skip
-    try:
-        deadline = time.monotonic() + 60
-        while not (pid_file.exists() and pid_file.read_text()):
-            assert time.monotonic() < deadline and parent.poll() is None, "no child started"
-            time.sleep(0.05)
-        child_pid = int(pid_file.read_text())
-    finally:
-        parent.kill()
-        parent.wait(timeout=60)
-
-    def alive(pid: int) -> bool:
-        try:
-            return pathlib.Path(f"/proc/{pid}/stat").read_text().split(") ")[1][0] != "Z"
-        except FileNotFoundError:
-            return False
-
-    deadline = time.monotonic() + 10
-    while alive(child_pid):
-        if time.monotonic() > deadline:
-            os.kill(child_pid, signal.SIGKILL)
-            pytest.fail("the cell's child process outlived the sweep")
-        time.sleep(0.05)
 
 
 def test_sweep_separability_of_the_driver_falls_with_the_radius(tmp_path):
