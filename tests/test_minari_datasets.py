@@ -53,45 +53,6 @@ def assert_same(a, b):
         np.testing.assert_array_equal(x, y, err_msg=name)
 
 
-def buffers_of(demos, intention, **replaced):
-    """Minari episode buffers of one intention's demonstrations, as a user would make them."""
-    bounds = [*np.flatnonzero(demos.episode_starts), len(demos)]
-    buffers = []
-    for episode in np.unique(demos.episode[demos.intentions == intention]):
-        first, end = bounds[episode], bounds[episode + 1]
-        fields = {
-            "observations": np.concatenate(
-                [demos.observations[first:end], demos.final_observations[episode][None]]
-            ),
-            "actions": demos.actions[first:end],
-            "rewards": demos.rewards[first:end].astype(np.float64),
-            "terminations": np.zeros(end - first, bool),
-            "truncations": np.arange(end - first) == end - first - 1,
-        }
-        buffers.append(EpisodeBuffer(**{**fields, **replaced}))
-    return buffers
-
-
-def minari_written(name, buffers, obs_dim=10, act_dim=1, **spaces):
-    """A dataset written by Minari's own ``create_dataset_from_buffers``; its directory."""
-    dataset = minari.create_dataset_from_buffers(
-        f"user/{name}-v0",
-        buffers,
-        observation_space=spaces.get(
-            "observation_space", gymnasium.spaces.Box(-np.inf, np.inf, (obs_dim,), np.float32)
-        ),
-        action_space=spaces.get(
-            "action_space", gymnasium.spaces.Box(-1.0, 1.0, (act_dim,), np.float32)
-        ),
-        algorithm_name="a user's expert",
-        description="a test dataset",
-        author="a user",
-        author_email="user@example.org",
-        code_permalink="https://example.org/code",
-    )
-    return str(dataset.storage.data_path.parent)
-
-
 def test_generated_demonstrations_carry_rewards_and_final_observations(driver, driver_demos):
     demos = driver_demos
     assert demos.rewards.shape == (len(demos),) and demos.final_observations.shape == (6, 10)
@@ -131,9 +92,11 @@ def test_an_export_refuses_to_overwrite_and_writes_nothing(driver, driver_demos,
     assert sorted(p.name for p in datasets_root.rglob("*")) == before
 
 
-def test_datasets_written_by_minari_are_one_intention_each(driver, driver_demos):
+def test_datasets_written_by_minari_are_one_intention_each(driver, driver_demos, minari_user):
     """No metadata of ours: the list order labels the pairs, the rewards give the returns."""
-    sources = [minari_written(f"path{i}", buffers_of(driver_demos, i)) for i in range(2)]
+    sources = [
+        minari_user.dataset(f"path{i}", minari_user.buffers(driver_demos, i)) for i in range(2)
+    ]
     demos = demonstration_sources.load(sources, driver)
     np.testing.assert_array_equal(demos.intentions, driver_demos.intentions)
     np.testing.assert_array_equal(demos.observations, driver_demos.observations)
@@ -142,16 +105,18 @@ def test_datasets_written_by_minari_are_one_intention_each(driver, driver_demos)
         assert demos.expert_returns[intention] == pytest.approx(np.mean(returns), rel=1e-6)
 
 
-def test_one_dataset_may_carry_its_labels_in_its_infos(driver, driver_demos):
+def test_one_dataset_may_carry_its_labels_in_its_infos(driver, driver_demos, minari_user):
     buffers = []
     for intention in range(2):
-        for buffer in buffers_of(driver_demos, intention):
+        for buffer in minari_user.buffers(driver_demos, intention):
             labels = np.full(len(buffer.observations), intention)  # [T + 1], as Minari records
             buffers.append(EpisodeBuffer(**{**vars(buffer), "infos": {"intention": labels}}))
-    demos = demonstration_sources.load([minari_written("mix", buffers)], driver)
+    demos = demonstration_sources.load([minari_user.dataset("mix", buffers)], driver)
     np.testing.assert_array_equal(demos.intentions, driver_demos.intentions)
     np.testing.assert_allclose(demos.expert_returns, driver_demos.expert_returns, rtol=1e-6)
-    unlabelled = demonstration_sources.load([minari_written("plain", buffers_of(driver_demos, 0))])
+    unlabelled = demonstration_sources.load(
+        [minari_user.dataset("plain", minari_user.buffers(driver_demos, 0))]
+    )
     assert unlabelled.intentions is None and unlabelled.expert_returns is None
 
 
@@ -176,11 +141,11 @@ def _remove_data(directory):
 BOX = gymnasium.spaces.Box(-1.0, 1.0, (1,), np.float32)
 
 
-def _malformed(name, demos):
+def _malformed(name, demos, minari_user):
     """``(buffers, spaces, file damage)`` of a malformed dataset."""
     nan = demos.observations[:100].copy()
     nan[5] = np.nan
-    one = lambda **fields: buffers_of(demos, 0, **fields)[:1]
+    one = lambda **fields: minari_user.buffers(demos, 0, **fields)[:1]
     cases = {
         "dict observations": (
             one(observations={"x": np.zeros((101, 10), np.float32)}),
@@ -229,9 +194,11 @@ MALFORMED = {
 
 
 @pytest.mark.parametrize("case", sorted(MALFORMED))
-def test_every_malformed_dataset_is_refused_in_one_line(driver, driver_demos, tmp_path, case):
-    buffers, spaces, damage = _malformed(case, driver_demos)
-    directory = minari_written(case.replace(" ", "-"), buffers, **spaces)
+def test_every_malformed_dataset_is_refused_in_one_line(
+    driver, driver_demos, tmp_path, case, minari_user
+):
+    buffers, spaces, damage = _malformed(case, driver_demos, minari_user)
+    directory = minari_user.dataset(case.replace(" ", "-"), buffers, **spaces)
     if damage is not None:
         damage(tmp_path / "minari" / "user" / f"{case.replace(' ', '-')}-v0")
     with pytest.raises(DemonstrationError, match=MALFORMED[case]) as error:
