@@ -138,7 +138,13 @@ def read(source: str, env: envs.Env | None = None) -> Demonstrations:
         rewards=np.concatenate(rewards).astype(np.float32),
         final_observations=np.stack(finals).astype(np.float32),
     )
-    if all(label is not None for label in labels):
+    labelled = [label is not None for label in labels]
+    if any(labelled) and not all(labelled):
+        raise DemonstrationError(
+            f"'{source}': {sum(labelled)} of {len(labels)} episodes carry infos['intention']; "
+            "label every episode or none"
+        )
+    if all(labelled):
         demos = _labelled(source, demos, labels)
     validate(demos, env, source=f"'{source}'")
     return demos
