@@ -24,7 +24,7 @@ import sys
 
 import numpy as np
 
-from emgail_jax.host import jax_setup
+from emgail_jax.host import jax_setup, run_lock
 from emgail_jax.host.run_spec import DEFAULT_RANDOM_EPISODES, RunError, RunSpec, read_summary
 
 OUTPUTS = ("summary.json", "metrics.csv", "tensorboard", "checkpoints")
@@ -172,7 +172,7 @@ _RUN_OPTIONS = (
 
 
 def spec_from_args(args: argparse.Namespace) -> RunSpec:
-    from emgail_jax.method.config import Config
+    from emgail_jax.method.config import Config, SettingError
 
     if args.resume is not None:
         given = [f"--{name.replace('_', '-')}" for name in _RUN_OPTIONS if getattr(args, name)]
@@ -184,18 +184,19 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
             )
         spec = RunSpec.from_summary(read_summary(args.resume))
         if args.iterations is not None:
-            spec = dataclasses.replace(spec, config=spec.config.replace(iterations=args.iterations))
+            try:
+                config = spec.config.replace(iterations=args.iterations)
+            except SettingError as error:
+                raise RunError(error.naming("--iterations")) from None
+            spec = dataclasses.replace(spec, config=config)
         return spec
 
     env = args.env or "driver"
-    if (args.seeds is not None and args.seeds < 1) or (
-        args.iterations is not None and args.iterations < 1
-    ):
-        raise RunError("--seeds and --iterations must be at least 1")
-    for name in ("seed_batch", "eval_every", "chunk_size", "random_episodes"):
+    # The run's own counts; the config checks its hyper-parameters itself.
+    for name in ("seeds", "random_episodes"):
         value = getattr(args, name)
         if value is not None and value < 1:
-            raise RunError(f"--{name.replace('_', '-')} must be at least 1")
+            raise RunError(f"--{name.replace('_', '-')} must be at least 1; got {value}")
     intentions, choosing = _learned_intentions(args, env)
     env_options = {}
     if args.radius is not None:
@@ -216,7 +217,11 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         "chunk_size": args.chunk_size,
         "seed_batch": args.seed_batch,
     }
-    config = Config().replace(**{k: v for k, v in overrides.items() if v is not None})
+    given = {k: v for k, v in overrides.items() if v is not None}
+    try:
+        config = Config().replace(**given)
+    except SettingError as error:  # an option's own value: named as the option
+        raise RunError(error.naming(f"--{error.key.replace('_', '-')}")) from None
     try:
         config = config.with_settings(args.set)
     except ValueError as error:
@@ -265,19 +270,40 @@ def default_output(env: str, algo: str, root: str = "runs") -> str:
     return next(path for path in candidates if not os.path.exists(path))
 
 
-def prepare_output(out: str, overwrite: bool) -> None:
-    """Creates ``out``; refuses to mix with an earlier run unless ``overwrite``."""
+def create_output(out: str) -> None:
+    """Creates the directory ``out`` (nothing in it yet)."""
     if os.path.exists(out) and not os.path.isdir(out):
         raise RunError(f"--out '{out}' is a file, not a directory: choose another --out")
+    os.makedirs(out, exist_ok=True)
+    if not os.access(out, os.W_OK):
+        raise RunError(f"cannot write to '{out}': choose a writable --out")
+
+
+@contextlib.contextmanager
+def _writing(out: str, new: bool):
+    """Holds ``out``'s run lock, creating the directory first for a ``new`` run; a run that
+    fails before writing anything leaves no directory behind."""
+    created = new and not os.path.exists(out)
+    if new:
+        create_output(out)
+    try:
+        with run_lock.hold(out):
+            yield
+    except BaseException:
+        if created and os.listdir(out) == [run_lock.LOCK_NAME]:
+            shutil.rmtree(out)
+        raise
+
+
+def prepare_output(out: str, overwrite: bool) -> None:
+    """Creates ``out``; refuses to mix with an earlier run unless ``overwrite``."""
+    create_output(out)
     existing = [name for name in OUTPUTS if os.path.exists(os.path.join(out, name))]
     if existing and not overwrite:
         raise RunError(
             f"'{out}' already holds a run ({', '.join(existing)}): "
             "pass --resume to continue it, --overwrite to replace it, or choose another --out"
         )
-    os.makedirs(out, exist_ok=True)
-    if not os.access(out, os.W_OK):
-        raise RunError(f"cannot write to '{out}': choose a writable --out")
     for name in existing:
         path = os.path.join(out, name)
         shutil.rmtree(path) if os.path.isdir(path) else os.remove(path)
@@ -643,32 +669,29 @@ def print_summary(summary: dict) -> None:
     )
 
 
-def main(argv=None) -> int:
-    args = parse_args(argv)
-    try:
-        distributed = jax_setup.Distributed.from_options(
-            args.coordinator, args.num_processes, args.process_id
-        )
-    except ValueError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    jax_setup.setup(distributed=distributed)
+def _command(args: argparse.Namespace) -> tuple[str, dict]:
+    """The run the command line asks for, trained: ``(run directory, summary)``."""
     import jax
 
-    import envs
     from emgail_jax.host.checkpoints import CheckpointError, latest_iteration
-    from emgail_jax.host.demonstration_files import DemonstrationError
     from emgail_jax.host.problem import problem_of
 
-    try:
+    primary = jax.process_index() == 0
+    out = args.resume or args.out
+    with contextlib.ExitStack() as stack:
+        # Before anything reads or writes the directory: a live run keeps it.
+        if primary and out is not None:
+            stack.enter_context(_writing(out, new=args.resume is None))
         spec = spec_from_args(args)
-        out = args.resume or args.out or default_output(spec.env, spec.algo)
+        if out is None:
+            out = default_output(spec.env, spec.algo)
+            if primary:
+                stack.enter_context(_writing(out, new=True))
         if args.resume is not None and latest_iteration(out) is None:
             raise CheckpointError(f"'{out}' holds no checkpoint to resume from")
         problem = problem_of(spec)
         if spec.config.responsibilities == "labels" and problem.demos.intentions is None:
             raise RunError("--responsibilities labels needs demonstrations with hidden labels")
-        primary = jax.process_index() == 0
         if args.resume is None:
             if primary:
                 prepare_output(out, args.overwrite)
@@ -686,6 +709,27 @@ def main(argv=None) -> int:
             checkpoint_every=args.checkpoint_every,
             progress=not args.quiet,
         )
+    return out, summary
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    try:
+        distributed = jax_setup.Distributed.from_options(
+            args.coordinator, args.num_processes, args.process_id
+        )
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    jax_setup.setup(distributed=distributed)
+    import jax
+
+    import envs
+    from emgail_jax.host.checkpoints import CheckpointError
+    from emgail_jax.host.demonstration_files import DemonstrationError
+
+    try:
+        out, summary = _command(args)
     except (envs.EnvError, DemonstrationError, RunError, CheckpointError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
