@@ -49,6 +49,8 @@ class RunSpec:
             )
         except (KeyError, TypeError) as error:
             raise RunError(f"summary.json does not describe a run (no {error})") from None
+        except ValueError as error:  # a hyper-parameter out of its domain
+            raise RunError(f"summary.json holds a config this version refuses: {error}") from None
 
 
 def read_summary(run_dir: str) -> dict:
