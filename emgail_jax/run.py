@@ -21,14 +21,16 @@ import os
 import shutil
 import signal
 import sys
+import traceback
 
 import numpy as np
 
-from emgail_jax.host import jax_setup, run_lock
+from emgail_jax.host import jax_setup, run_lock, stopping
 from emgail_jax.host.run_spec import DEFAULT_RANDOM_EPISODES, RunError, RunSpec, read_summary
 
 OUTPUTS = ("summary.json", "metrics.csv", "tensorboard", "checkpoints")
 DEFAULT_CHECKPOINT_EVERY = 50
+DEFAULT_SEEDS = 4
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -53,7 +55,9 @@ def parse_args(argv=None) -> argparse.Namespace:
         help="with --intentions auto: the most intentions it may choose (default: the env's all)",
     )
     parser.add_argument("--algo", default=None, choices=NAMES, help="default: emgail")
-    parser.add_argument("--seeds", type=int, default=None, help="seeds in parallel (default 4)")
+    parser.add_argument(
+        "--seeds", type=int, default=None, help=f"seeds in parallel (default {DEFAULT_SEEDS})"
+    )
     parser.add_argument("--iterations", type=int, default=None, help="total (default 400)")
     parser.add_argument(
         "--out", default=None, help="output directory (default: a new runs/ENV-ALGO[-N])"
@@ -231,7 +235,7 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         intentions=intentions,
         env_options=env_options,
         algo=config.algo,
-        seeds=args.seeds or 4,
+        seeds=args.seeds or DEFAULT_SEEDS,
         first_seed=args.seed or 0,
         demos_path=os.path.abspath(args.demos) if args.demos else None,
         demo_seed=args.demo_seed or 0,
@@ -282,17 +286,18 @@ def create_output(out: str) -> None:
 @contextlib.contextmanager
 def _writing(out: str, new: bool):
     """Holds ``out``'s run lock, creating the directory first for a ``new`` run; a run that
-    fails before writing anything leaves no directory behind."""
+    ends before writing anything (refused) leaves no directory behind."""
     created = new and not os.path.exists(out)
     if new:
         create_output(out)
+    elif not os.path.isdir(out):
+        read_summary(out)  # says it is no run directory
     try:
         with run_lock.hold(out):
             yield
-    except BaseException:
+    finally:
         if created and os.listdir(out) == [run_lock.LOCK_NAME]:
             shutil.rmtree(out)
-        raise
 
 
 def prepare_output(out: str, overwrite: bool) -> None:
@@ -309,29 +314,6 @@ def prepare_output(out: str, overwrite: bool) -> None:
         shutil.rmtree(path) if os.path.isdir(path) else os.remove(path)
 
 
-class _StopRequest:
-    """Turns SIGINT/SIGTERM into a request to stop after the chunk in progress; a second
-    signal stops at once (the last complete checkpoint stays valid)."""
-
-    def __init__(self):
-        self.signal = None
-        self._previous = {}
-
-    def __enter__(self):
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            self._previous[sig] = signal.signal(sig, self._handle)
-        return self
-
-    def _handle(self, signum, frame):
-        if self.signal is not None:
-            raise KeyboardInterrupt
-        self.signal = signum
-
-    def __exit__(self, *exc):
-        for sig, handler in self._previous.items():
-            signal.signal(sig, handler)
-
-
 def train(
     spec: RunSpec,
     problem,
@@ -339,12 +321,14 @@ def train(
     resume: bool = False,
     checkpoint_every: int = DEFAULT_CHECKPOINT_EVERY,
     progress: bool = True,
+    signals: stopping.Signals | None = None,
 ) -> dict:
     """Trains (or, with ``resume``, continues) the run ``spec`` and writes its outputs to ``out``.
 
     Returns the summary as written to ``summary.json``; its ``status`` is ``"completed"`` or
-    ``"interrupted"``. In a run of several processes (``jax.distributed``), every process trains
-    its share of the seeds and process 0 alone writes the outputs.
+    ``"interrupted"`` (a first signal within the chunk loop of ``signals``, the command's).
+    In a run of several processes (``jax.distributed``), every process trains its share of the
+    seeds and process 0 alone writes the outputs.
     """
     import jax
 
@@ -364,18 +348,22 @@ def train(
     timings = {"compile_time_s": 0.0, "train_time_s": 0.0, "iterations": 0}
     if resume:
         timings = read_summary(out).get("timings", timings)
+    running = {**summary, "status": "running", "timings": timings}
+    if not resume:  # before the first compile: from then on a killed run can be resumed
+        write_json(summary_path, running)
     state, history, done = _first_state(runner, out, resume, jax.random.PRNGKey(spec.first_seed))
-    write_json(summary_path, {**summary, "status": "running", "timings": timings})
+    if resume:  # once the checkpoint is read: a failed restore leaves the summary as it was
+        write_json(summary_path, running)
 
     # Chunks only group iterations into compiled calls; they do not change the results.
     plan = chunks(done, config.iterations, config.chunk_size)
-    stop = _StopRequest()
-    recorder = _ChunkRecorder(out, config, history, done, resume, checkpoint_every, writes, stop)
+    signals = signals or stopping.Signals()
+    recorder = _ChunkRecorder(out, config, history, done, resume, checkpoint_every, writes, signals)
     if plan:
         evaluating = lambda first, length: evaluation_plan(
             first, length, config.iterations, config.eval_every
         )
-        with stop, recorder.open(progress and writes):
+        with signals.stoppable(), recorder.open(progress and writes):
             runner.run(state, plan, evaluating, recorder.after_chunk)
         timings = {
             "compile_time_s": timings["compile_time_s"] + runner.timings.compile_s,
@@ -386,7 +374,7 @@ def train(
 
     summary.update(timings=timings, iterations_done=iteration)
     if iteration < config.iterations:
-        summary.update(status="interrupted", stopped_by=signal.Signals(stop.signal).name)
+        summary.update(status="interrupted", stopped_by=signal.Signals(recorder.stopped_by).name)
     else:
         summary["status"] = "completed"
     summary["final"] = _final_summary(problem, config, history, timings, spec)
@@ -410,11 +398,12 @@ class _ChunkRecorder:
     resume: bool
     checkpoint_every: int
     writes: bool  # process 0 of the run
-    stop: _StopRequest
+    signals: stopping.Signals
 
     def __post_init__(self):
         self.last_saved = self.iteration
         self.host_state = None  # every seed's state as last saved, on the host
+        self.stopped_by = None  # the signal that stopped the run, in every process
 
     @contextlib.contextmanager
     def open(self, progress: bool):
@@ -441,13 +430,28 @@ class _ChunkRecorder:
         self.history = concat_history(self.history, metrics)
         self.iteration = first + length
         self.bar.update(length, **_progress_fields(self.history))
-        finished = self.iteration >= self.config.iterations or self.stop.signal is not None
+        self.stopped_by = _agreed_signal(self.signals.requested)
+        finished = self.iteration >= self.config.iterations or self.stopped_by is not None
         if finished or self.iteration - self.last_saved >= self.checkpoint_every:
             host_state = gather(state)  # every process takes part
             if self.writes:
                 checkpoints.save(self.out, self.iteration, host_state, self.history)
             self.last_saved, self.host_state = self.iteration, host_state
-        return self.stop.signal is None
+        self.signals.progressed()
+        return self.stopped_by is None
+
+
+def _agreed_signal(requested: int | None) -> int | None:
+    """The signal that asks the run to stop, as every process sees it: in a run of several
+    processes, one asked is all asked (else they would part at the next collective)."""
+    import jax
+
+    if jax.process_count() == 1:
+        return requested
+    from jax.experimental import multihost_utils
+
+    asked = multihost_utils.process_allgather(np.int32(requested or 0))
+    return int(asked.max()) or None
 
 
 def _runner(spec: RunSpec, problem, config):
@@ -472,7 +476,7 @@ def _first_state(runner, out: str, resume: bool, key):
     """``(state, history, iterations done)``: restored from the last checkpoint, or new."""
     from emgail_jax.host import checkpoints
 
-    if resume:
+    if resume and checkpoints.latest_iteration(out) is not None:
         host_state, history, done = checkpoints.restore(out, runner.abstract_state(key))
         return runner.place_state(host_state), history, done
     return runner.init(key), None, 0
@@ -669,25 +673,35 @@ def print_summary(summary: dict) -> None:
     )
 
 
-def _command(args: argparse.Namespace) -> tuple[str, dict]:
-    """The run the command line asks for, trained: ``(run directory, summary)``."""
+def _command(
+    args: argparse.Namespace,
+    signals: stopping.Signals,
+    held: contextlib.ExitStack,
+    locked: bool,
+) -> tuple[str, dict]:
+    """The run the command line asks for, trained: ``(run directory, summary)``; ``held``
+    holds the run directory's lock (taken here unless ``locked`` already)."""
     import jax
 
     from emgail_jax.host.checkpoints import CheckpointError, latest_iteration
     from emgail_jax.host.problem import problem_of
+    from emgail_jax.host.seed_runner import seed_sharding
 
     primary = jax.process_index() == 0
     out = args.resume or args.out
-    with contextlib.ExitStack() as stack:
+    with held:
         # Before anything reads or writes the directory: a live run keeps it.
-        if primary and out is not None:
-            stack.enter_context(_writing(out, new=args.resume is None))
+        if primary and out is not None and not locked:
+            _hold_output(args, held)
         spec = spec_from_args(args)
+        seed_sharding(spec.seeds)  # the seeds fit the processes, before anything compiles
         if out is None:
             out = default_output(spec.env, spec.algo)
             if primary:
-                stack.enter_context(_writing(out, new=True))
-        if args.resume is not None and latest_iteration(out) is None:
+                held.enter_context(_writing(out, new=True))
+        # A run killed before its first checkpoint restarts: its summary holds its spec.
+        unfinished = args.resume is not None and read_summary(out).get("status") == "running"
+        if args.resume is not None and latest_iteration(out) is None and not unfinished:
             raise CheckpointError(f"'{out}' holds no checkpoint to resume from")
         problem = problem_of(spec)
         if spec.config.responsibilities == "labels" and problem.demos.intentions is None:
@@ -696,7 +710,9 @@ def _command(args: argparse.Namespace) -> tuple[str, dict]:
             if primary:
                 prepare_output(out, args.overwrite)
         else:
-            print(f"resuming '{out}' from iteration {latest_iteration(out)}")
+            done = latest_iteration(out)
+            start = "the start (it stopped before its first checkpoint)" if done is None else done
+            print(f"resuming '{out}' from iteration {start}")
         if problem.demos.expert_returns is None:
             print("notice: the demonstrations carry no expert_returns, so ERD is reported as null")
         if problem.demos.intentions is None:
@@ -708,6 +724,7 @@ def _command(args: argparse.Namespace) -> tuple[str, dict]:
             resume=args.resume is not None,
             checkpoint_every=args.checkpoint_every,
             progress=not args.quiet,
+            signals=signals,
         )
     return out, summary
 
@@ -721,7 +738,56 @@ def main(argv=None) -> int:
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
-    jax_setup.setup(distributed=distributed)
+    if distributed is not None:
+        # Every process refuses alike, before it waits for the others.
+        error = jax_setup.seed_share_error(_seeds_of(args), distributed.num_processes)
+        if error:
+            print(f"error: {error}", file=sys.stderr)
+            return 2
+    held = contextlib.ExitStack()
+    locked = distributed is None and bool(args.resume or args.out)
+    if locked:
+        # The lock at once, before JAX starts (a run of several processes takes it later, so
+        # that the others hear of a refusal).
+        try:
+            _hold_output(args, held)
+        except RunError as error:
+            print(f"error: {error}", file=sys.stderr)
+            return 2
+        except OSError as error:
+            print(_write_error(error), file=sys.stderr)
+            return 2
+    with held, stopping.Signals() as signals:  # from here on a signal ends a run in seconds
+        jax_setup.setup(distributed=distributed)
+        signals.install()  # jax.distributed takes SIGTERM for its preemption notices
+        code = _main(args, signals, distributed is not None, held, locked)
+    if distributed is not None:
+        jax_setup.leave(code)
+    return code
+
+
+def _seeds_of(args: argparse.Namespace) -> int:
+    """The seeds of the run asked for, as :func:`spec_from_args` will find them."""
+    if args.resume is not None:
+        with contextlib.suppress(RunError, AttributeError, TypeError, ValueError):
+            return int(read_summary(args.resume).get("seeds", 1))
+        return 1  # no readable summary: the command fails later, with its own message
+    return args.seeds or DEFAULT_SEEDS
+
+
+def _hold_output(args: argparse.Namespace, held: contextlib.ExitStack) -> None:
+    held.enter_context(_writing(args.resume or args.out, new=args.resume is None))
+
+
+def _main(
+    args: argparse.Namespace,
+    signals: stopping.Signals,
+    several: bool,
+    held: contextlib.ExitStack,
+    locked: bool,
+) -> int:
+    """The command, its errors as one line and exit code 2; in a run of several processes,
+    a failure is posted for the others (:func:`jax_setup.report_failure`), which end too."""
     import jax
 
     import envs
@@ -729,23 +795,40 @@ def main(argv=None) -> int:
     from emgail_jax.host.demonstration_files import DemonstrationError
 
     try:
-        out, summary = _command(args)
+        out, summary = _command(args, signals, held, locked)
     except (envs.EnvError, DemonstrationError, RunError, CheckpointError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+        return _failed(f"error: {error}", 2)
     except OSError as error:  # the output cannot be created or written (permissions, full disk)
-        where = f" ('{error.filename}')" if error.filename else ""
-        print(
-            f"error: {error.strerror or error}{where}: the run's outputs could not be written; "
-            "check that --out is a writable directory with room on its disk",
-            file=sys.stderr,
-        )
-        return 2
+        return _failed(_write_error(error), 2)
+    except Exception as error:
+        if not several:
+            raise
+        first = str(error).strip().splitlines()[0] if str(error).strip() else ""
+        gone = jax_setup.peers_gone()
+        if gone:  # a collective broke off: say why, not where
+            return _failed(f"error: process {gone[0]} of the run is gone ({first[:200]})", 1)
+        traceback.print_exc()
+        return _failed(f"error: {type(error).__name__}: {first[:300]}", 1)
     if jax.process_index() == 0:
         if not args.quiet:
             print_summary(summary)
         print(f"wrote {os.path.join(out, 'summary.json')} ({summary['status']})")
-    return 130 if summary["status"] == "interrupted" else 0
+    return stopping.INTERRUPTED if summary["status"] == "interrupted" else 0
+
+
+def _write_error(error: OSError) -> str:
+    where = f" ('{error.filename}')" if error.filename else ""
+    return (
+        f"error: {error.strerror or error}{where}: the run's outputs could not be written; "
+        "check that --out is a writable directory with room on its disk (--resume then "
+        "continues from the last checkpoint)"
+    )
+
+
+def _failed(line: str, code: int) -> int:
+    print(line, file=sys.stderr)
+    jax_setup.report_failure(line.removeprefix("error: "))
+    return code
 
 
 if __name__ == "__main__":
