@@ -52,6 +52,21 @@ class RunSpec:
         except ValueError as error:  # a hyper-parameter out of its domain
             raise RunError(f"summary.json holds a config this version refuses: {error}") from None
 
+    def to_summary(self) -> dict:
+        """The fields of a ``summary.json`` that :meth:`from_summary` reads back (a run's own
+        summary holds these, resolved for its env, and much else)."""
+        return {
+            "env": self.env,
+            "intentions": self.intentions,
+            "env_options": self.env_options,
+            "algo": self.algo,
+            "seeds": self.seeds,
+            "first_seed": self.first_seed,
+            "demonstrations": {"path": self.demos_path, "seed": self.demo_seed},
+            "config": self.config.to_dict(),
+            "random_episodes": self.random_episodes,
+        }
+
 
 def read_summary(run_dir: str) -> dict:
     path = os.path.join(run_dir, "summary.json")
