@@ -203,6 +203,20 @@ def test_a_full_disk_while_summary_json_is_written(tmp_path, straight, capsys, m
     )
 
 
+def test_a_run_killed_before_its_first_checkpoint_resumes_from_the_start(tmp_path, straight):
+    import shutil
+
+    out = tmp_path / "early"
+    shutil.copytree(straight, out)
+    shutil.rmtree(out / "checkpoints")
+    summary = json.loads((out / "summary.json").read_text())
+    records.write_json(str(out / "summary.json"), {**summary, "status": "running"})
+    header, first_row = (out / "metrics.csv").read_text().splitlines()[:2]
+    (out / "metrics.csv").write_text(f"{header}\n{first_row[:7]}")  # killed mid-row
+    assert run.main(["--resume", str(out), "--quiet"]) == 0
+    _same_results(straight, out)
+
+
 def _kill_and_resume(straight, out, kills: int, seed: int):
     """Runs the straight run's command in a child, SIGKILLs it ``kills`` times at random
     moments of its life (start-up, compiles, chunks, checkpoint writes), each time continuing

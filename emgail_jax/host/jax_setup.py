@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import os
+import socket
 import sys
 import threading
 import time
@@ -37,6 +38,7 @@ LEAVE_TIMEOUT_S = 30
 # Where a process that fails posts its error for the others (the coordination service's store).
 _FAILURES = "emgail_jax/failed/"
 _LEFT = "emgail_jax/left/"
+_PIDS = "emgail_jax/pids/"
 _STDERR = os.dup(2)  # stderr as it is at start-up, also while a checkpoint write holds fd 2
 _PEER_POLL_S = 0.5
 
@@ -143,9 +145,13 @@ class _PeerWatch:
         self.distributed = distributed
         self.client = jax_distributed.global_state.client
         self.active = True
+        self.thread: threading.Thread | None = None
+        self.neighbours: dict[int, int] = {}  # process -> pid, of those on this machine
 
     def run(self) -> None:
         me = self.distributed.process_id
+        with contextlib.suppress(Exception):
+            self.client.key_value_set(f"{_PIDS}{me}", f"{socket.gethostname()} {os.getpid()}")
         unreachable = 0.0
         while self.active:
             time.sleep(_PEER_POLL_S)
@@ -177,13 +183,42 @@ class _PeerWatch:
             _leave_now(f"error: {cause}; this process stops too", 1)
 
     def gone(self) -> list[int]:
-        """The other processes that no longer answer."""
+        """The other processes that no longer answer: on this machine, those whose process
+        has ended (at once); elsewhere, those the service misses heartbeats of."""
         me, count = self.distributed.process_id, self.distributed.num_processes
         try:
             live = self.client.get_live_nodes(list(range(count)))
+            if len(self.neighbours) < count - 1:
+                self.neighbours = self._neighbours()
         except Exception:  # the service itself is gone, and with it process 0
             return [0]
-        return [i for i in range(count) if i != me and i not in live]
+        ended = [i for i, pid in self.neighbours.items() if not _running(pid)]
+        return ended + [i for i in range(count) if i not in (me, *ended) and i not in live]
+
+    def _neighbours(self) -> dict[int, int]:
+        host, me = socket.gethostname(), self.distributed.process_id
+        found = {}
+        for key, value in self.client.key_value_dir_get(_PIDS):
+            their_host, _, pid = value.rpartition(" ")
+            if their_host == host and int(key.rsplit("/", 1)[-1]) != me:
+                found[int(key.rsplit("/", 1)[-1])] = int(pid)
+        return found
+
+
+def _running(pid: int) -> bool:
+    """Whether process ``pid`` of this machine runs (a killed one not yet reaped, a zombie,
+    does not)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[-1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+    except OSError:  # no /proc: ask the kernel
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        return True
 
 
 _peer_watch: _PeerWatch | None = None
@@ -197,7 +232,8 @@ def peers_gone() -> list[int]:
 def _watch_peers(distributed: Distributed) -> None:
     global _peer_watch
     _peer_watch = _PeerWatch(distributed)
-    threading.Thread(target=_peer_watch.run, daemon=True, name="peers").start()
+    _peer_watch.thread = threading.Thread(target=_peer_watch.run, daemon=True, name="peers")
+    _peer_watch.thread.start()
 
 
 def report_failure(message: str) -> None:
@@ -224,6 +260,8 @@ def leave(code: int) -> None:
     _peer_watch.active = False
     if code != 0:
         _leave_now(None, code)
+    # A thread still inside the client when the interpreter ends aborts the process.
+    _peer_watch.thread.join(timeout=5)
     jax.distributed.shutdown()
     _peer_watch = None
 

@@ -48,7 +48,8 @@ class Signals:
         self._previous_wakeup = signal.set_wakeup_fd(write, warn_on_full_buffer=False)
         self._previous_handlers = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
         self.install()
-        threading.Thread(target=self._watch, args=(read,), daemon=True, name="signals").start()
+        self._thread = threading.Thread(target=self._watch, args=(read,), daemon=True)
+        self._thread.start()
         return self
 
     def install(self) -> None:
@@ -68,6 +69,7 @@ class Signals:
             signal.signal(sig, handler)
         signal.set_wakeup_fd(self._previous_wakeup)
         os.close(self._pipe[1])  # ends the watching thread
+        self._thread.join(timeout=5)
         os.close(_stderr)
         _stderr = 2
 
