@@ -251,6 +251,7 @@ def _kill_and_resume(straight, out, kills: int, seed: int):
     _same_results(straight, out)
 
 
+@pytest.mark.slow  # 1-4 minutes: three children and two resumes
 def test_sigkills_at_random_moments_then_resume_give_the_straight_run(tmp_path, straight):
     _kill_and_resume(straight, tmp_path / "killed", kills=2, seed=0)
 
