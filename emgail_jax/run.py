@@ -26,7 +26,13 @@ import traceback
 import numpy as np
 
 from emgail_jax.host import jax_setup, run_lock, stopping
-from emgail_jax.host.run_spec import DEFAULT_RANDOM_EPISODES, RunError, RunSpec, read_summary
+from emgail_jax.host.run_spec import (
+    DEFAULT_RANDOM_EPISODES,
+    RunError,
+    RunSpec,
+    read_summary,
+    stored_sources,
+)
 
 OUTPUTS = ("summary.json", "metrics.csv", "tensorboard", "checkpoints")
 DEFAULT_CHECKPOINT_EVERY = 50
@@ -64,7 +70,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     parser.add_argument("--resume", default=None, metavar="DIR", help="continue the run in DIR")
     parser.add_argument(
-        "--demos", default=None, help="demonstrations .npz (README, Demonstrations format)"
+        "--demos",
+        nargs="+",
+        default=None,
+        metavar="SOURCE",
+        help="demonstrations: an .npz file, a Minari dataset (minari:ID or its directory), or "
+        "several of them, one intention each (README, Demonstrations format)",
     )
     parser.add_argument("--radius", type=float, default=None, help="driver: radius of path 2")
     parser.add_argument("--seed", type=int, default=None, help="first training seed")
@@ -137,6 +148,13 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     parser.add_argument("--num-processes", type=int, default=None, help="with --coordinator")
     parser.add_argument("--process-id", type=int, default=None, help="with --coordinator")
+    parser.add_argument(
+        "--wandb",
+        default=None,
+        metavar="PROJECT",
+        help="also log the metrics, config and final summary to this Weights & Biases project "
+        "(needs the extra: pip install 'emgail-jax[wandb]'; WANDB_MODE=offline keeps it local)",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress bar or table")
     return parser.parse_args(argv)
 
@@ -176,6 +194,7 @@ _RUN_OPTIONS = (
 
 
 def spec_from_args(args: argparse.Namespace) -> RunSpec:
+    from emgail_jax.host.demonstration_sources import canonical
     from emgail_jax.method.config import Config, SettingError
 
     if args.resume is not None:
@@ -237,7 +256,7 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         algo=config.algo,
         seeds=args.seeds or DEFAULT_SEEDS,
         first_seed=args.seed or 0,
-        demos_path=os.path.abspath(args.demos) if args.demos else None,
+        demo_sources=tuple(map(canonical, args.demos or ())),
         demo_seed=args.demo_seed or 0,
         config=config,
         random_episodes=args.random_episodes or DEFAULT_RANDOM_EPISODES,
@@ -322,8 +341,10 @@ def train(
     checkpoint_every: int = DEFAULT_CHECKPOINT_EVERY,
     progress: bool = True,
     signals: stopping.Signals | None = None,
+    wandb_run=None,
 ) -> dict:
-    """Trains (or, with ``resume``, continues) the run ``spec`` and writes its outputs to ``out``.
+    """Trains (or, with ``resume``, continues) the run ``spec`` and writes its outputs to ``out``
+    (and the metrics to ``wandb_run``, a W&B run of :func:`~emgail_jax.host.records.start_wandb`).
 
     Returns the summary as written to ``summary.json``; its ``status`` is ``"completed"`` or
     ``"interrupted"`` (a first signal within the chunk loop of ``signals``, the command's).
@@ -358,7 +379,9 @@ def train(
     # Chunks only group iterations into compiled calls; they do not change the results.
     plan = chunks(done, config.iterations, config.chunk_size)
     signals = signals or stopping.Signals()
-    recorder = _ChunkRecorder(out, config, history, done, resume, checkpoint_every, writes, signals)
+    recorder = _ChunkRecorder(
+        out, config, history, done, resume, checkpoint_every, writes, signals, wandb_run
+    )
     if plan:
         evaluating = lambda first, length: evaluation_plan(
             first, length, config.iterations, config.eval_every
@@ -399,6 +422,7 @@ class _ChunkRecorder:
     checkpoint_every: int
     writes: bool  # process 0 of the run
     signals: stopping.Signals
+    wandb_run: object = None
 
     def __post_init__(self):
         self.last_saved = self.iteration
@@ -411,7 +435,9 @@ class _ChunkRecorder:
         from emgail_jax.host.progress import ProgressBar
 
         keep_until = self.iteration if self.resume else None
-        self.log = records.MetricsLog(self.out, keep_until=keep_until, enabled=self.writes)
+        self.log = records.MetricsLog(
+            self.out, keep_until=keep_until, enabled=self.writes, wandb_run=self.wandb_run
+        )
         fields = {"ERD": "-", "acc": "-"}
         self.bar = ProgressBar(
             "training", self.config.iterations, fields, self.iteration, enabled=progress
@@ -495,7 +521,7 @@ def _summary_header(spec: RunSpec, problem, config) -> dict:
         "random_episodes": spec.random_episodes,
         "demonstrations": {
             "source": problem.demos_source,
-            "path": spec.demos_path,
+            "path": stored_sources(spec.demo_sources),
             "seed": spec.demo_seed,
             "pairs": len(problem.demos),
             "intentions": problem.true_intentions,
@@ -683,6 +709,7 @@ def _command(
     holds the run directory's lock (taken here unless ``locked`` already)."""
     import jax
 
+    from emgail_jax.host import records
     from emgail_jax.host.checkpoints import CheckpointError, latest_iteration
     from emgail_jax.host.problem import problem_of
     from emgail_jax.host.seed_runner import seed_sharding
@@ -706,6 +733,9 @@ def _command(
         problem = problem_of(spec)
         if spec.config.responsibilities == "labels" and problem.demos.intentions is None:
             raise RunError("--responsibilities labels needs demonstrations with hidden labels")
+        logs_to_wandb = args.wandb is not None and primary
+        if logs_to_wandb:
+            records.require_wandb()
         if args.resume is None:
             if primary:
                 prepare_output(out, args.overwrite)
@@ -713,6 +743,11 @@ def _command(
             done = latest_iteration(out)
             start = "the start (it stopped before its first checkpoint)" if done is None else done
             print(f"resuming '{out}' from iteration {start}")
+        wandb_run = None
+        if logs_to_wandb:
+            header = _summary_header(spec, problem, spec.config.resolved(problem.env))
+            name = os.path.basename(os.path.abspath(out))
+            wandb_run = records.start_wandb(args.wandb, name, header)
         if problem.demos.expert_returns is None:
             print("notice: the demonstrations carry no expert_returns, so ERD is reported as null")
         if problem.demos.intentions is None:
@@ -725,7 +760,10 @@ def _command(
             checkpoint_every=args.checkpoint_every,
             progress=not args.quiet,
             signals=signals,
+            wandb_run=wandb_run,
         )
+    if wandb_run is not None:
+        records.finish_wandb(wandb_run, summary)
     return out, summary
 
 
@@ -793,10 +831,11 @@ def _main(
     import envs
     from emgail_jax.host.checkpoints import CheckpointError
     from emgail_jax.host.demonstration_files import DemonstrationError
+    from emgail_jax.host.records import WandbError
 
     try:
         out, summary = _command(args, signals, held, locked)
-    except (envs.EnvError, DemonstrationError, RunError, CheckpointError) as error:
+    except (envs.EnvError, DemonstrationError, RunError, CheckpointError, WandbError) as error:
         return _failed(f"error: {error}", 2)
     except OSError as error:  # the output cannot be created or written (permissions, full disk)
         return _failed(_write_error(error), 2)
