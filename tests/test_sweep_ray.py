@@ -111,6 +111,7 @@ def _wait_for(condition, what: str, timeout_s: float = TIMEOUT_S):
     return value
 
 
+@pytest.mark.slow  # 200 iterations twice and a third node: the suite's slowest test (2 min)
 def test_sweep_on_ray_resumes_a_cell_whose_node_was_lost(tmp_path):
     """The node running a cell is killed after the cell's first checkpoint (iteration 50): Ray
     retries the cell on the other node, which resumes it from that checkpoint, and the cell's
