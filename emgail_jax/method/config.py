@@ -47,6 +47,14 @@ class Config:
     # w_i estimated as EM does for a mixture: each intention's mean responsibility over the
     # demonstration pairs, updated every E-step), for demonstrations in unequal shares.
     prior: str = "uniform"
+    # Re-seeding an emptied intention (emgail_jax.method.reseeding, docs/no-empty-intention.md):
+    # one that holds less than half a demonstration's share for `reseed_patience` E-steps takes
+    # the worse-explained half of the largest intention's demonstrations for `reseed_window`
+    # E-steps, at most `reseed_attempts` times per intention. Off for runs written before it.
+    reseed: bool = True
+    reseed_patience: int = 10
+    reseed_window: int = 10
+    reseed_attempts: int = 3
     # Whether K is chosen from the data (`--intentions auto`): training starts with the most
     # intentions allowed, keeps those whose mixture weight holds demonstrations, and at the end
     # those the seeds agree on (emgail_jax.method.choosing): docs/choosing-k.md.
@@ -91,6 +99,11 @@ class Config:
     def __post_init__(self):
         if self.eval_every < 1:
             raise ValueError(f"eval_every must be at least 1; got {self.eval_every}")
+        for name in ("reseed_patience", "reseed_window"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be at least 1; got {getattr(self, name)}")
+        if self.reseed_attempts < 0:
+            raise ValueError(f"reseed_attempts must be at least 0; got {self.reseed_attempts}")
         for name, choices in (
             ("intention_input", INTENTION_INPUTS),
             ("responsibilities", RESPONSIBILITIES),
@@ -152,6 +165,7 @@ class Config:
         values.setdefault("eval_every", 1)
         values.setdefault("reward_from", "updated")
         values.setdefault("reward_form", "gail")
+        values.setdefault("reseed", False)
         values.pop("eval_episodes", None)  # runs written before evaluation used num_envs
         values["hidden"] = tuple(values["hidden"])
         values["trpo"] = TRPOConfig(**values["trpo"])
