@@ -64,8 +64,9 @@ def posterior_update(
 @struct.dataclass
 class Lesson:
     """Demonstration pairs the posterior learns beside the policy samples while a re-seeding
-    holds them for an intention (emgail_jax.method.reseeding): without it, Info/IntentionGAIL,
-    whose discriminator ignores gamma, would never notice a re-seeding."""
+    holds them for an intention (emgail_jax.method.reseeding): Info/IntentionGAIL's
+    discriminator ignores gamma, and its reward's log P(i | s, a) is how a re-seeding reaches
+    its policies."""
 
     active: jax.Array  # [] bool: whether any pair is held
     intentions: jax.Array  # [N] the intention each pair is taught as

@@ -544,7 +544,10 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
         )
         seen = normalized(state, batch, data)
         reseeding = state.reseeding
-        lesson = None if reseeding is None else lesson_of(reseeding, data.demos)
+        # EM-GAIL's M-step sees a re-seeding in gamma; Info/IntentionGAIL's D(s, a) ignores
+        # gamma, so its posterior learns the held demonstrations instead.
+        teaches = reseeding is not None and not algorithm.conditional_discriminator
+        lesson = lesson_of(reseeding, data.demos) if teaches else None
         e = e_step(state.posterior, seen, data.demos, state.intention_weights, lesson)
         if reseeding is not None:
             reseeding, e = reseed(reseeding, e, state.discriminator, seen, data.demos, algorithm)
