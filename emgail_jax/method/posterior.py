@@ -237,21 +237,21 @@ def make_e_step(apply: Callable, optimizer: optax.GradientTransformation, config
         flat = lambda x: x.reshape(k * m, -1)
         obs, actions = flat(batch.obs), flat(batch.executed)
         intentions = own_intention.reshape(-1)
-        train = lambda obs, actions, intentions, weights=None: posterior_update(
-            apply, optimizer, posterior, obs, actions, intentions, config.posterior_steps, weights
+        train = lambda learner, obs, actions, intentions, weights=None: posterior_update(
+            apply, optimizer, learner, obs, actions, intentions, config.posterior_steps, weights
         )
-        if lesson is None:
-            trained, metrics = train(obs, actions, intentions)
-        else:
+        trained, metrics = train(posterior, obs, actions, intentions)
+        if lesson is not None:
+            # More steps after the usual ones rather than other ones: a run without a
+            # re-seeding computes exactly what it did before the option existed.
             taught = lambda: train(
+                trained,
                 jnp.concatenate([obs, batch.expert_obs]),
                 jnp.concatenate([actions, batch.expert_actions]),
                 jnp.concatenate([intentions, lesson.intentions]),
                 jnp.concatenate([jnp.ones(k * m), lesson.weights]),
-            )
-            trained, metrics = jax.lax.cond(
-                lesson.active, taught, lambda: train(obs, actions, intentions)
-            )
+            )[0]
+            trained = jax.lax.cond(lesson.active, taught, lambda: trained)
         responsibilities = expert_responsibilities(
             apply,
             trained.params,
