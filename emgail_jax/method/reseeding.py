@@ -44,6 +44,10 @@ class Reseeding:
       target: ``[]`` the intention being re-seeded, -1 when none.
       left: ``[]`` E-steps the taken demonstrations are still held for ``target``.
       taken: ``[E]`` the demonstrations handed to ``target``.
+      donor: ``[]`` the intention they were taken from.
+      split: ``[E]`` the demonstrations the donor held when they were taken (``taken`` among
+        them): what Info/IntentionGAIL's posterior is taught, the taken ones as ``target``'s
+        and the others as the donor's, so that it does not swing the donor's whole set over.
     """
 
     empty_for: jax.Array
@@ -51,6 +55,8 @@ class Reseeding:
     target: jax.Array
     left: jax.Array
     taken: jax.Array
+    donor: jax.Array
+    split: jax.Array
 
     @classmethod
     def create(cls, intentions: int, episodes: int) -> Reseeding:
@@ -60,7 +66,13 @@ class Reseeding:
             target=jnp.int32(-1),
             left=jnp.int32(0),
             taken=jnp.zeros(episodes, bool),
+            donor=jnp.int32(-1),
+            split=jnp.zeros(episodes, bool),
         )
+
+    def taught_intentions(self) -> jax.Array:
+        """``[E]`` the intention each demonstration of :attr:`split` is taught as."""
+        return jnp.where(self.taken, jnp.maximum(self.target, 0), jnp.maximum(self.donor, 0))
 
 
 @struct.dataclass
@@ -116,13 +128,15 @@ def reseeding_step(
     def started() -> Reseeding:
         target = jnp.argmin(jnp.where(empty, share, jnp.inf)).astype(jnp.int32)
         holder = jnp.argmax(per_demonstration, -1)
-        donor = jnp.argmax(share)
+        donor = jnp.argmax(share).astype(jnp.int32)
         return Reseeding(
             empty_for=jnp.int32(0),
             reseedings=memory.reseedings.at[target].add(1),
             target=target,
             left=jnp.int32(rule.window),
             taken=worse_half(scores(holder), holder, donor),
+            donor=donor,
+            split=holder == donor,
         )
 
     def going_on() -> Reseeding:

@@ -336,12 +336,11 @@ def make_init(config: Config, env: envs.Env, networks: Networks, optimizers: Opt
 
 
 def lesson_of(memory: Reseeding, demos: DemonstrationPairs) -> Lesson:
-    """The demonstrations a re-seeding holds, as the posterior learns them."""
-    holding = memory.taken[demos.episode]
+    """The demonstrations a re-seeding split, as the posterior learns them."""
     return Lesson(
         active=memory.left > 0,
-        intentions=jnp.full(demos.episode.shape, jnp.maximum(memory.target, 0)),
-        weights=holding.astype(jnp.float32),
+        intentions=memory.taught_intentions()[demos.episode],
+        weights=memory.split[demos.episode].astype(jnp.float32),
     )
 
 
