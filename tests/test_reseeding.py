@@ -69,6 +69,17 @@ def test_an_intention_empty_for_patience_e_steps_takes_the_worst_explained_half(
     assert int(memory.target) == -1
 
 
+def test_the_split_teaches_the_taken_as_the_target_and_the_rest_as_the_donor():
+    # Demonstration 0 is intention 1's; 1-5 are the donor 0's, of which 1, 3, 5 are taken
+    # for the emptied intention 2 (of 3).
+    gamma = jnp.where((EPISODE == 0)[:, None], jnp.array([0.0, 1.0, 0.0]), jnp.array([1.0, 0, 0]))
+    _, memory = e_steps(Reseeding.create(3, 6), gamma, 3)
+    assert int(memory.target) == 2 and int(memory.donor) == 0
+    np.testing.assert_array_equal(memory.split, [False, True, True, True, True, True])
+    np.testing.assert_array_equal(memory.taken, [False, True, False, True, False, True])
+    np.testing.assert_array_equal(memory.taught_intentions()[1:], [2, 0, 2, 0, 2])
+
+
 def test_an_intention_is_re_seeded_at_most_attempts_times():
     _, memory = e_steps(Reseeding.create(2, 6), COLLAPSED, 14)
     np.testing.assert_array_equal(memory.reseedings, [0, 1])
