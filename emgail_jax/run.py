@@ -27,8 +27,9 @@ import numpy as np
 from emgail_jax.host import jax_setup
 from emgail_jax.host.run_spec import DEFAULT_RANDOM_EPISODES, RunError, RunSpec, read_summary
 
-OUTPUTS = ("summary.json", "metrics.csv", "tensorboard", "checkpoints")
+OUTPUTS = ("summary.json", "metrics.csv", "tensorboard", "checkpoints", "snapshots")
 DEFAULT_CHECKPOINT_EVERY = 50
+DEFAULT_SNAPSHOT_EVERY = 50
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -124,6 +125,13 @@ def parse_args(argv=None) -> argparse.Namespace:
         default=DEFAULT_CHECKPOINT_EVERY,
         help=f"iterations between checkpoints (default {DEFAULT_CHECKPOINT_EVERY})",
     )
+    parser.add_argument(
+        "--snapshot-every",
+        type=int,
+        default=DEFAULT_SNAPSHOT_EVERY,
+        help="iterations between snapshots of the learned networks, all kept (default "
+        f"{DEFAULT_SNAPSHOT_EVERY}; 0: none)",
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace an earlier run")
     parser.add_argument(
         "--coordinator",
@@ -174,6 +182,8 @@ _RUN_OPTIONS = (
 def spec_from_args(args: argparse.Namespace) -> RunSpec:
     from emgail_jax.method.config import Config
 
+    if args.snapshot_every < 0:
+        raise RunError("--snapshot-every must be 0 (none) or more")
     if args.resume is not None:
         given = [f"--{name.replace('_', '-')}" for name in _RUN_OPTIONS if getattr(args, name)]
         if given or args.out or args.overwrite:
@@ -313,6 +323,7 @@ def train(
     resume: bool = False,
     checkpoint_every: int = DEFAULT_CHECKPOINT_EVERY,
     progress: bool = True,
+    snapshot_every: int = DEFAULT_SNAPSHOT_EVERY,
 ) -> dict:
     """Trains (or, with ``resume``, continues) the run ``spec`` and writes its outputs to ``out``.
 
@@ -344,7 +355,9 @@ def train(
     # Chunks only group iterations into compiled calls; they do not change the results.
     plan = chunks(done, config.iterations, config.chunk_size)
     stop = _StopRequest()
-    recorder = _ChunkRecorder(out, config, history, done, resume, checkpoint_every, writes, stop)
+    recorder = _ChunkRecorder(
+        out, config, history, done, resume, checkpoint_every, writes, stop, snapshot_every
+    )
     if plan:
         evaluating = lambda first, length: evaluation_plan(
             first, length, config.iterations, config.eval_every
@@ -374,8 +387,10 @@ def train(
 
 @dataclasses.dataclass
 class _ChunkRecorder:
-    """After each chunk: the metrics to ``metrics.csv``/TensorBoard, the progress bar, and a
-    checkpoint every ``checkpoint_every`` iterations and at the end (or on a stop request)."""
+    """After each chunk: the metrics to ``metrics.csv``/TensorBoard, the progress bar, a
+    checkpoint every ``checkpoint_every`` iterations and at the end (or on a stop request), and
+    a snapshot of the learned networks after each chunk that reaches a multiple of
+    ``snapshot_every`` and at the end (0: none)."""
 
     out: str
     config: object  # the resolved Config
@@ -385,6 +400,7 @@ class _ChunkRecorder:
     checkpoint_every: int
     writes: bool  # process 0 of the run
     stop: _StopRequest
+    snapshot_every: int = DEFAULT_SNAPSHOT_EVERY
 
     def __post_init__(self):
         self.last_saved = self.iteration
@@ -421,6 +437,11 @@ class _ChunkRecorder:
             if self.writes:
                 checkpoints.save(self.out, self.iteration, host_state, self.history)
             self.last_saved, self.host_state = self.iteration, host_state
+        every = self.snapshot_every
+        if every and (finished or self.iteration // every > first // every):
+            snapshot = gather(checkpoints.snapshot_of(state))  # every process takes part
+            if self.writes:
+                checkpoints.save_snapshot(self.out, self.iteration, snapshot)
         return self.stop.signal is None
 
 
@@ -685,6 +706,7 @@ def main(argv=None) -> int:
             resume=args.resume is not None,
             checkpoint_every=args.checkpoint_every,
             progress=not args.quiet,
+            snapshot_every=args.snapshot_every,
         )
     except (envs.EnvError, DemonstrationError, RunError, CheckpointError) as error:
         print(f"error: {error}", file=sys.stderr)

@@ -19,6 +19,7 @@ TINY = [
     "--rollout-length", "20",
     "--chunk-size", "2",
     "--checkpoint-every", "2",
+    "--snapshot-every", "4",
     "--quiet",
 ]  # fmt: skip
 
@@ -40,6 +41,16 @@ def test_resume_gives_the_straight_run_bit_for_bit(straight_and_resumed):
     b = json.loads((resumed / "summary.json").read_text())["final"]
     for key in ("erd", "cluster_accuracy", "returns"):
         assert a[key] == b[key], key
+
+
+def test_snapshots_survive_a_resume_bit_for_bit(straight_and_resumed):
+    straight, resumed = straight_and_resumed
+    assert checkpoints.snapshot_iterations(str(straight)) == [4, 8]
+    assert checkpoints.snapshot_iterations(str(resumed)) == [4, 8]
+    for name in ("iteration_000004.msgpack", "iteration_000008.msgpack"):
+        assert (straight / "snapshots" / name).read_bytes() == (
+            resumed / "snapshots" / name
+        ).read_bytes()
 
 
 def test_resumed_summary_accumulates(straight_and_resumed):
