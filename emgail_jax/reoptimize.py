@@ -198,17 +198,19 @@ def run_matching(run, seed: int, iteration: int) -> np.ndarray:
     return matchings[chosen - 1]
 
 
-def demonstrations_reward(run, seed: int) -> np.ndarray:
+def demonstrations_reward(run, seed: int, parameters=None) -> np.ndarray:
     """``[K]``: learned intention i's reward per step on the demonstration pairs, weighted by
     the run's responsibilities gamma_i (every pair alike without a posterior); NaN for an
-    intention the run assigned no demonstration to."""
+    intention the run assigned no demonstration to. ``parameters`` replace the seed's reward
+    parameters (a consolidated reward)."""
     pairs = run.demonstration_pairs
     k = run.num_intentions
     if run.algorithm.learns_posterior:
         gamma = np.asarray(run.responsibilities(seed).gamma)  # [N, K]
     else:
         gamma = np.ones((pairs.observations.shape[0], k))
-    reward = run.reward(seed)
+    parameters = parameters or run.reward_parameters(seed)
+    reward = lambda obs, action, i: run.reward_function()(parameters, obs, action, i)
     per_pair = np.stack(
         [np.asarray(reward(pairs.observations, pairs.actions, i)) for i in range(k)], -1
     )  # [N, K]
@@ -217,9 +219,12 @@ def demonstrations_reward(run, seed: int) -> np.ndarray:
     return np.divide(total, weight, out=np.full(k, np.nan), where=weight > 0)
 
 
-def reoptimize(run, seeds: list[int], budget: Budget, progress: bool = True) -> dict:
+def reoptimize(
+    run, seeds: list[int], budget: Budget, progress: bool = True, parameters=None
+) -> dict:
     """Trains one policy per learned intention on each of ``seeds``' frozen rewards of ``run``
-    (all seeds vmapped in one program) and scores them."""
+    (all seeds vmapped in one program) and scores them; ``parameters`` (one per seed) replace
+    the run's :meth:`~emgail_jax.host.saved_run.SavedRun.reward_parameters`."""
     import jax
 
     k = run.num_intentions
@@ -228,9 +233,8 @@ def reoptimize(run, seeds: list[int], budget: Budget, progress: bool = True) -> 
         parameters, obs, action, intention
     )
     trainer = _fresh_trainer(run, budget, reward_fn)
-    parameters = jax.tree.map(
-        lambda *x: np.stack(x), *[run.reward_parameters(seed) for seed in seeds]
-    )
+    per_seed_parameters = parameters or [run.reward_parameters(seed) for seed in seeds]
+    parameters = jax.tree.map(lambda *x: np.stack(x), *per_seed_parameters)
     # Each seed's policies take their keys from the run's seed, one per learned intention.
     keys = np.stack(
         [jax.random.split(jax.random.PRNGKey(run.spec.first_seed + s + 1000), k) for s in seeds]
@@ -245,7 +249,7 @@ def reoptimize(run, seeds: list[int], budget: Budget, progress: bool = True) -> 
         result["success"] = success(run.problem.env, trainer, states, matching)
         result["learned_reward_per_step"] = {  # learned intentions' order
             "fresh_policies": fresh.earned[row, -FINAL_WINDOW:].mean(0),
-            "demonstrations": demonstrations_reward(run, seed),
+            "demonstrations": demonstrations_reward(run, seed, per_seed_parameters[row]),
         }
         per_seed.append(result)
     erds = [r["erd"] for r in per_seed]
@@ -363,6 +367,8 @@ def print_result(run, result: dict) -> None:
 
 
 def main(argv=None) -> int:
+    from emgail_jax.method.algorithms import REWARD_FORMS
+
     parser = argparse.ArgumentParser(
         prog="python -m emgail_jax.reoptimize", description=__doc__.split("\n")[0]
     )
@@ -379,7 +385,21 @@ def main(argv=None) -> int:
     parser.add_argument(
         "--cache", default=None, help=f"true-reward baselines (default {default_cache()})"
     )
-    parser.add_argument("--out", default=None, help="default: RUN_DIR/reoptimize.json")
+    parser.add_argument(
+        "--consolidate",
+        type=int,
+        default=0,
+        metavar="STEPS",
+        help="first refit each discriminator STEPS steps against every snapshot's policy "
+        "(emgail_jax.host.consolidation; default 0: the run's reward as it is)",
+    )
+    parser.add_argument(
+        "--reward-form",
+        default=None,
+        choices=REWARD_FORMS,
+        help="the reward the discriminator defines (default: the run's)",
+    )
+    parser.add_argument("--out", default=None, help="default: RUN_DIR/reoptimize[-...].json")
     parser.add_argument("--quiet", action="store_true")
     args = parser.parse_args(argv)
     jax_setup.setup(host_devices=1)
@@ -390,33 +410,68 @@ def main(argv=None) -> int:
     from emgail_jax.host.demonstration_files import DemonstrationError
     from emgail_jax.host.run_spec import RunError
     from emgail_jax.host.saved_run import SavedRun
+    from emgail_jax.method.algorithms import make_algorithm
 
     try:
         if args.iterations is not None and args.iterations < 1:
             raise RunError("--iterations must be at least 1")
         if args.gamma is not None and not 0 < args.gamma <= 1:
             raise RunError("--gamma must be in (0, 1]")
+        if args.consolidate < 0:
+            raise RunError("--consolidate must be 0 (none) or more steps")
         run = SavedRun.open(args.run_dir, snapshot=args.snapshot)
         seeds = list(range(run.spec.seeds)) if args.seed is None else [args.seed]
         run.seed_state(seeds[0])  # checks --seed
+        if args.reward_form is not None:
+            config = run.config
+            run.algorithm = make_algorithm(config.algo, config.info_weight, args.reward_form)
+        parameters, consolidation = None, None
+        if args.consolidate:
+            parameters, consolidation = consolidated(run, seeds, args.consolidate)
     except (RunError, CheckpointError, envs.EnvError, DemonstrationError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     budget = default_budget(run)
     budget = Budget(args.iterations or budget.iterations, args.gamma or budget.gamma)
-    result = reoptimize(run, seeds, budget, progress=not args.quiet)
+    result = reoptimize(run, seeds, budget, progress=not args.quiet, parameters=parameters)
+    result["reward_form"] = run.algorithm.reward_form
+    result["consolidation"] = consolidation
     result["baseline"] = None
     if args.baseline:
         cache = args.cache or default_cache()
         result["baseline"] = true_reward_baseline(run, budget, cache, not args.quiet)
-    name = (
-        "reoptimize.json" if args.snapshot is None else f"reoptimize-snapshot-{args.snapshot}.json"
-    )
-    path = args.out or os.path.join(args.run_dir, name)
+    path = args.out or os.path.join(args.run_dir, default_name(args))
     records.write_json(path, result)
     print_result(run, records.to_json_value(result))
     print(f"wrote {path}")
     return 0
+
+
+def default_name(args) -> str:
+    """``reoptimize[-snapshot-ITER][-consolidated-STEPS][-FORM].json``"""
+    parts = ["reoptimize"]
+    if args.snapshot is not None:
+        parts.append(f"snapshot-{args.snapshot}")
+    if args.consolidate:
+        parts.append(f"consolidated-{args.consolidate}")
+    if args.reward_form:
+        parts.append(args.reward_form)
+    return "-".join(parts) + ".json"
+
+
+def consolidated(run, seeds: list[int], steps: int):
+    """Every seed's consolidated reward parameters and the refit's losses."""
+    import jax
+
+    from emgail_jax.host.consolidation import consolidated_parameters
+
+    parameters, metrics = [], []
+    for seed in seeds:
+        key = jax.random.PRNGKey(run.spec.first_seed + seed + 2000)
+        found, losses = consolidated_parameters(run, seed, steps, key)
+        parameters.append(found)
+        metrics.append({"run_seed": seed, "steps": steps, **losses})
+    return parameters, metrics
 
 
 if __name__ == "__main__":

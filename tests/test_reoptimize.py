@@ -95,6 +95,7 @@ def test_a_snapshot_is_reoptimised_on_its_own_networks(tiny_run, reoptimized):
         (["--seed", "5"], "the run has seeds 0..1"),
         (["--gamma", "0"], "--gamma must be in (0, 1]"),
         (["--iterations", "0"], "--iterations must be at least 1"),
+        (["--consolidate", "-1"], "--consolidate must be 0 (none) or more steps"),
     ],
 )
 def test_bad_input_gives_one_line_and_exit_code_2(tiny_run, capsys, extra, message):
@@ -120,3 +121,15 @@ def test_demonstrations_reward_weights_pairs_by_their_responsibilities(saved):
         per_pair = np.asarray(reward(expert.observations, expert.actions, i))
         expected = (gamma[:, i] * per_pair).sum() / gamma[:, i].sum()
         np.testing.assert_allclose(earned[i], expected, rtol=1e-5)
+
+
+def test_a_consolidated_reward_in_the_logit_form(tiny_run, reoptimized):
+    first, _ = reoptimized
+    args = [str(tiny_run), "--iterations", "2", "--consolidate", "5", "--reward-form", "logit"]
+    assert reoptimize.main([*args, "--no-baseline", "--quiet"]) == 0
+    result = json.loads((tiny_run / "reoptimize-consolidated-5-logit.json").read_text())
+    assert result["reward_form"] == "logit" and first["reward_form"] == "gail"
+    assert [c["run_seed"] for c in result["consolidation"]] == [0, 1]
+    assert all(c["steps"] == 5 for c in result["consolidation"])
+    earned = result["per_seed"][0]["learned_reward_per_step"]["demonstrations"]
+    assert earned != first["per_seed"][0]["learned_reward_per_step"]["demonstrations"]
