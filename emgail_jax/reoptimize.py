@@ -394,6 +394,13 @@ def main(argv=None) -> int:
         "(emgail_jax.host.consolidation; default 0: the run's reward as it is)",
     )
     parser.add_argument(
+        "--consolidate-penalty",
+        type=float,
+        default=0.0,
+        metavar="WEIGHT",
+        help="with --consolidate: the refit's gradient penalty (default 0: none)",
+    )
+    parser.add_argument(
         "--reward-form",
         default=None,
         choices=REWARD_FORMS,
@@ -419,6 +426,8 @@ def main(argv=None) -> int:
             raise RunError("--gamma must be in (0, 1]")
         if args.consolidate < 0:
             raise RunError("--consolidate must be 0 (none) or more steps")
+        if args.consolidate_penalty < 0 or (args.consolidate_penalty and not args.consolidate):
+            raise RunError("--consolidate-penalty is a weight >= 0 and goes with --consolidate")
         run = SavedRun.open(args.run_dir, snapshot=args.snapshot)
         seeds = list(range(run.spec.seeds)) if args.seed is None else [args.seed]
         run.seed_state(seeds[0])  # checks --seed
@@ -427,7 +436,9 @@ def main(argv=None) -> int:
             run.algorithm = make_algorithm(config.algo, config.info_weight, args.reward_form)
         parameters, consolidation = None, None
         if args.consolidate:
-            parameters, consolidation = consolidated(run, seeds, args.consolidate)
+            parameters, consolidation = consolidated(
+                run, seeds, args.consolidate, args.consolidate_penalty
+            )
     except (RunError, CheckpointError, envs.EnvError, DemonstrationError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
@@ -454,12 +465,14 @@ def default_name(args) -> str:
         parts.append(f"snapshot-{args.snapshot}")
     if args.consolidate:
         parts.append(f"consolidated-{args.consolidate}")
+    if args.consolidate_penalty:
+        parts.append(f"penalty-{args.consolidate_penalty:g}")
     if args.reward_form:
         parts.append(args.reward_form)
     return "-".join(parts) + ".json"
 
 
-def consolidated(run, seeds: list[int], steps: int):
+def consolidated(run, seeds: list[int], steps: int, gradient_penalty: float = 0.0):
     """Every seed's consolidated reward parameters and the refit's losses."""
     import jax
 
@@ -468,9 +481,11 @@ def consolidated(run, seeds: list[int], steps: int):
     parameters, metrics = [], []
     for seed in seeds:
         key = jax.random.PRNGKey(run.spec.first_seed + seed + 2000)
-        found, losses = consolidated_parameters(run, seed, steps, key)
+        found, losses = consolidated_parameters(run, seed, steps, key, gradient_penalty)
         parameters.append(found)
-        metrics.append({"run_seed": seed, "steps": steps, **losses})
+        metrics.append(
+            {"run_seed": seed, "steps": steps, "gradient_penalty": gradient_penalty, **losses}
+        )
     return parameters, metrics
 
 

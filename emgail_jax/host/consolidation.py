@@ -65,12 +65,15 @@ def snapshot_policy_samples(run, seed: int, key: jax.Array, iterations=None):
     return np.concatenate(obs, 1), np.concatenate(executed, 1)
 
 
-def consolidated_parameters(run, seed: int, steps: int, key: jax.Array) -> tuple[dict, dict]:
+def consolidated_parameters(
+    run, seed: int, steps: int, key: jax.Array, gradient_penalty: float = 0.0
+) -> tuple[dict, dict]:
     """``(reward parameters, metrics)``: :meth:`SavedRun.reward_parameters` of ``seed`` with
     its discriminator trained ``steps`` more full-batch steps (the run's optimiser and
     learning rate, from its final state) on the expert pairs weighted by the final
-    responsibilities against the policy samples of every snapshot; the metrics are those of
-    the M-step's loss before and after."""
+    responsibilities against the policy samples of every snapshot, with the M-step's gradient
+    penalty of weight ``gradient_penalty``; the metrics are those of the M-step's loss before
+    and after."""
     parameters = run.reward_parameters(seed)
     state = run.seed_state(seed)
     algorithm, config, k = run.algorithm, run.config, run.num_intentions
@@ -90,6 +93,7 @@ def consolidated_parameters(run, seed: int, steps: int, key: jax.Array) -> tuple
         policy_obs=normalize(obs),
         policy_actions=executed,
         policy_conditions=algorithm.discriminator_condition(own, k),
+        gradient_penalty=gradient_penalty,
     )
     apply = run.networks.discriminator.apply
     optimizer = make_optimizers(config).discriminator
