@@ -4,6 +4,7 @@ demonstrations they write (format: README, "Demonstrations format").
     python -m emgail_jax.experts --env ENV               # train, checkpoint, score, write demos
     python -m emgail_jax.experts --env ENV --evaluate    # score the shipped experts only
     python -m emgail_jax.experts --env ENV --demos-only  # rewrite the demos from the checkpoint
+    python -m emgail_jax.experts --env ENV --export-minari [--out DIR]  # the demos as Minari
 
 Training vmaps the intentions and runs ``--seeds`` independent seeds of each (sharded over the
 host devices, so both cores work); the best seed of every intention, by its own deterministic
@@ -11,7 +12,10 @@ return over the last iterations, becomes that intention's expert. Its policy and
 normaliser are saved with orbax under ``emgail_jax/data/experts/ENV`` (a few tens of kB), with
 ``meta.json`` (training settings, returns, quality). The demonstrations are the experts'
 deterministic (mean-action) episodes: 5 x 500 = 2500 pairs per intention (reacher 30 x 50),
-with the hidden labels and each expert's mean true return, in ``emgail_jax/data/ENV.npz``.
+with the hidden labels, each expert's mean true return, every pair's reward and every episode's
+final observation, in ``emgail_jax/data/ENV.npz``. ``--export-minari`` writes them as Minari
+datasets, one per intention (``emgail_jax.host.minari_datasets``), under ``--out`` (default: the
+local Minari datasets directory, ``MINARI_DATASETS_PATH`` or ``~/.minari/datasets``).
 """
 
 from __future__ import annotations
@@ -366,6 +370,23 @@ def _train_and_save(env, spec: ExpertSpec, args, root: str, meta: dict, only, ke
     return experts, meta
 
 
+def export_minari(env, out: str | None) -> int:
+    """Writes the shipped demonstrations of ``env`` as Minari datasets under ``out``."""
+    from emgail_jax.host import demonstration_files, minari_datasets
+    from emgail_jax.host.problem import shipped_demos_path
+
+    root = os.path.abspath(out) if out else minari_datasets.datasets_root()
+    try:
+        demos = demonstration_files.load(shipped_demos_path(env.name), env)
+        ids = minari_datasets.write(demos, env, root)
+    except demonstration_files.DemonstrationError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    for identifier in ids:
+        print(f"wrote minari:{identifier} under {root}")
+    return 0
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m emgail_jax.experts", description=__doc__.split("\n")[0]
@@ -374,7 +395,12 @@ def main(argv=None) -> int:
     parser.add_argument("--seeds", type=int, default=2, help="seeds per intention; best kept")
     parser.add_argument("--iterations", type=int, default=None, help="default: the env's spec")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", default=None, help="data root (default: the package's data)")
+    parser.add_argument(
+        "--out",
+        default=None,
+        help="data root (default: the package's data); with --export-minari the Minari "
+        "datasets directory (default: MINARI_DATASETS_PATH, else ~/.minari/datasets)",
+    )
     parser.add_argument(
         "--only",
         nargs="+",
@@ -384,6 +410,11 @@ def main(argv=None) -> int:
     what = parser.add_mutually_exclusive_group()
     what.add_argument("--evaluate", action="store_true", help="only score the saved experts")
     what.add_argument("--demos-only", action="store_true", help="rewrite demos from the checkpoint")
+    what.add_argument(
+        "--export-minari",
+        action="store_true",
+        help="write the shipped demonstrations as Minari datasets, one per intention",
+    )
     parser.add_argument("--quiet", action="store_true")
     args = parser.parse_args(argv)
     if args.seeds < 1 or (args.iterations is not None and args.iterations < 1):
@@ -395,6 +426,8 @@ def main(argv=None) -> int:
     from emgail_jax.host import records
 
     env = envs.make(args.env)
+    if args.export_minari:
+        return export_minari(env, args.out)
     spec = SPECS[args.env]
     if args.iterations:
         spec = dataclasses.replace(spec, iterations=args.iterations)

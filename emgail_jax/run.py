@@ -25,7 +25,13 @@ import sys
 import numpy as np
 
 from emgail_jax.host import jax_setup
-from emgail_jax.host.run_spec import DEFAULT_RANDOM_EPISODES, RunError, RunSpec, read_summary
+from emgail_jax.host.run_spec import (
+    DEFAULT_RANDOM_EPISODES,
+    RunError,
+    RunSpec,
+    read_summary,
+    stored_sources,
+)
 
 OUTPUTS = ("summary.json", "metrics.csv", "tensorboard", "checkpoints", "snapshots")
 DEFAULT_CHECKPOINT_EVERY = 50
@@ -61,7 +67,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     parser.add_argument("--resume", default=None, metavar="DIR", help="continue the run in DIR")
     parser.add_argument(
-        "--demos", default=None, help="demonstrations .npz (README, Demonstrations format)"
+        "--demos",
+        nargs="+",
+        default=None,
+        metavar="SOURCE",
+        help="demonstrations: an .npz file, a Minari dataset (minari:ID or its directory), or "
+        "several of them, one intention each (README, Demonstrations format)",
     )
     parser.add_argument("--radius", type=float, default=None, help="driver: radius of path 2")
     parser.add_argument("--seed", type=int, default=None, help="first training seed")
@@ -141,6 +152,13 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     parser.add_argument("--num-processes", type=int, default=None, help="with --coordinator")
     parser.add_argument("--process-id", type=int, default=None, help="with --coordinator")
+    parser.add_argument(
+        "--wandb",
+        default=None,
+        metavar="PROJECT",
+        help="also log the metrics, config and final summary to this Weights & Biases project "
+        "(needs the extra: pip install 'emgail-jax[wandb]'; WANDB_MODE=offline keeps it local)",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress bar or table")
     return parser.parse_args(argv)
 
@@ -180,6 +198,7 @@ _RUN_OPTIONS = (
 
 
 def spec_from_args(args: argparse.Namespace) -> RunSpec:
+    from emgail_jax.host.demonstration_sources import canonical
     from emgail_jax.method.config import Config
 
     if args.snapshot_every < 0:
@@ -238,7 +257,7 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         algo=config.algo,
         seeds=args.seeds or 4,
         first_seed=args.seed or 0,
-        demos_path=os.path.abspath(args.demos) if args.demos else None,
+        demo_sources=tuple(map(canonical, args.demos or ())),
         demo_seed=args.demo_seed or 0,
         config=config,
         random_episodes=args.random_episodes or DEFAULT_RANDOM_EPISODES,
@@ -323,9 +342,11 @@ def train(
     resume: bool = False,
     checkpoint_every: int = DEFAULT_CHECKPOINT_EVERY,
     progress: bool = True,
+    wandb_run=None,
     snapshot_every: int = DEFAULT_SNAPSHOT_EVERY,
 ) -> dict:
-    """Trains (or, with ``resume``, continues) the run ``spec`` and writes its outputs to ``out``.
+    """Trains (or, with ``resume``, continues) the run ``spec`` and writes its outputs to ``out``
+    (and the metrics to ``wandb_run``, a W&B run of :func:`~emgail_jax.host.records.start_wandb`).
 
     Returns the summary as written to ``summary.json``; its ``status`` is ``"completed"`` or
     ``"interrupted"``. In a run of several processes (``jax.distributed``), every process trains
@@ -356,7 +377,16 @@ def train(
     plan = chunks(done, config.iterations, config.chunk_size)
     stop = _StopRequest()
     recorder = _ChunkRecorder(
-        out, config, history, done, resume, checkpoint_every, writes, stop, snapshot_every
+        out,
+        config,
+        history,
+        done,
+        resume,
+        checkpoint_every,
+        writes,
+        stop,
+        wandb_run,
+        snapshot_every,
     )
     if plan:
         evaluating = lambda first, length: evaluation_plan(
@@ -400,6 +430,7 @@ class _ChunkRecorder:
     checkpoint_every: int
     writes: bool  # process 0 of the run
     stop: _StopRequest
+    wandb_run: object = None
     snapshot_every: int = DEFAULT_SNAPSHOT_EVERY
 
     def __post_init__(self):
@@ -412,7 +443,9 @@ class _ChunkRecorder:
         from emgail_jax.host.progress import ProgressBar
 
         keep_until = self.iteration if self.resume else None
-        self.log = records.MetricsLog(self.out, keep_until=keep_until, enabled=self.writes)
+        self.log = records.MetricsLog(
+            self.out, keep_until=keep_until, enabled=self.writes, wandb_run=self.wandb_run
+        )
         fields = {"ERD": "-", "acc": "-"}
         self.bar = ProgressBar(
             "training", self.config.iterations, fields, self.iteration, enabled=progress
@@ -486,7 +519,7 @@ def _summary_header(spec: RunSpec, problem, config) -> dict:
         "random_episodes": spec.random_episodes,
         "demonstrations": {
             "source": problem.demos_source,
-            "path": spec.demos_path,
+            "path": stored_sources(spec.demo_sources),
             "seed": spec.demo_seed,
             "pairs": len(problem.demos),
             "intentions": problem.true_intentions,
@@ -677,10 +710,13 @@ def main(argv=None) -> int:
     import jax
 
     import envs
+    from emgail_jax.host import records
     from emgail_jax.host.checkpoints import CheckpointError, latest_iteration
     from emgail_jax.host.demonstration_files import DemonstrationError
     from emgail_jax.host.problem import problem_of
+    from emgail_jax.host.records import WandbError
 
+    wandb_run = None
     try:
         spec = spec_from_args(args)
         out = args.resume or args.out or default_output(spec.env, spec.algo)
@@ -690,11 +726,18 @@ def main(argv=None) -> int:
         if spec.config.responsibilities == "labels" and problem.demos.intentions is None:
             raise RunError("--responsibilities labels needs demonstrations with hidden labels")
         primary = jax.process_index() == 0
+        logs_to_wandb = args.wandb is not None and primary
+        if logs_to_wandb:
+            records.require_wandb()
         if args.resume is None:
             if primary:
                 prepare_output(out, args.overwrite)
         else:
             print(f"resuming '{out}' from iteration {latest_iteration(out)}")
+        if logs_to_wandb:
+            header = _summary_header(spec, problem, spec.config.resolved(problem.env))
+            name = os.path.basename(os.path.abspath(out))
+            wandb_run = records.start_wandb(args.wandb, name, header)
         if problem.demos.expert_returns is None:
             print("notice: the demonstrations carry no expert_returns, so ERD is reported as null")
         if problem.demos.intentions is None:
@@ -706,9 +749,10 @@ def main(argv=None) -> int:
             resume=args.resume is not None,
             checkpoint_every=args.checkpoint_every,
             progress=not args.quiet,
+            wandb_run=wandb_run,
             snapshot_every=args.snapshot_every,
         )
-    except (envs.EnvError, DemonstrationError, RunError, CheckpointError) as error:
+    except (envs.EnvError, DemonstrationError, RunError, CheckpointError, WandbError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     except OSError as error:  # the output cannot be created or written (permissions, full disk)
@@ -719,6 +763,8 @@ def main(argv=None) -> int:
             file=sys.stderr,
         )
         return 2
+    if wandb_run is not None:
+        records.finish_wandb(wandb_run, summary)
     if jax.process_index() == 0:
         if not args.quiet:
             print_summary(summary)

@@ -3,6 +3,7 @@ compilation cache and a fast compile, all before JAX creates its backend."""
 
 import os
 import pathlib
+import warnings
 
 import pytest
 
@@ -61,3 +62,62 @@ def random_batch():
         )
 
     return make
+
+
+class MinariUser:
+    """Writes Minari datasets with Minari's own API (``create_dataset_from_buffers``), as a
+    user of Minari would, for the tests of ``--demos``; under ``MINARI_DATASETS_PATH``."""
+
+    @staticmethod
+    def buffers(demos, intention, **replaced):
+        """Minari episode buffers of one intention's demonstrations, as a user would make them."""
+        import numpy as np
+        from minari.data_collector import EpisodeBuffer
+
+        bounds = [*np.flatnonzero(demos.episode_starts), len(demos)]
+        buffers = []
+        for episode in np.unique(demos.episode[demos.intentions == intention]):
+            first, end = bounds[episode], bounds[episode + 1]
+            fields = {
+                "observations": np.concatenate(
+                    [demos.observations[first:end], demos.final_observations[episode][None]]
+                ),
+                "actions": demos.actions[first:end],
+                "rewards": demos.rewards[first:end].astype(np.float64),
+                "terminations": np.zeros(end - first, bool),
+                "truncations": np.arange(end - first) == end - first - 1,
+            }
+            buffers.append(EpisodeBuffer(**{**fields, **replaced}))
+        return buffers
+
+    @staticmethod
+    def dataset(name, buffers, obs_dim=10, act_dim=1, **spaces):
+        """A dataset written by Minari's own ``create_dataset_from_buffers``; its directory."""
+        import gymnasium
+        import minari
+        import numpy as np
+
+        with warnings.catch_warnings():  # about the env spec it has not been given
+            warnings.simplefilter("ignore", UserWarning)
+            dataset = minari.create_dataset_from_buffers(
+                f"user/{name}-v0",
+                buffers,
+                observation_space=spaces.get(
+                    "observation_space",
+                    gymnasium.spaces.Box(-np.inf, np.inf, (obs_dim,), np.float32),
+                ),
+                action_space=spaces.get(
+                    "action_space", gymnasium.spaces.Box(-1.0, 1.0, (act_dim,), np.float32)
+                ),
+                algorithm_name="a user's expert",
+                description="a test dataset",
+                author="a user",
+                author_email="user@example.org",
+                code_permalink="https://example.org/code",
+            )
+        return str(dataset.storage.data_path.parent)
+
+
+@pytest.fixture(scope="session")
+def minari_user():
+    return MinariUser

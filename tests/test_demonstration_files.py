@@ -82,10 +82,13 @@ def _inf_actions():
     [
         (_without("actions"), "lacks the key\\(s\\) actions"),
         (_without("episode_starts"), "lacks the key\\(s\\) episode_starts"),
-        (_with(observations=np.zeros((4, 9), np.float32)), "obs dim 9 .*driver' has 10"),
+        (
+            _with(observations=np.zeros((4, 9), np.float32)),
+            "obs dim 9 .*driver' expects obs dim 10",
+        ),
         (
             _with(actions=np.zeros((4, 2), np.float32)),
-            "action dim 2, but env 'driver' has 10 and 1",
+            "action dim 2, but env 'driver' expects obs dim 10 and action dim 1",
         ),
         (_nan_obs(), "observations contain NaN or inf"),
         (_inf_actions(), "actions contain NaN or inf"),

@@ -134,7 +134,7 @@ def test_actions_outside_the_range_are_clipped_as_the_env_executes_them(driver, 
     path = str(tmp_path / "raw.npz")
     demos = dataclasses.replace(driver.demos, actions=raw)
     demonstration_files.save(demos, path)
-    problem = make_problem("driver", demos_path=path)
+    problem = make_problem("driver", demo_sources=path)
     np.testing.assert_array_equal(problem.demos.actions, np.clip(raw, -1.0, 1.0))
     assert problem.demos.actions.dtype == np.float32
     # The file itself is left as it is.

@@ -179,3 +179,110 @@ def test_machine_facts_name_the_cpu_its_vector_extensions_and_the_packages(tmp_p
 def test_machine_facts_without_cpuinfo_still_name_the_machine(tmp_path):
     facts = records.machine_facts(str(tmp_path / "missing"))
     assert facts["cpu"] and facts["cpu_features"] == []
+
+
+# A W&B offline run keeps everything in its transaction log, run-ID.wandb: a 7-byte header
+# (":W&B", magic, version), then LevelDB-log blocks of 32 KiB holding records with a 7-byte
+# header each (CRC-32, length, type: full, or first / middle / last parts of one record), each
+# record a wandb_internal_pb2.Record. wandb has no reader of its own for it in Python.
+_BLOCK, _HEADER, _FULL, _LAST = 32768, 7, 1, 4
+
+
+def _wandb_records(path):
+    from wandb.proto import wandb_internal_pb2
+
+    data = path.read_bytes()
+    assert data[:4] == b":W&B"
+    position, pending = _HEADER, b""
+    while position + _HEADER <= len(data):
+        left = _BLOCK - position % _BLOCK
+        if left < _HEADER:  # a block's tail too short for a record header is padding
+            position += left
+            continue
+        _, length, kind = struct.unpack("<IHB", data[position : position + _HEADER])
+        pending += data[position + _HEADER : position + _HEADER + length]
+        position += _HEADER + length
+        if kind in (_FULL, _LAST):
+            record = wandb_internal_pb2.Record()
+            record.ParseFromString(pending)
+            pending = b""
+            yield record
+
+
+def _items(update):
+    return {"/".join(item.nested_key) or item.key: json.loads(item.value_json) for item in update}
+
+
+def _offline_run(wandb_dir):
+    """``(project, history {step: {key: value}}, config, summary)`` of the one offline run
+    there."""
+    (path,) = wandb_dir.glob("wandb/offline-run-*/run-*.wandb")
+    history, config, summary = {}, {}, {}
+    for record in _wandb_records(path):
+        kind = record.WhichOneof("record_type")
+        if kind == "run":  # the config given to wandb.init
+            config.update(_items(record.run.config.update))
+            project = record.run.project
+        elif kind == "history":
+            row = _items(record.history.item)
+            history[row.pop("_step")] = {k: v for k, v in row.items() if not k.startswith("_")}
+        elif kind == "config":
+            config.update(_items(record.config.update))
+        elif kind == "summary":
+            summary.update(_items(record.summary.update))
+    return project, history, config, summary
+
+
+DRIVER_3 = [
+    *("--env", "driver", "--seeds", "2", "--iterations", "3", "--num-envs", "2"),
+    *("--rollout-length", "20", "--chunk-size", "1", "--quiet"),
+]
+
+
+def test_a_wandb_offline_run_holds_the_metrics_config_and_summary_of_a_run(tmp_path, monkeypatch):
+    from emgail_jax import run
+
+    monkeypatch.setenv("WANDB_MODE", "offline")
+    monkeypatch.setenv("WANDB_DIR", str(tmp_path))
+    monkeypatch.setenv("WANDB_SILENT", "true")
+    out = tmp_path / "run"
+    assert run.main([*DRIVER_3, "--out", str(out), "--wandb", "emgail-test"]) == 0
+    import wandb
+
+    wandb.teardown()  # W&B's service writes the log after finish(); at the latest as it stops
+    project, history, config, summary = _offline_run(tmp_path)
+    assert project == "emgail-test"
+    with open(out / "metrics.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    expected = {}
+    for row in rows:
+        step, seed = int(row.pop("iteration")), int(row.pop("seed"))
+        for name, cell in row.items():
+            if cell:
+                expected.setdefault(step, {})[f"seed_{seed}/{name}"] = float(cell)
+    assert sorted(history) == [1, 2, 3] == sorted(expected)
+    for step, values in expected.items():
+        assert sorted(history[step]) == sorted(values)  # the finite metrics, as TensorBoard
+        for key, value in values.items():  # metrics.csv keeps 6 significant digits
+            assert history[step][key] == pytest.approx(value, rel=1e-5, abs=1e-12), key
+    stored = json.loads((out / "summary.json").read_text())
+    assert config["env"] == "driver" and config["algo"] == "emgail"
+    assert config["config"] == stored["config"]
+    assert summary["status"] == "completed"
+    assert summary["final/erd"] == pytest.approx(stored["final"]["erd"])
+    assert summary["final/cluster_accuracy"] == pytest.approx(stored["final"]["cluster_accuracy"])
+
+
+def test_wandb_missing_is_a_one_line_error_before_anything_is_written(
+    tmp_path, monkeypatch, capsys
+):
+    import sys
+
+    from emgail_jax import run
+
+    monkeypatch.setitem(sys.modules, "wandb", None)  # import wandb raises ImportError
+    out = tmp_path / "run"
+    assert run.main([*DRIVER_3, "--out", str(out), "--wandb", "emgail-test"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "error: --wandb needs the wandb package: pip install 'emgail-jax[wandb]'"
+    assert not out.exists()

@@ -11,7 +11,13 @@ actions        [N, act_dim]   float32
 episode_starts [N]            bool, True on the first pair of each episode
 intentions     [N] optional   int, hidden intention labels (used only by the metrics)
 expert_returns [K] optional   true return of each intention's expert (for ERD)
+rewards        [N] optional   float32, each pair's true reward under its own intention
+final_obs...   [E, obs_dim]   ``final_observations``, optional: the observation after each
+                              episode's last action
 ============== ============== ================================================================
+
+The last two are what a Minari dataset holds beside the pairs (``minari_datasets``); training
+reads neither.
 """
 
 from __future__ import annotations
@@ -39,6 +45,7 @@ def save(demos: Demonstrations, path: str) -> None:
 
 
 REQUIRED = ("observations", "actions", "episode_starts")
+OPTIONAL = ("intentions", "expert_returns", "rewards", "final_observations")
 
 
 def _starts_like_numpy(path: str) -> bool:
@@ -81,7 +88,7 @@ def load(path: str, env: envs.Env | None = None) -> Demonstrations:
             f"'{path}' lacks the key(s) {', '.join(missing)}; "
             f"a demonstrations file needs {', '.join(REQUIRED)}"
         )
-    for name in ("observations", "actions", "episode_starts", "intentions", "expert_returns"):
+    for name in (*REQUIRED, *OPTIONAL):
         if name in arrays and not (
             np.issubdtype(arrays[name].dtype, np.number) or arrays[name].dtype == bool
         ):
@@ -94,9 +101,15 @@ def load(path: str, env: envs.Env | None = None) -> Demonstrations:
         episode_starts=arrays["episode_starts"].astype(bool),
         intentions=arrays.get("intentions"),
         expert_returns=arrays.get("expert_returns"),
+        rewards=_float32(arrays.get("rewards")),
+        final_observations=_float32(arrays.get("final_observations")),
     )
     validate(demos, env, source=f"'{path}'")
     return demos
+
+
+def _float32(values: np.ndarray | None) -> np.ndarray | None:
+    return None if values is None else values.astype(np.float32)
 
 
 def validate(demos: Demonstrations, env: envs.Env | None = None, source: str = "demos") -> None:
@@ -132,15 +145,34 @@ def validate(demos: Demonstrations, env: envs.Env | None = None, source: str = "
                 f"{source}: expert_returns has {len(returns)} entries but the labels name "
                 f"{demos.num_intentions} intentions"
             )
+    if demos.rewards is not None and (
+        demos.rewards.shape != (n,) or not np.all(np.isfinite(demos.rewards))
+    ):
+        raise DemonstrationError(f"{source}: rewards must be a finite [N] vector, one per pair")
+    finals = demos.final_observations
+    if finals is not None and (
+        finals.shape != (demos.episodes, obs.shape[1]) or not np.all(np.isfinite(finals))
+    ):
+        raise DemonstrationError(
+            f"{source}: final_observations must be finite [episodes, obs_dim] = "
+            f"[{demos.episodes}, {obs.shape[1]}]; got shape {finals.shape}"
+        )
     if env is not None:
-        if obs.shape[1] != env.observation_size or act.shape[1] != env.action_size:
-            raise DemonstrationError(
-                f"{source}: pairs have obs dim {obs.shape[1]} and action dim {act.shape[1]}, "
-                f"but env '{env.name}' has {env.observation_size} and {env.action_size}"
-            )
+        check_dimensions(source, obs.shape[1], act.shape[1], env)
         k = demos.num_intentions
         if k is not None and k > env.max_intentions:
             raise DemonstrationError(
                 f"{source}: labels name {k} intentions but env '{env.name}' has only "
                 f"{env.max_intentions}"
             )
+
+
+def check_dimensions(source: str, obs_dim: int, act_dim: int, env: envs.Env) -> None:
+    """Refuses pairs of another observation or action layout than ``env``'s (recorded in
+    another simulator, or for another env)."""
+    if obs_dim != env.observation_size or act_dim != env.action_size:
+        raise DemonstrationError(
+            f"{source}: pairs have obs dim {obs_dim} and action dim {act_dim}, but env "
+            f"'{env.name}' expects obs dim {env.observation_size} and action dim "
+            f"{env.action_size}"
+        )

@@ -5,13 +5,14 @@ from __future__ import annotations
 import dataclasses
 import functools
 import os
+from collections.abc import Sequence
 from importlib import resources
 
 import jax
 import numpy as np
 
 import envs
-from emgail_jax.host import demonstration_files
+from emgail_jax.host import demonstration_files, demonstration_sources
 from emgail_jax.host.run_spec import DEFAULT_RANDOM_EPISODES, RunSpec
 from emgail_jax.method import demonstrations
 from emgail_jax.method.rollout import episode_returns, uniform_random_policy
@@ -74,21 +75,24 @@ def default_demos(env: envs.Env, seed: int = 0) -> tuple[demonstrations.Demonstr
 def make_problem(
     env_name: str,
     intentions: int | None = None,
-    demos_path: str | None = None,
+    demo_sources: str | Sequence[str] | None = (),
     env_options: dict | None = None,
     demo_seed: int = 0,
     random_episodes: int = DEFAULT_RANDOM_EPISODES,
 ) -> Problem:
-    """Builds the env and loads (or generates) demonstrations for its first K intentions.
+    """Builds the env and loads (``demo_sources``: a file, or the sources of
+    ``demonstration_sources``) or generates demonstrations for its first K intentions.
 
     Raises ``envs.EnvError`` / ``demos.DemonstrationError`` with one-line messages.
     """
     env_options = env_options or {}
-    if demos_path is not None:
+    if isinstance(demo_sources, str):  # one file
+        demo_sources = (demo_sources,)
+    if demo_sources:
         probe = envs.make(env_name, **env_options)
-        demos = demonstration_files.load(demos_path, probe)
+        demos = demonstration_sources.load(demo_sources, probe)
         intentions = demos.num_intentions if intentions is None else intentions
-        source = demos_path
+        source = " + ".join(demo_sources)
         env = envs.make(env_name, intentions=intentions, **env_options)
         demos = _first_intentions(demos, env)
     else:
@@ -104,7 +108,7 @@ def problem_of(spec: RunSpec) -> Problem:
     return make_problem(
         spec.env,
         spec.intentions,
-        spec.demos_path,
+        spec.demo_sources,
         spec.env_options,
         spec.demo_seed,
         spec.random_episodes,

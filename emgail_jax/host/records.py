@@ -1,7 +1,11 @@
-"""What a run leaves on disk: ``metrics.csv``, TensorBoard events and ``summary.json``.
+"""What a run leaves on disk: ``metrics.csv``, TensorBoard events and ``summary.json``, and
+optionally a Weights & Biases run with the same metrics.
 
 Metrics arrive from the device as a dict of arrays ``[seeds, iterations, ...]``; a metric with
 a trailing ``[K]`` axis (returns per intention) becomes K columns ``name/0 .. name/K-1``.
+TensorBoard keeps one event directory per seed (``tensorboard/seed_N``, tag ``COLUMN``); W&B one
+run per training run, its keys ``seed_N/COLUMN``; both take the finite values only, at the
+iteration as the step.
 """
 
 from __future__ import annotations
@@ -31,8 +35,18 @@ def flatten_metrics(metrics: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     return columns
 
 
+def _finite_scalars(columns: dict[str, np.ndarray], seed: int, step: int):
+    """``(column, value)`` of one seed at one step of a chunk, where the value is finite (an
+    iteration without evaluation leaves its ERD and returns NaN)."""
+    for name, values in columns.items():
+        value = float(values[seed, step])
+        if math.isfinite(value):
+            yield name, value
+
+
 class MetricsLog:
-    """Appends one row per iteration and seed to ``metrics.csv`` and to TensorBoard."""
+    """Appends one row per iteration and seed to ``metrics.csv``, to TensorBoard and, given a
+    W&B run (:func:`start_wandb`), to it."""
 
     def __init__(
         self,
@@ -40,6 +54,7 @@ class MetricsLog:
         tensorboard: bool = True,
         keep_until: int | None = None,
         enabled: bool = True,
+        wandb_run=None,
     ):
         """``keep_until``: continue an existing log, first dropping its rows after that
         iteration (written after the checkpoint a resumed run restarts from). A log that is not
@@ -49,6 +64,7 @@ class MetricsLog:
         self._columns: list[str] | None = None
         self._writers = {}
         self._tensorboard = tensorboard
+        self._wandb_run = wandb_run
         self.enabled = enabled
         if enabled and keep_until is not None and os.path.exists(self.csv_path):
             self._truncate(keep_until)
@@ -80,6 +96,14 @@ class MetricsLog:
                     out.writerow([first_iteration + step + 1, seed, *row])
         if self._tensorboard:
             self._write_tensorboard(first_iteration, columns, seeds, length)
+        if self._wandb_run is not None:
+            for step in range(length):
+                row = {
+                    f"seed_{seed}/{name}": value
+                    for seed in range(seeds)
+                    for name, value in _finite_scalars(columns, seed, step)
+                }
+                self._wandb_run.log(row, step=first_iteration + step + 1)
 
     def _write_tensorboard(self, first_iteration, columns, seeds, length):
         from tensorboardX import SummaryWriter
@@ -90,15 +114,52 @@ class MetricsLog:
                 self._writers[seed] = SummaryWriter(path)
             writer = self._writers[seed]
             for step in range(length):
-                for name, values in columns.items():
-                    value = float(values[seed, step])
-                    if math.isfinite(value):
-                        writer.add_scalar(name, value, first_iteration + step + 1)
+                for name, value in _finite_scalars(columns, seed, step):
+                    writer.add_scalar(name, value, first_iteration + step + 1)
             writer.flush()
 
     def close(self) -> None:
         for writer in self._writers.values():
             writer.close()
+
+
+WANDB_INSTALL = "pip install 'emgail-jax[wandb]'"
+
+
+class WandbError(RuntimeError):
+    """W&B is not installed or its run could not start; the message says what to do."""
+
+
+def require_wandb():
+    """The ``wandb`` module, an optional extra."""
+    try:
+        import wandb
+    except ImportError:
+        raise WandbError(f"--wandb needs the wandb package: {WANDB_INSTALL}") from None
+    return wandb
+
+
+def start_wandb(project: str, name: str, config: dict):
+    """A W&B run in ``project`` named ``name`` holding ``config`` (the run's summary header).
+    ``WANDB_MODE``, ``WANDB_DIR`` and W&B's other settings apply as W&B documents them."""
+    wandb = require_wandb()
+    try:
+        return wandb.init(project=project, name=name, config=to_json_value(config))
+    except wandb.errors.Error as error:  # not logged in, no network in online mode, ...
+        message = str(error).splitlines()[0] if str(error) else type(error).__name__
+        raise WandbError(
+            f"W&B could not start a run ({message}); log in with `wandb login`, or set "
+            "WANDB_MODE=offline"
+        ) from None
+
+
+def finish_wandb(run, summary: dict) -> None:
+    """The run's final metrics and status as the W&B run's summary, and its end."""
+    final = to_json_value(summary.get("final", {}))
+    run.summary.update(
+        {"status": summary.get("status"), **{f"final/{k}": v for k, v in final.items()}}
+    )
+    run.finish(exit_code=0 if summary.get("status") == "completed" else 1)
 
 
 # XLA:CPU compiles for the host's vector extensions, so the same code and seeds give results

@@ -24,7 +24,7 @@ class RunSpec:
     algo: str
     seeds: int
     first_seed: int
-    demos_path: str | None
+    demo_sources: tuple[str, ...]  # --demos (demonstration_sources); empty: the env's own
     demo_seed: int
     config: object  # emgail_jax.method.config.Config
     random_episodes: int = DEFAULT_RANDOM_EPISODES
@@ -42,13 +42,27 @@ class RunSpec:
                 algo=summary["algo"],
                 seeds=summary["seeds"],
                 first_seed=summary["first_seed"],
-                demos_path=demos["path"],
+                demo_sources=_sources(demos["path"]),
                 demo_seed=demos["seed"],
                 config=Config.from_dict(summary["config"]),
                 random_episodes=summary.get("random_episodes", DEFAULT_RANDOM_EPISODES),
             )
         except (KeyError, TypeError) as error:
             raise RunError(f"summary.json does not describe a run (no {error})") from None
+
+
+def _sources(path: str | list[str] | None) -> tuple[str, ...]:
+    """``summary.json``'s ``demonstrations.path``: null, one source, or a list of them."""
+    if path is None:
+        return ()
+    return (path,) if isinstance(path, str) else tuple(path)
+
+
+def stored_sources(sources: tuple[str, ...]) -> str | list[str] | None:
+    """The inverse of :func:`_sources` (one source stays a string, as runs have stored it)."""
+    if not sources:
+        return None
+    return sources[0] if len(sources) == 1 else list(sources)
 
 
 def read_summary(run_dir: str) -> dict:

@@ -4,6 +4,7 @@ transforms, and their generation from an expert policy (files: ``host/demonstrat
 from __future__ import annotations
 
 import dataclasses
+import itertools
 from collections.abc import Callable, Sequence
 
 import jax
@@ -20,6 +21,11 @@ class Demonstrations:
     episode_starts: np.ndarray
     intentions: np.ndarray | None = None
     expert_returns: np.ndarray | None = None
+    # What a Minari dataset holds beside the pairs (training reads neither): each pair's true
+    # reward under its own intention [N], and the observation after each demonstration's last
+    # action [E, obs_dim].
+    rewards: np.ndarray | None = None
+    final_observations: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.observations)
@@ -29,6 +35,11 @@ class Demonstrations:
         """``[N]`` the index of each pair's demonstration (episode), pairs before the first
         episode start counted in the first."""
         return np.maximum(np.cumsum(self.episode_starts) - 1, 0)
+
+    @property
+    def episodes(self) -> int:
+        """E, the number of demonstrations (episodes)."""
+        return int(self.episode[-1]) + 1 if len(self) else 0
 
     @property
     def step_in_episode(self) -> np.ndarray:
@@ -46,14 +57,26 @@ class Demonstrations:
 
 def _pairs_where(demos: Demonstrations, keep: np.ndarray) -> Demonstrations:
     """The labelled pairs where ``keep [N]`` is True, in order (whole episodes for the
-    episode starts to stay right); the expert returns unchanged."""
+    episode starts and the final observations to stay right); the expert returns unchanged."""
+    finals = demos.final_observations
     return dataclasses.replace(
         demos,
         observations=demos.observations[keep],
         actions=demos.actions[keep],
         episode_starts=demos.episode_starts[keep],
         intentions=demos.intentions[keep],
+        rewards=None if demos.rewards is None else demos.rewards[keep],
+        final_observations=None if finals is None else finals[np.unique(demos.episode[keep])],
     )
+
+
+def mean_episode_return(rewards: np.ndarray, episode_starts: np.ndarray) -> np.float32:
+    """The mean over the demonstrations of their summed ``rewards [N]``, in float32, summed as
+    :func:`generate` sums its expert returns (a file's returns read back are the same bits)."""
+    bounds = [*np.flatnonzero(episode_starts), len(rewards)]
+    rewards = np.asarray(rewards, np.float32)
+    sums = np.array([rewards[a:b].sum() for a, b in itertools.pairwise(bounds)], np.float32)
+    return sums.mean()
 
 
 def first_intentions(demos: Demonstrations, k: int) -> Demonstrations:
@@ -94,7 +117,8 @@ Expert = Callable[[envs.State, jax.Array, jax.Array], jax.Array]
 def generate(env: envs.Env, expert: Expert, episodes: int, key: jax.Array) -> Demonstrations:
     """Rolls ``expert(state, intention, key) -> action`` for ``episodes`` episodes of every
     intention of ``env`` and returns the labelled pairs (with the actions the env executed,
-    i.e. clipped to its range) and each expert's mean true return.
+    i.e. clipped to its range), each expert's mean true return, each pair's own reward and
+    each episode's final observation.
 
     Pairs after an episode terminated early are dropped. Deterministic for a given ``key``.
     """
@@ -115,28 +139,34 @@ def generate(env: envs.Env, expert: Expert, episodes: int, key: jax.Array) -> De
                 act(state, intention, jax.random.split(step_key, (k, episodes)))
             )
             next_state = step(state, action)
-            out = (state.obs, action, next_state.reward, alive)
+            out = (state.obs, action, next_state.reward, alive, next_state.obs)
             return (next_state, alive * (1.0 - next_state.done)), out
 
         alive = jnp.ones((k, episodes))
-        _, (obs, actions, rewards, alive) = jax.lax.scan(
+        _, steps = jax.lax.scan(
             body, (states, alive), jax.random.split(key_steps, env.episode_length)
         )
-        return obs, actions, rewards, alive
+        return steps
 
-    obs, actions, rewards, alive = jax.device_get(roll(key))  # [T, K, E, ...]
     # Episode-major order: intention, episode, time.
-    obs, actions, rewards, alive = (np.moveaxis(x, 0, 2) for x in (obs, actions, rewards, alive))
+    obs, actions, rewards, alive, next_obs = (
+        np.moveaxis(x, 0, 2)
+        for x in jax.device_get(roll(key))  # [K, E, T, ...]
+    )
     keep = alive.astype(bool)
     starts = np.zeros_like(keep)
     starts[..., 0] = True
     labels = np.broadcast_to(np.arange(k)[:, None, None], keep.shape)
     own_reward = np.take_along_axis(rewards, labels[..., None], -1)[..., 0]
     expert_returns = np.where(keep, own_reward, 0.0).sum(-1).mean(-1)
+    last_step = keep.sum(-1, keepdims=True) - 1  # [K, E, 1]
+    finals = np.take_along_axis(next_obs, last_step[..., None], 2)[:, :, 0]  # [K, E, obs_dim]
     return Demonstrations(
         observations=obs[keep].astype(np.float32),
         actions=actions[keep].astype(np.float32),
         episode_starts=starts[keep],
         intentions=labels[keep].astype(np.int32),
         expert_returns=np.asarray(expert_returns, np.float32),
+        rewards=own_reward[keep].astype(np.float32),
+        final_observations=finals.reshape(-1, finals.shape[-1]).astype(np.float32),
     )
