@@ -21,10 +21,11 @@ import os
 import shutil
 import signal
 import sys
+import traceback
 
 import numpy as np
 
-from emgail_jax.host import jax_setup
+from emgail_jax.host import jax_setup, run_lock, stopping
 from emgail_jax.host.run_spec import (
     DEFAULT_RANDOM_EPISODES,
     RunError,
@@ -36,6 +37,7 @@ from emgail_jax.host.run_spec import (
 OUTPUTS = ("summary.json", "metrics.csv", "tensorboard", "checkpoints", "snapshots")
 DEFAULT_CHECKPOINT_EVERY = 50
 DEFAULT_SNAPSHOT_EVERY = 50
+DEFAULT_SEEDS = 4
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -60,7 +62,9 @@ def parse_args(argv=None) -> argparse.Namespace:
         help="with --intentions auto: the most intentions it may choose (default: the env's all)",
     )
     parser.add_argument("--algo", default=None, choices=NAMES, help="default: emgail")
-    parser.add_argument("--seeds", type=int, default=None, help="seeds in parallel (default 4)")
+    parser.add_argument(
+        "--seeds", type=int, default=None, help=f"seeds in parallel (default {DEFAULT_SEEDS})"
+    )
     parser.add_argument("--iterations", type=int, default=None, help="total (default 400)")
     parser.add_argument(
         "--out", default=None, help="output directory (default: a new runs/ENV-ALGO[-N])"
@@ -199,7 +203,7 @@ _RUN_OPTIONS = (
 
 def spec_from_args(args: argparse.Namespace) -> RunSpec:
     from emgail_jax.host.demonstration_sources import canonical
-    from emgail_jax.method.config import Config
+    from emgail_jax.method.config import Config, SettingError
 
     if args.snapshot_every < 0:
         raise RunError("--snapshot-every must be 0 (none) or more")
@@ -213,18 +217,19 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
             )
         spec = RunSpec.from_summary(read_summary(args.resume))
         if args.iterations is not None:
-            spec = dataclasses.replace(spec, config=spec.config.replace(iterations=args.iterations))
+            try:
+                config = spec.config.replace(iterations=args.iterations)
+            except SettingError as error:
+                raise RunError(error.naming("--iterations")) from None
+            spec = dataclasses.replace(spec, config=config)
         return spec
 
     env = args.env or "driver"
-    if (args.seeds is not None and args.seeds < 1) or (
-        args.iterations is not None and args.iterations < 1
-    ):
-        raise RunError("--seeds and --iterations must be at least 1")
-    for name in ("seed_batch", "eval_every", "chunk_size", "random_episodes"):
+    # The run's own counts; the config checks its hyper-parameters itself.
+    for name in ("seeds", "random_episodes"):
         value = getattr(args, name)
         if value is not None and value < 1:
-            raise RunError(f"--{name.replace('_', '-')} must be at least 1")
+            raise RunError(f"--{name.replace('_', '-')} must be at least 1; got {value}")
     intentions, choosing = _learned_intentions(args, env)
     env_options = {}
     if args.radius is not None:
@@ -245,7 +250,11 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         "chunk_size": args.chunk_size,
         "seed_batch": args.seed_batch,
     }
-    config = Config().replace(**{k: v for k, v in overrides.items() if v is not None})
+    given = {k: v for k, v in overrides.items() if v is not None}
+    try:
+        config = Config().replace(**given)
+    except SettingError as error:  # an option's own value: named as the option
+        raise RunError(error.naming(f"--{error.key.replace('_', '-')}")) from None
     try:
         config = config.with_settings(args.set)
     except ValueError as error:
@@ -255,7 +264,7 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         intentions=intentions,
         env_options=env_options,
         algo=config.algo,
-        seeds=args.seeds or 4,
+        seeds=args.seeds or DEFAULT_SEEDS,
         first_seed=args.seed or 0,
         demo_sources=tuple(map(canonical, args.demos or ())),
         demo_seed=args.demo_seed or 0,
@@ -294,45 +303,44 @@ def default_output(env: str, algo: str, root: str = "runs") -> str:
     return next(path for path in candidates if not os.path.exists(path))
 
 
-def prepare_output(out: str, overwrite: bool) -> None:
-    """Creates ``out``; refuses to mix with an earlier run unless ``overwrite``."""
+def create_output(out: str) -> None:
+    """Creates the directory ``out`` (nothing in it yet)."""
     if os.path.exists(out) and not os.path.isdir(out):
         raise RunError(f"--out '{out}' is a file, not a directory: choose another --out")
+    os.makedirs(out, exist_ok=True)
+    if not os.access(out, os.W_OK):
+        raise RunError(f"cannot write to '{out}': choose a writable --out")
+
+
+@contextlib.contextmanager
+def _writing(out: str, new: bool):
+    """Holds ``out``'s run lock, creating the directory first for a ``new`` run; a run that
+    ends before writing anything (refused) leaves no directory behind."""
+    created = new and not os.path.exists(out)
+    if new:
+        create_output(out)
+    elif not os.path.isdir(out):
+        read_summary(out)  # says it is no run directory
+    try:
+        with run_lock.hold(out):
+            yield
+    finally:
+        if created and os.listdir(out) == [run_lock.LOCK_NAME]:
+            shutil.rmtree(out)
+
+
+def prepare_output(out: str, overwrite: bool) -> None:
+    """Creates ``out``; refuses to mix with an earlier run unless ``overwrite``."""
+    create_output(out)
     existing = [name for name in OUTPUTS if os.path.exists(os.path.join(out, name))]
     if existing and not overwrite:
         raise RunError(
             f"'{out}' already holds a run ({', '.join(existing)}): "
             "pass --resume to continue it, --overwrite to replace it, or choose another --out"
         )
-    os.makedirs(out, exist_ok=True)
-    if not os.access(out, os.W_OK):
-        raise RunError(f"cannot write to '{out}': choose a writable --out")
     for name in existing:
         path = os.path.join(out, name)
         shutil.rmtree(path) if os.path.isdir(path) else os.remove(path)
-
-
-class _StopRequest:
-    """Turns SIGINT/SIGTERM into a request to stop after the chunk in progress; a second
-    signal stops at once (the last complete checkpoint stays valid)."""
-
-    def __init__(self):
-        self.signal = None
-        self._previous = {}
-
-    def __enter__(self):
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            self._previous[sig] = signal.signal(sig, self._handle)
-        return self
-
-    def _handle(self, signum, frame):
-        if self.signal is not None:
-            raise KeyboardInterrupt
-        self.signal = signum
-
-    def __exit__(self, *exc):
-        for sig, handler in self._previous.items():
-            signal.signal(sig, handler)
 
 
 def train(
@@ -342,6 +350,7 @@ def train(
     resume: bool = False,
     checkpoint_every: int = DEFAULT_CHECKPOINT_EVERY,
     progress: bool = True,
+    signals: stopping.Signals | None = None,
     wandb_run=None,
     snapshot_every: int = DEFAULT_SNAPSHOT_EVERY,
 ) -> dict:
@@ -349,8 +358,9 @@ def train(
     (and the metrics to ``wandb_run``, a W&B run of :func:`~emgail_jax.host.records.start_wandb`).
 
     Returns the summary as written to ``summary.json``; its ``status`` is ``"completed"`` or
-    ``"interrupted"``. In a run of several processes (``jax.distributed``), every process trains
-    its share of the seeds and process 0 alone writes the outputs.
+    ``"interrupted"`` (a first signal within the chunk loop of ``signals``, the command's).
+    In a run of several processes (``jax.distributed``), every process trains its share of the
+    seeds and process 0 alone writes the outputs.
     """
     import jax
 
@@ -370,12 +380,16 @@ def train(
     timings = {"compile_time_s": 0.0, "train_time_s": 0.0, "iterations": 0}
     if resume:
         timings = read_summary(out).get("timings", timings)
+    running = {**summary, "status": "running", "timings": timings}
+    if not resume:  # before the first compile: from then on a killed run can be resumed
+        write_json(summary_path, running)
     state, history, done = _first_state(runner, out, resume, jax.random.PRNGKey(spec.first_seed))
-    write_json(summary_path, {**summary, "status": "running", "timings": timings})
+    if resume:  # once the checkpoint is read: a failed restore leaves the summary as it was
+        write_json(summary_path, running)
 
     # Chunks only group iterations into compiled calls; they do not change the results.
     plan = chunks(done, config.iterations, config.chunk_size)
-    stop = _StopRequest()
+    signals = signals or stopping.Signals()
     recorder = _ChunkRecorder(
         out,
         config,
@@ -384,7 +398,7 @@ def train(
         resume,
         checkpoint_every,
         writes,
-        stop,
+        signals,
         wandb_run,
         snapshot_every,
     )
@@ -392,7 +406,7 @@ def train(
         evaluating = lambda first, length: evaluation_plan(
             first, length, config.iterations, config.eval_every
         )
-        with stop, recorder.open(progress and writes):
+        with signals.stoppable(), recorder.open(progress and writes):
             runner.run(state, plan, evaluating, recorder.after_chunk)
         timings = {
             "compile_time_s": timings["compile_time_s"] + runner.timings.compile_s,
@@ -403,7 +417,7 @@ def train(
 
     summary.update(timings=timings, iterations_done=iteration)
     if iteration < config.iterations:
-        summary.update(status="interrupted", stopped_by=signal.Signals(stop.signal).name)
+        summary.update(status="interrupted", stopped_by=signal.Signals(recorder.stopped_by).name)
     else:
         summary["status"] = "completed"
     summary["final"] = _final_summary(problem, config, history, timings, spec)
@@ -429,13 +443,14 @@ class _ChunkRecorder:
     resume: bool
     checkpoint_every: int
     writes: bool  # process 0 of the run
-    stop: _StopRequest
+    signals: stopping.Signals
     wandb_run: object = None
     snapshot_every: int = DEFAULT_SNAPSHOT_EVERY
 
     def __post_init__(self):
         self.last_saved = self.iteration
         self.host_state = None  # every seed's state as last saved, on the host
+        self.stopped_by = None  # the signal that stopped the run, in every process
 
     @contextlib.contextmanager
     def open(self, progress: bool):
@@ -464,7 +479,8 @@ class _ChunkRecorder:
         self.history = concat_history(self.history, metrics)
         self.iteration = first + length
         self.bar.update(length, **_progress_fields(self.history))
-        finished = self.iteration >= self.config.iterations or self.stop.signal is not None
+        self.stopped_by = _agreed_signal(self.signals.requested)
+        finished = self.iteration >= self.config.iterations or self.stopped_by is not None
         if finished or self.iteration - self.last_saved >= self.checkpoint_every:
             host_state = gather(state)  # every process takes part
             if self.writes:
@@ -475,7 +491,21 @@ class _ChunkRecorder:
             snapshot = gather(checkpoints.snapshot_of(state))  # every process takes part
             if self.writes:
                 checkpoints.save_snapshot(self.out, self.iteration, snapshot)
-        return self.stop.signal is None
+        self.signals.progressed()
+        return self.stopped_by is None
+
+
+def _agreed_signal(requested: int | None) -> int | None:
+    """The signal that asks the run to stop, as every process sees it: in a run of several
+    processes, one asked is all asked (else they would part at the next collective)."""
+    import jax
+
+    if jax.process_count() == 1:
+        return requested
+    from jax.experimental import multihost_utils
+
+    asked = multihost_utils.process_allgather(np.int32(requested or 0))
+    return int(asked.max()) or None
 
 
 def _runner(spec: RunSpec, problem, config):
@@ -500,7 +530,7 @@ def _first_state(runner, out: str, resume: bool, key):
     """``(state, history, iterations done)``: restored from the last checkpoint, or new."""
     from emgail_jax.host import checkpoints
 
-    if resume:
+    if resume and checkpoints.latest_iteration(out) is not None:
         host_state, history, done = checkpoints.restore(out, runner.abstract_state(key))
         return runner.place_state(host_state), history, done
     return runner.init(key), None, 0
@@ -697,35 +727,40 @@ def print_summary(summary: dict) -> None:
     )
 
 
-def main(argv=None) -> int:
-    args = parse_args(argv)
-    try:
-        distributed = jax_setup.Distributed.from_options(
-            args.coordinator, args.num_processes, args.process_id
-        )
-    except ValueError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    jax_setup.setup(distributed=distributed)
+def _command(
+    args: argparse.Namespace,
+    signals: stopping.Signals,
+    held: contextlib.ExitStack,
+    locked: bool,
+) -> tuple[str, dict]:
+    """The run the command line asks for, trained: ``(run directory, summary)``; ``held``
+    holds the run directory's lock (taken here unless ``locked`` already)."""
     import jax
 
-    import envs
     from emgail_jax.host import records
     from emgail_jax.host.checkpoints import CheckpointError, latest_iteration
-    from emgail_jax.host.demonstration_files import DemonstrationError
     from emgail_jax.host.problem import problem_of
-    from emgail_jax.host.records import WandbError
+    from emgail_jax.host.seed_runner import seed_sharding
 
-    wandb_run = None
-    try:
+    primary = jax.process_index() == 0
+    out = args.resume or args.out
+    with held:
+        # Before anything reads or writes the directory: a live run keeps it.
+        if primary and out is not None and not locked:
+            _hold_output(args, held)
         spec = spec_from_args(args)
-        out = args.resume or args.out or default_output(spec.env, spec.algo)
-        if args.resume is not None and latest_iteration(out) is None:
+        seed_sharding(spec.seeds)  # the seeds fit the processes, before anything compiles
+        if out is None:
+            out = default_output(spec.env, spec.algo)
+            if primary:
+                held.enter_context(_writing(out, new=True))
+        # A run killed before its first checkpoint restarts: its summary holds its spec.
+        unfinished = args.resume is not None and read_summary(out).get("status") == "running"
+        if args.resume is not None and latest_iteration(out) is None and not unfinished:
             raise CheckpointError(f"'{out}' holds no checkpoint to resume from")
         problem = problem_of(spec)
         if spec.config.responsibilities == "labels" and problem.demos.intentions is None:
             raise RunError("--responsibilities labels needs demonstrations with hidden labels")
-        primary = jax.process_index() == 0
         logs_to_wandb = args.wandb is not None and primary
         if logs_to_wandb:
             records.require_wandb()
@@ -733,7 +768,10 @@ def main(argv=None) -> int:
             if primary:
                 prepare_output(out, args.overwrite)
         else:
-            print(f"resuming '{out}' from iteration {latest_iteration(out)}")
+            done = latest_iteration(out)
+            start = "the start (it stopped before its first checkpoint)" if done is None else done
+            print(f"resuming '{out}' from iteration {start}")
+        wandb_run = None
         if logs_to_wandb:
             header = _summary_header(spec, problem, spec.config.resolved(problem.env))
             name = os.path.basename(os.path.abspath(out))
@@ -749,27 +787,116 @@ def main(argv=None) -> int:
             resume=args.resume is not None,
             checkpoint_every=args.checkpoint_every,
             progress=not args.quiet,
+            signals=signals,
             wandb_run=wandb_run,
             snapshot_every=args.snapshot_every,
         )
-    except (envs.EnvError, DemonstrationError, RunError, CheckpointError, WandbError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-    except OSError as error:  # the output cannot be created or written (permissions, full disk)
-        where = f" ('{error.filename}')" if error.filename else ""
-        print(
-            f"error: {error.strerror or error}{where}: the run's outputs could not be written; "
-            "check that --out is a writable directory with room on its disk",
-            file=sys.stderr,
-        )
-        return 2
     if wandb_run is not None:
         records.finish_wandb(wandb_run, summary)
+    return out, summary
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    try:
+        distributed = jax_setup.Distributed.from_options(
+            args.coordinator, args.num_processes, args.process_id
+        )
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    if distributed is not None:
+        # Every process refuses alike, before it waits for the others.
+        error = jax_setup.seed_share_error(_seeds_of(args), distributed.num_processes)
+        if error:
+            print(f"error: {error}", file=sys.stderr)
+            return 2
+    held = contextlib.ExitStack()
+    locked = distributed is None and bool(args.resume or args.out)
+    if locked:
+        # The lock at once, before JAX starts (a run of several processes takes it later, so
+        # that the others hear of a refusal).
+        try:
+            _hold_output(args, held)
+        except RunError as error:
+            print(f"error: {error}", file=sys.stderr)
+            return 2
+        except OSError as error:
+            print(_write_error(error), file=sys.stderr)
+            return 2
+    with held, stopping.Signals() as signals:  # from here on a signal ends a run in seconds
+        jax_setup.setup(distributed=distributed)
+        signals.install()  # jax.distributed takes SIGTERM for its preemption notices
+        code = _main(args, signals, distributed is not None, held, locked)
+    if distributed is not None:
+        jax_setup.leave(code)
+    return code
+
+
+def _seeds_of(args: argparse.Namespace) -> int:
+    """The seeds of the run asked for, as :func:`spec_from_args` will find them."""
+    if args.resume is not None:
+        with contextlib.suppress(RunError, AttributeError, TypeError, ValueError):
+            return int(read_summary(args.resume).get("seeds", 1))
+        return 1  # no readable summary: the command fails later, with its own message
+    return args.seeds or DEFAULT_SEEDS
+
+
+def _hold_output(args: argparse.Namespace, held: contextlib.ExitStack) -> None:
+    held.enter_context(_writing(args.resume or args.out, new=args.resume is None))
+
+
+def _main(
+    args: argparse.Namespace,
+    signals: stopping.Signals,
+    several: bool,
+    held: contextlib.ExitStack,
+    locked: bool,
+) -> int:
+    """The command, its errors as one line and exit code 2; in a run of several processes,
+    a failure is posted for the others (:func:`jax_setup.report_failure`), which end too."""
+    import jax
+
+    import envs
+    from emgail_jax.host.checkpoints import CheckpointError
+    from emgail_jax.host.demonstration_files import DemonstrationError
+    from emgail_jax.host.records import WandbError
+
+    try:
+        out, summary = _command(args, signals, held, locked)
+    except (envs.EnvError, DemonstrationError, RunError, CheckpointError, WandbError) as error:
+        return _failed(f"error: {error}", 2)
+    except OSError as error:  # the output cannot be created or written (permissions, full disk)
+        return _failed(_write_error(error), 2)
+    except Exception as error:
+        if not several:
+            raise
+        first = str(error).strip().splitlines()[0] if str(error).strip() else ""
+        gone = jax_setup.peers_gone()
+        if gone:  # a collective broke off: say why, not where
+            return _failed(f"error: process {gone[0]} of the run is gone ({first[:200]})", 1)
+        traceback.print_exc()
+        return _failed(f"error: {type(error).__name__}: {first[:300]}", 1)
     if jax.process_index() == 0:
         if not args.quiet:
             print_summary(summary)
         print(f"wrote {os.path.join(out, 'summary.json')} ({summary['status']})")
-    return 130 if summary["status"] == "interrupted" else 0
+    return stopping.INTERRUPTED if summary["status"] == "interrupted" else 0
+
+
+def _write_error(error: OSError) -> str:
+    where = f" ('{error.filename}')" if error.filename else ""
+    return (
+        f"error: {error.strerror or error}{where}: the run's outputs could not be written; "
+        "check that --out is a writable directory with room on its disk (--resume then "
+        "continues from the last checkpoint)"
+    )
+
+
+def _failed(line: str, code: int) -> int:
+    print(line, file=sys.stderr)
+    jax_setup.report_failure(line.removeprefix("error: "))
+    return code
 
 
 if __name__ == "__main__":

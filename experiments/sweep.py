@@ -223,10 +223,14 @@ def read_summary(run_dir: str) -> dict | None:
 
 
 def cell_status(run_dir: str, seeds: int, iterations: int) -> str:
-    """ "done", "resume" (a checkpointed run short of ``iterations``) or "new"."""
+    """ "done", "resume" (a checkpointed run short of ``iterations``), "damaged" (a
+    ``summary.json`` that is not a run's, e.g. cut short) or "new"."""
     summary = read_summary(run_dir)
     if summary is None:
-        return "new"
+        path = os.path.join(run_dir, "summary.json")
+        return "damaged" if os.path.exists(path) else "new"
+    if not isinstance(summary, dict) or "seeds" not in summary:
+        return "damaged"
     if summary.get("seeds") != seeds:
         raise SweepError(
             f"{run_dir} was run with {summary.get('seeds')} seeds, not {seeds}: pass the same "
@@ -318,11 +322,14 @@ def train_cell(
     os.makedirs(os.path.dirname(log_path), exist_ok=True)
     python = [sys.executable, "-m"]
     status = cell_status(run_dir, seeds, iterations)
+    new_args = [*cell.run_args(settings, out), "--seeds", str(seeds)]
+    new_args += ["--iterations", str(iterations)]
+    if status == "damaged":
+        status = repair_cell(cell.name, run_dir, new_args, log_path)
     if status == "resume":
         args = ["--resume", run_dir, "--iterations", str(iterations)]
     elif status == "new":
-        args = [*cell.run_args(settings, out), "--seeds", str(seeds)]
-        args += ["--iterations", str(iterations)]
+        args = list(new_args)
         write_demonstrations(cell, out)
         args += ["--out", run_dir, "--overwrite"]
     if status != "done":
@@ -337,6 +344,32 @@ def train_cell(
         code = run_command(command, log_path)
         if code != 0:
             raise SweepError(f"re-optimising {cell.name} failed (exit {code}): see {log_path}")
+
+
+def repair_cell(name: str, run_dir: str, run_args: list[str], log_path: str) -> str:
+    """A cell whose ``summary.json`` is damaged: the file is kept beside as
+    ``summary.json.damaged``, said so on stderr and in the cell's log, and the cell continues
+    from its last good checkpoint under a summary rebuilt from its own options (``run_args``);
+    without a checkpoint it starts anew. Returns the status to go on with."""
+    from emgail_jax import run
+    from emgail_jax.host import records
+    from emgail_jax.host.checkpoints import latest_iteration
+
+    path = os.path.join(run_dir, "summary.json")
+    kept = f"{path}.damaged"
+    os.replace(path, kept)
+    done = latest_iteration(run_dir)
+    if done is None:
+        after = "no checkpoint to continue from: it starts anew"
+    else:
+        after = f"it continues from its checkpoint of iteration {done}"
+        spec = run.spec_from_args(run.parse_args([*run_args, "--out", run_dir]))
+        records.write_json(path, {**spec.to_summary(), "status": "running"})
+    message = f"cell {name}: its summary.json is damaged (kept as {kept}); {after}"
+    print(message, file=sys.stderr)
+    with open(log_path, "a") as log:
+        log.write(f"\n{message}\n")
+    return "new" if done is None else "resume"
 
 
 def write_demonstrations(cell: Cell, out: str) -> None:

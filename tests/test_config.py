@@ -7,7 +7,7 @@ import types
 import pytest
 
 import envs
-from emgail_jax.method.config import Config, rollout_defaults
+from emgail_jax.method.config import DOMAINS, Config, SettingError, rollout_defaults
 from emgail_jax.method.trpo import TRPOConfig
 
 
@@ -105,7 +105,7 @@ def test_to_dict_is_json_serialisable_and_complete():
 def test_intention_input_defaults_to_heads_and_rejects_unknown_values():
     assert Config().intention_input == "heads"
     assert Config(intention_input="onehot").intention_input == "onehot"
-    with pytest.raises(ValueError, match="unknown intention input 'twoheads'"):
+    with pytest.raises(ValueError, match="intention_input must be one of onehot, heads"):
         Config(intention_input="twoheads")
 
 
@@ -160,3 +160,55 @@ def test_program_key_clears_what_does_not_shape_the_update():
     assert hash(same.program_key()) == hash(base.program_key())
     for changed in (Config(discriminator_steps=3), Config(algo="gail"), Config(seed_batch=2)):
         assert changed.program_key() != base.program_key()
+
+
+def _leaf_keys(node, prefix=""):
+    for f in dataclasses.fields(node):
+        value = getattr(node, f.name)
+        if dataclasses.is_dataclass(value):
+            yield from _leaf_keys(value, f"{prefix}{f.name}.")
+        else:
+            yield f"{prefix}{f.name}"
+
+
+def test_every_hyper_parameter_has_a_domain_its_default_is_in():
+    assert sorted(DOMAINS) == sorted(_leaf_keys(Config()))
+    for key, domain in DOMAINS.items():
+        value = Config()
+        for name in key.split("."):
+            value = getattr(value, name)
+        assert domain.holds(value), key
+
+
+@pytest.mark.parametrize(
+    ("setting", "message"),
+    [
+        ("trpo.max_kl=-1", "trpo.max_kl must be a positive number; got -1.0"),
+        ("trpo.max_kl=0", "trpo.max_kl must be a positive number"),
+        ("value_learning_rate=0", "value_learning_rate must be a positive number"),
+        ("discriminator_learning_rate=1e999", "must be a positive number; got inf"),
+        ("gamma=0", "gamma must be in (0, 1]"),
+        ("gamma=1.5", "gamma must be in (0, 1]"),
+        ("gae_lambda=-0.1", "gae_lambda must be in (0, 1]"),
+        ("posterior_steps=0", "posterior_steps must be at least 1"),
+        ("value_minibatches=-2", "value_minibatches must be at least 1"),
+        ("num_envs=0", "num_envs must be at least 1 (or None, the default)"),
+        ("hidden=(64, 0)", "hidden must be a tuple of layer widths >= 1"),
+        ("trpo.line_search_decay=1", "trpo.line_search_decay must be in (0, 1)"),
+        ("trpo.cg_damping=-1", "trpo.cg_damping must be a number >= 0"),
+        ("choose_intentions=3", "choose_intentions must be True or False"),
+        ("prior=flat", "prior must be one of uniform, mixture; got 'flat'"),
+    ],
+)
+def test_a_value_outside_its_domain_is_refused_in_one_line(setting, message):
+    with pytest.raises(SettingError) as error:
+        Config().with_settings([setting])
+    assert message in str(error.value) and "\n" not in str(error.value)
+    assert error.value.key == setting.partition("=")[0]
+
+
+def test_values_at_the_edges_of_their_domains_are_accepted():
+    config = Config().with_settings(
+        ["gamma=1", "gae_lambda=1", "trpo.cg_damping=0", "seed_batch=1"]
+    )
+    assert (config.gamma, config.gae_lambda, config.trpo.cg_damping) == (1.0, 1.0, 0.0)

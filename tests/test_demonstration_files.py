@@ -190,3 +190,11 @@ def test_load_names_a_bad_episode_starts_shape(tmp_path):
     path = _write(tmp_path, **_with(episode_starts=np.zeros((4, 2), bool)))
     with pytest.raises(DemonstrationError, match=r"\(4, 2\)"):
         demonstration_files.load(path)
+
+
+@pytest.mark.parametrize("starts", [[False] * 4, [False, True, False, False]])
+def test_load_refuses_a_file_whose_first_pair_starts_no_episode(tmp_path, starts):
+    path = _write(tmp_path, **_with(episode_starts=np.array(starts)))
+    with pytest.raises(DemonstrationError, match="the first pair must start an episode") as error:
+        demonstration_files.load(path)
+    assert "\n" not in str(error.value)

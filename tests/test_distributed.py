@@ -1,11 +1,15 @@
-"""A run spread over two processes (jax.distributed on 127.0.0.1, one CPU device each) gives the
-final metrics of the same run in one process, and process 0 alone writes the run directory."""
+"""A run spread over two processes (jax.distributed on 127.0.0.1, started as the README says,
+each with the devices jax_setup gives it) gives the final metrics of the same run in one
+process, and process 0 alone writes the run directory; seeds the processes cannot share, a
+process that fails or is killed, and a signal to one process end them all within bounded time."""
 
 import json
 import os
+import signal
 import socket
 import subprocess
 import sys
+import time
 
 import pytest
 
@@ -29,43 +33,46 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _environment(devices: int) -> dict:
+def _environment() -> dict:
+    """This process's environment without the conftest's device count: each process splits the
+    CPU as jax_setup does for a user (one device per core, here 2 for each of 2 processes)."""
     cache = os.path.join(os.path.dirname(os.path.dirname(__file__)), ".cache", "jax")
     count = "--xla_force_host_platform_device_count"
     inherited = [f for f in os.environ.get("XLA_FLAGS", "").split() if not f.startswith(count)]
-    flags = " ".join([*inherited, f"{count}={devices}"])
-    return {**os.environ, "XLA_FLAGS": flags, "JAX_COMPILATION_CACHE_DIR": cache}
+    return {**os.environ, "XLA_FLAGS": " ".join(inherited), "JAX_COMPILATION_CACHE_DIR": cache}
+
+
+def _start_two(out, *options) -> list[subprocess.Popen]:
+    """The README's command, once per process."""
+    coordinator = f"127.0.0.1:{_free_port()}"
+    return [
+        subprocess.Popen(
+            [
+                *(sys.executable, "-m", "emgail_jax.run", *options, "--out", str(out)),
+                *("--coordinator", coordinator, "--num-processes", "2", "--process-id", str(i)),
+            ],
+            env=_environment(),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for i in range(2)
+    ]
+
+
+def _error_lines(err: str) -> list[str]:
+    return [line for line in err.splitlines() if line.startswith("error: ")]
 
 
 def test_two_processes_give_the_one_process_results(tmp_path):
     one = tmp_path / "one"  # in this process, whose two host devices the conftest made
     assert run.main([*TINY, "--out", str(one)]) == 0
-    command = [sys.executable, "-m", "emgail_jax.run", *TINY]
 
     two = tmp_path / "two"
-    coordinator = f"127.0.0.1:{_free_port()}"
-    processes = [
-        subprocess.Popen(
-            [
-                *command,
-                "--out",
-                str(two),
-                "--coordinator",
-                coordinator,
-                "--num-processes",
-                "2",
-                "--process-id",
-                str(i),
-            ],
-            env=_environment(1),
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-        )
-        for i in range(2)
-    ]
+    processes = _start_two(two, *TINY)
     outputs = [p.communicate(timeout=600) for p in processes]
     for process, (_, err) in zip(processes, outputs, strict=True):
-        lines = [line for line in err.decode().splitlines() if not line.startswith("    @")]
+        lines = [line for line in err.splitlines() if not line.startswith("    @")]
         assert process.returncode == 0, "\n".join(lines[-40:])
 
     a = json.loads((one / "summary.json").read_text())
@@ -74,6 +81,56 @@ def test_two_processes_give_the_one_process_results(tmp_path):
     for key in ("erd", "erd_per_intention", "cluster_accuracy", "returns"):
         assert a["final"][key] == b["final"][key], key
     assert (one / "metrics.csv").read_text() == (two / "metrics.csv").read_text()
+
+
+def test_seeds_the_processes_cannot_share_are_refused_by_each_in_one_line(tmp_path):
+    start = time.monotonic()
+    processes = _start_two(tmp_path / "one-seed", *TINY[:2], "--seeds", "1", *TINY[4:])
+    for process in processes:
+        _, err = process.communicate(timeout=60)
+        assert process.returncode == 2, err[-2000:]
+        assert _error_lines(err) == [
+            "error: --seeds 1 cannot be shared equally by 2 processes: give a multiple of 2 seeds"
+        ]
+    assert time.monotonic() - start < 90  # 11 s on an idle 2-core machine; bounded, not a hang
+    assert not (tmp_path / "one-seed").exists()
+
+
+LONG = [*TINY[:4], "--iterations", "400", "--checkpoint-every", "2", *TINY[6:]]
+
+
+def _training_after_a_signal(out, sig, to: int, timeout=300) -> list[subprocess.Popen]:
+    """A long run of two processes, sent ``sig`` to process ``to`` once it has checkpointed."""
+    processes = _start_two(out, *LONG)
+    deadline = time.monotonic() + timeout
+    while not (out / "checkpoints").is_dir():
+        assert time.monotonic() < deadline and all(p.poll() is None for p in processes)
+        time.sleep(0.5)
+    processes[to].send_signal(sig)
+    return processes
+
+
+@pytest.mark.slow
+def test_a_killed_process_ends_the_other_naming_it(tmp_path):
+    processes = _training_after_a_signal(tmp_path / "killed", signal.SIGKILL, to=1)
+    start = time.monotonic()
+    _, err = processes[0].communicate(timeout=90)
+    processes[1].wait()
+    assert time.monotonic() - start < 60
+    assert processes[0].returncode not in (0, None)
+    lines = _error_lines(err)
+    assert len(lines) == 1 and lines[0].startswith("error: process 1 of the run"), err[-2000:]
+
+
+@pytest.mark.slow
+def test_a_signal_to_one_process_stops_both_with_a_checkpoint(tmp_path):
+    out = tmp_path / "stopped"
+    for process in _training_after_a_signal(out, signal.SIGTERM, to=1):
+        process.communicate(timeout=60)
+        assert process.returncode == 130
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["status"] == "interrupted" and summary["stopped_by"] == "SIGTERM"
+    assert 0 < summary["iterations_done"] < 400
 
 
 @pytest.mark.parametrize(

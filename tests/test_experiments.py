@@ -242,3 +242,42 @@ def test_posterior_ceiling_scores_the_demonstrations_by_step(capsys):
     steps, values = per_step[0::2], [float(v) for v in per_step[1::2]]
     assert steps[0] == "0:" and len(steps) == len(module.STEPS_SHOWN)
     assert all(0.0 <= v <= 1.0 for v in values)
+
+
+def test_sweep_a_damaged_cell_is_named_and_continues_from_its_checkpoint(
+    tmp_path, tiny_run, capsys
+):
+    import shutil
+
+    from emgail_jax import run
+
+    sweep = _load("sweep")
+    run_dir = tmp_path / "cell"
+    shutil.copytree(tiny_run, run_dir)
+    intact = (run_dir / "summary.json").read_text()
+    (run_dir / "summary.json").write_text(intact[: len(intact) // 2])  # cut short
+    assert sweep.cell_status(str(run_dir), 2, 6) == "damaged"
+    options = [
+        *("--env", "driver", "--seeds", "2", "--iterations", "6", "--num-envs", "2"),
+        *("--rollout-length", "20", "--chunk-size", "2"),
+    ]
+    log = tmp_path / "cell.log"
+    assert sweep.repair_cell("cell", str(run_dir), options, str(log)) == "resume"
+    message = "cell cell: its summary.json is damaged (kept as"
+    assert message in capsys.readouterr().err and message in log.read_text()
+    assert (run_dir / "summary.json.damaged").read_text() == intact[: len(intact) // 2]
+    assert sweep.cell_status(str(run_dir), 2, 6) == "resume"
+    assert run.main(["--resume", str(run_dir), "--quiet"]) == 0
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert (summary["status"], summary["iterations_done"]) == ("completed", 6)
+    before = (tiny_run / "metrics.csv").read_text()
+    assert (run_dir / "metrics.csv").read_text().startswith(before)  # iterations 1-4 kept
+
+
+def test_sweep_a_damaged_cell_without_a_checkpoint_starts_anew(tmp_path, capsys):
+    sweep = _load("sweep")
+    (tmp_path / "summary.json").write_text("{not json")
+    assert sweep.cell_status(str(tmp_path), 4, 400) == "damaged"
+    status = sweep.repair_cell("c", str(tmp_path), [], str(tmp_path / "c.log"))
+    assert status == "new" and "starts anew" in capsys.readouterr().err
+    assert (tmp_path / "summary.json.damaged").read_text() == "{not json"

@@ -181,6 +181,23 @@ def test_machine_facts_without_cpuinfo_still_name_the_machine(tmp_path):
     assert facts["cpu"] and facts["cpu_features"] == []
 
 
+def test_continuing_a_log_drops_a_row_cut_short_and_the_rows_after_the_checkpoint(tmp_path):
+    log = records.MetricsLog(str(tmp_path), tensorboard=False)
+    log.write(0, _metrics())  # iterations 1-2
+    log.write(2, _metrics(10.0))  # iterations 3-4, after the checkpoint of iteration 2
+    path = tmp_path / "metrics.csv"
+    kept = path.read_text().splitlines()[:5]  # the header and iterations 1-2 of both seeds
+    with path.open("a") as f:
+        f.write("1")  # killed while writing iteration 12's row: its number cut to "1"
+    records.MetricsLog(str(tmp_path), tensorboard=False, keep_until=2)
+    assert path.read_text().splitlines() == kept
+    path.write_text(kept[0][:10])  # a header cut short: nothing to keep, the log starts afresh
+    again = records.MetricsLog(str(tmp_path), tensorboard=False, keep_until=0)
+    assert not path.exists()
+    again.write(0, _metrics())
+    assert path.read_text().splitlines() == kept
+
+
 # A W&B offline run keeps everything in its transaction log, run-ID.wandb: a 7-byte header
 # (":W&B", magic, version), then LevelDB-log blocks of 32 KiB holding records with a 7-byte
 # header each (CRC-32, length, type: full, or first / middle / last parts of one record), each

@@ -20,8 +20,11 @@ In a run of several processes, process 0 alone writes checkpoints; every process
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
+import shutil
+import threading
 
 import jax
 import numpy as np
@@ -82,19 +85,66 @@ def _manager(run_dir: str, keep: int = 2) -> ocp.CheckpointManager:
     return ocp.CheckpointManager(directory(run_dir), options=options)
 
 
+class CheckpointWriteError(OSError):
+    """A checkpoint could not be written (full disk, read-only directory); the newest complete
+    checkpoint before it is untouched."""
+
+
+@contextlib.contextmanager
+def _quiet_on_failure():
+    """Holds back what is written to stderr (file descriptor 2) in the block, and lets it
+    through unless the block fails: orbax's threads, when a write fails, print tracebacks by
+    the dozen before the error reaches the caller, which says it in one line."""
+    read, write = os.pipe()
+    saved = os.dup(2)
+    held = []
+    reader = threading.Thread(target=lambda: held.extend(iter(lambda: os.read(read, 65536), b"")))
+    reader.start()
+    os.dup2(write, 2)
+    os.close(write)
+    failed = True
+    try:
+        yield
+        failed = False
+    finally:
+        os.dup2(saved, 2)  # closes the pipe's last write end: the reader ends
+        os.close(saved)
+        reader.join()
+        os.close(read)
+        if not failed:
+            os.write(2, b"".join(held))
+
+
 def save(run_dir: str, iteration: int, state, history: dict[str, np.ndarray]) -> None:
-    """Writes the checkpoint of ``iteration`` (keeps the two newest); ``state`` is host arrays."""
+    """Writes the checkpoint of ``iteration`` (keeps the two newest); ``state`` is host arrays.
+
+    Raises:
+      CheckpointWriteError: the write failed; its partial files are removed.
+    """
     os.makedirs(directory(run_dir), exist_ok=True)
-    with _manager(run_dir) as manager:
-        manager.save(
-            iteration,
-            args=ocp.args.Composite(
-                state=ocp.args.StandardSave(_without_empty(state)),
-                history=ocp.args.StandardSave(history),
-                meta=ocp.args.JsonSave({"iteration": iteration, "layout": layout(state)}),
-            ),
-        )
-        manager.wait_until_finished()
+    try:
+        with _manager(run_dir) as manager, _quiet_on_failure():
+            manager.save(
+                iteration,
+                args=ocp.args.Composite(
+                    state=ocp.args.StandardSave(_without_empty(state)),
+                    history=ocp.args.StandardSave(history),
+                    meta=ocp.args.JsonSave({"iteration": iteration, "layout": layout(state)}),
+                ),
+            )
+            manager.wait_until_finished()
+    except Exception as error:  # orbax raises tensorstore's errors as ValueError, or OSError
+        # The temporary directory of the failed write: it would only take space.
+        for name in os.listdir(directory(run_dir)):
+            if name.startswith(f"{iteration}.orbax-checkpoint-tmp"):
+                shutil.rmtree(os.path.join(directory(run_dir), name), ignore_errors=True)
+        text = str(error).strip().splitlines()
+        raise CheckpointWriteError(
+            getattr(error, "errno", None),
+            f"the checkpoint of iteration {iteration} could not be written "
+            f"({text[0][:200] if text else type(error).__name__})",
+            directory(run_dir),
+        ) from None
 
 
 def latest_iteration(run_dir: str) -> int | None:

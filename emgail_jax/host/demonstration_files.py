@@ -127,6 +127,13 @@ def validate(demos: Demonstrations, env: envs.Env | None = None, source: str = "
             f"{source}: observations [N, obs_dim], actions [N, act_dim] and episode_starts [N] "
             f"must agree; got shapes {obs.shape}, {act.shape} and {demos.episode_starts.shape}"
         )
+    if not demos.episode_starts[0]:
+        # Else the pairs before the first start belong to no episode (all of them, if no pair
+        # starts one: the trajectory E-step would take the file for one demonstration).
+        raise DemonstrationError(
+            f"{source}: episode_starts[0] is False, but the first pair must start an episode "
+            f"({int(demos.episode_starts.sum())} of {n} pairs start one); set it True"
+        )
     for name, values in (("observations", obs), ("actions", act)):
         if not np.all(np.isfinite(values)):
             raise DemonstrationError(f"{source}: {name} contain NaN or inf values")

@@ -3,8 +3,13 @@ for a run spread over several processes or hosts, ``jax.distributed``."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
+import socket
+import sys
+import threading
+import time
 
 DEFAULT_CACHE = os.path.join(os.path.expanduser("~"), ".cache", "emgail_jax", "xla")
 
@@ -20,6 +25,22 @@ def add_xla_flags(*flags: str) -> None:
     missing = [f for f in flags if f.split("=")[0] not in current]
     if missing:
         os.environ["XLA_FLAGS"] = " ".join([current, *missing]).strip()
+
+
+# A process that stops answering (killed, its machine gone) is declared dead after this long,
+# which ends the others (jax.distributed's coordination service); a finished process waits this
+# long at most for the others to finish too.
+HEARTBEAT_TIMEOUT_S = 20
+SHUTDOWN_TIMEOUT_S = 60
+# How long process 0, failing, waits for the others to end first (each ends within seconds of
+# reading the failure, unless it is stuck in a long compile).
+LEAVE_TIMEOUT_S = 30
+# Where a process that fails posts its error for the others (the coordination service's store).
+_FAILURES = "emgail_jax/failed/"
+_LEFT = "emgail_jax/left/"
+_PIDS = "emgail_jax/pids/"
+_STDERR = os.dup(2)  # stderr as it is at start-up, also while a checkpoint write holds fd 2
+_PEER_POLL_S = 0.5
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,6 +80,17 @@ class Distributed:
         return cls(coordinator, num_processes, process_id)
 
 
+def seed_share_error(seeds: int, processes: int) -> str | None:
+    """Why ``processes`` cannot share ``seeds`` equally (each trains the same number), or
+    None."""
+    if seeds % processes:
+        return (
+            f"--seeds {seeds} cannot be shared equally by {processes} processes: "
+            f"give a multiple of {processes} seeds"
+        )
+    return None
+
+
 def setup(
     host_devices: int | None = None,
     cache_dir: str | None = DEFAULT_CACHE,
@@ -81,8 +113,13 @@ def setup(
 
     if distributed is not None:
         jax.distributed.initialize(
-            distributed.coordinator, distributed.num_processes, distributed.process_id
+            distributed.coordinator,
+            distributed.num_processes,
+            distributed.process_id,
+            heartbeat_timeout_seconds=HEARTBEAT_TIMEOUT_S,
+            shutdown_timeout_seconds=SHUTDOWN_TIMEOUT_S,
         )
+        _watch_peers(distributed)
         # The CPU collectives (gloo) set up their connections on first use and give up after
         # 30 s; right after `initialize` every process is here at once, later (after compiles
         # that take each process its own time) not.
@@ -95,3 +132,162 @@ def setup(
         jax.config.update("jax_compilation_cache_dir", cache_dir)
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
         jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+
+
+class _PeerWatch:
+    """Ends this process when another process of the run fails: it posts its error line
+    (:func:`report_failure`), it stops answering (killed), or the coordination service that
+    process 0 holds disappears."""
+
+    def __init__(self, distributed: Distributed):
+        from jax._src import distributed as jax_distributed
+
+        self.distributed = distributed
+        self.client = jax_distributed.global_state.client
+        self.active = True
+        self.thread: threading.Thread | None = None
+        self.neighbours: dict[int, int] = {}  # process -> pid, of those on this machine
+
+    def run(self) -> None:
+        me = self.distributed.process_id
+        with contextlib.suppress(Exception):
+            self.client.key_value_set(f"{_PIDS}{me}", f"{socket.gethostname()} {os.getpid()}")
+        unreachable = 0.0
+        while self.active:
+            time.sleep(_PEER_POLL_S)
+            try:
+                failures = self.client.key_value_dir_get(_FAILURES)
+                unreachable = 0.0
+            except Exception:  # the service's errors have no Python type of their own
+                unreachable += _PEER_POLL_S
+                if unreachable >= HEARTBEAT_TIMEOUT_S:
+                    self._end_with(
+                        f"the run's coordinator, process 0 at {self.distributed.coordinator}, "
+                        "is gone (it failed or was killed)"
+                    )
+                continue
+            for key, message in failures:
+                peer = key.rsplit("/", 1)[-1]
+                if peer != str(me):
+                    self._end_with(f"process {peer} of the run failed ({message})")
+            gone = self.gone()
+            if gone:
+                self._end_with(f"process {gone[0]} of the run stopped answering (killed?)")
+
+    def _end_with(self, cause: str) -> None:
+        # A moment for this process's own failure, if it fails alike (a check every process
+        # makes), to be the one it reports.
+        time.sleep(2 * _PEER_POLL_S)
+        if self.active:
+            self.active = False
+            _leave_now(f"error: {cause}; this process stops too", 1)
+
+    def gone(self) -> list[int]:
+        """The other processes that no longer answer: on this machine, those whose process
+        has ended (at once); elsewhere, those the service misses heartbeats of."""
+        me, count = self.distributed.process_id, self.distributed.num_processes
+        try:
+            live = self.client.get_live_nodes(list(range(count)))
+            if len(self.neighbours) < count - 1:
+                self.neighbours = self._neighbours()
+        except Exception:  # the service itself is gone, and with it process 0
+            return [0]
+        ended = [i for i, pid in self.neighbours.items() if not _running(pid)]
+        return ended + [i for i in range(count) if i not in (me, *ended) and i not in live]
+
+    def _neighbours(self) -> dict[int, int]:
+        host, me = socket.gethostname(), self.distributed.process_id
+        found = {}
+        for key, value in self.client.key_value_dir_get(_PIDS):
+            their_host, _, pid = value.rpartition(" ")
+            if their_host == host and int(key.rsplit("/", 1)[-1]) != me:
+                found[int(key.rsplit("/", 1)[-1])] = int(pid)
+        return found
+
+
+def _running(pid: int) -> bool:
+    """Whether process ``pid`` of this machine runs (a killed one not yet reaped, a zombie,
+    does not)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[-1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+    except OSError:  # no /proc: ask the kernel
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        return True
+
+
+_peer_watch: _PeerWatch | None = None
+
+
+def peers_gone() -> list[int]:
+    """The processes of this run that no longer answer (none in a run of one process)."""
+    return [] if _peer_watch is None else _peer_watch.gone()
+
+
+def _watch_peers(distributed: Distributed) -> None:
+    global _peer_watch
+    _peer_watch = _PeerWatch(distributed)
+    _peer_watch.thread = threading.Thread(target=_peer_watch.run, daemon=True, name="peers")
+    _peer_watch.thread.start()
+
+
+def report_failure(message: str) -> None:
+    """Tells the other processes of the run that this one fails with ``message`` (one line);
+    they end at once instead of waiting for it in a collective."""
+    if _peer_watch is None:
+        return
+    _peer_watch.active = False
+    key = f"{_FAILURES}{_peer_watch.distributed.process_id}"
+    with contextlib.suppress(Exception):
+        _peer_watch.client.key_value_set(key, message)
+
+
+def leave(code: int) -> None:
+    """Ends this process's part in a multi-process run: after a success, waits for the others
+    to finish too (at most :data:`SHUTDOWN_TIMEOUT_S`); after a failure (reported first with
+    :func:`report_failure`) exits at once with ``code``, since waiting for processes that will
+    not finish would hang."""
+    import jax
+
+    global _peer_watch
+    if _peer_watch is None:
+        return
+    _peer_watch.active = False
+    if code != 0:
+        _leave_now(None, code)
+    # A thread still inside the client when the interpreter ends aborts the process.
+    _peer_watch.thread.join(timeout=5)
+    jax.distributed.shutdown()
+    _peer_watch = None
+
+
+def _leave_now(line: str | None, code: int) -> None:
+    """Exits the process at once, ``line`` first on stderr: no interpreter shutdown, which
+    would wait for the other processes. Process 0, which holds the coordination service, goes
+    last (a few seconds at most), so that the others end with their own line, not with the
+    service's abort."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    if line:
+        os.write(_STDERR, f"{line}\n".encode())
+    watch = _peer_watch
+    if watch is not None and watch.distributed.process_id != 0:
+        with contextlib.suppress(Exception):
+            watch.client.key_value_set(f"{_LEFT}{watch.distributed.process_id}", "")
+    elif watch is not None:
+        others = set(range(1, watch.distributed.num_processes))
+        deadline = time.monotonic() + LEAVE_TIMEOUT_S
+        while time.monotonic() < deadline:
+            with contextlib.suppress(Exception):
+                left = {
+                    int(key.rsplit("/", 1)[-1]) for key, _ in watch.client.key_value_dir_get(_LEFT)
+                }
+                if others <= left | set(watch.gone()):
+                    break
+            time.sleep(0.1)
+    os._exit(code)

@@ -72,7 +72,13 @@ class MetricsLog:
     def _truncate(self, keep_until: int) -> None:
         with open(self.csv_path, newline="") as f:
             rows = list(csv.reader(f))
-        header, body = rows[0], [r for r in rows[1:] if int(r[0]) <= keep_until]
+        # A run killed while writing leaves a last row cut short (or a header alone); the rows
+        # of a checkpointed iteration were complete before its checkpoint was written.
+        header = rows[0] if rows else []
+        body = [r for r in rows[1:] if len(r) == len(header) and int(r[0]) <= keep_until]
+        if not body:  # nothing to keep: the log starts afresh
+            os.remove(self.csv_path)
+            return
         tmp = f"{self.csv_path}.tmp"
         with open(tmp, "w", newline="") as f:
             csv.writer(f).writerows([header, *body])

@@ -49,6 +49,23 @@ class RunSpec:
             )
         except (KeyError, TypeError) as error:
             raise RunError(f"summary.json does not describe a run (no {error})") from None
+        except ValueError as error:  # a hyper-parameter out of its domain
+            raise RunError(f"summary.json holds a config this version refuses: {error}") from None
+
+    def to_summary(self) -> dict:
+        """The fields of a ``summary.json`` that :meth:`from_summary` reads back (a run's own
+        summary holds these, resolved for its env, and much else)."""
+        return {
+            "env": self.env,
+            "intentions": self.intentions,
+            "env_options": self.env_options,
+            "algo": self.algo,
+            "seeds": self.seeds,
+            "first_seed": self.first_seed,
+            "demonstrations": {"path": stored_sources(self.demo_sources), "seed": self.demo_seed},
+            "config": self.config.to_dict(),
+            "random_episodes": self.random_episodes,
+        }
 
 
 def _sources(path: str | list[str] | None) -> tuple[str, ...]:

@@ -17,6 +17,8 @@ import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from emgail_jax.host import jax_setup
+from emgail_jax.host.run_spec import RunError
 from emgail_jax.method import rl
 from emgail_jax.method.training import TrainState
 
@@ -34,9 +36,24 @@ def chunk_length(iterations: int, chunk_size: int) -> int:
 
 
 def seed_sharding(seeds: int) -> NamedSharding:
-    devices = jax.devices()
-    count = max(d for d in range(1, len(devices) + 1) if seeds % d == 0)
-    return NamedSharding(Mesh(np.asarray(devices[:count]), ("seed",)), PartitionSpec("seed"))
+    """The seeds sharded over as many devices as divide them, the same number of each process
+    (every process of a multi-process run trains a share, whatever devices it has).
+
+    Raises:
+      RunError: the processes cannot share the seeds equally (checked before anything
+        compiles, with the same outcome in every process).
+    """
+    processes = jax.process_count()
+    if error := jax_setup.seed_share_error(seeds, processes):
+        raise RunError(error)
+    per_process = max(
+        d for d in range(1, jax.local_device_count() + 1) if (seeds // processes) % d == 0
+    )
+    by_process = collections.defaultdict(list)
+    for device in jax.devices():
+        by_process[device.process_index].append(device)
+    devices = [d for index in sorted(by_process) for d in by_process[index][:per_process]]
+    return NamedSharding(Mesh(np.asarray(devices), ("seed",)), PartitionSpec("seed"))
 
 
 def default_seed_batch() -> int | None:

@@ -4,16 +4,104 @@ from __future__ import annotations
 
 import ast
 import dataclasses
-from collections.abc import Sequence
+import math
+import numbers
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from emgail_jax.method.algorithms import REWARD_FORMS
+from emgail_jax.method.algorithms import NAMES, REWARD_FORMS
 from emgail_jax.method.trpo import TRPOConfig
 
 INTENTION_INPUTS = ("onehot", "heads")
 RESPONSIBILITIES = ("trajectory", "trajectory-centered", "pair", "labels")
 REWARD_FROM = ("updated", "previous")
 PRIORS = ("uniform", "mixture")
+
+
+@dataclass(frozen=True)
+class Domain:
+    """The values a hyper-parameter may take: ``contains(value)``, and what it says to a user
+    ("at least 1")."""
+
+    contains: Callable[[object], bool]
+    text: str
+
+    def holds(self, value) -> bool:
+        try:
+            return bool(self.contains(value))
+        except TypeError:  # a value of another type (None, a string for a number)
+            return False
+
+
+def _numbers(test: Callable[[float], bool], text: str) -> Domain:
+    return Domain(lambda v: not isinstance(v, (bool, str)) and math.isfinite(v) and test(v), text)
+
+
+def _one_of(choices: Sequence[str]) -> Domain:
+    return Domain(lambda v: v in choices, f"one of {', '.join(choices)}")
+
+
+def _or_default(domain: Domain) -> Domain:
+    return Domain(lambda v: v is None or domain.holds(v), f"{domain.text} (or None, the default)")
+
+
+COUNT = Domain(
+    lambda v: isinstance(v, numbers.Integral) and not isinstance(v, bool) and v >= 1, "at least 1"
+)
+POSITIVE = _numbers(lambda v: v > 0, "a positive number")
+NON_NEGATIVE = _numbers(lambda v: v >= 0, "a number >= 0")
+FRACTION = _numbers(lambda v: 0 < v <= 1, "in (0, 1]")
+FINITE = _numbers(lambda v: True, "a finite number")
+WIDTHS = Domain(lambda v: all(COUNT.holds(w) for w in v), "a tuple of layer widths >= 1")
+BOOLEAN = Domain(lambda v: isinstance(v, bool), "True or False")
+
+# Every hyper-parameter's domain, by its --set key; Config checks them all on construction.
+DOMAINS = {
+    "algo": _one_of(NAMES),
+    "iterations": COUNT,
+    "num_envs": _or_default(COUNT),
+    "rollout_length": _or_default(COUNT),
+    "eval_every": COUNT,
+    "hidden": WIDTHS,
+    "intention_input": _one_of(INTENTION_INPUTS),
+    "responsibilities": _one_of(RESPONSIBILITIES),
+    "prior": _one_of(PRIORS),
+    "choose_intentions": BOOLEAN,
+    "init_log_std": FINITE,
+    "obs_clip": POSITIVE,
+    "gamma": FRACTION,
+    "gae_lambda": FRACTION,
+    "trpo.max_kl": POSITIVE,
+    "trpo.cg_iterations": COUNT,
+    "trpo.cg_damping": NON_NEGATIVE,
+    "trpo.line_search_steps": COUNT,
+    "trpo.line_search_decay": _numbers(lambda v: 0 < v < 1, "in (0, 1)"),
+    "trpo.accept_ratio": _numbers(lambda v: 0 <= v <= 1, "in [0, 1]"),
+    "value_learning_rate": POSITIVE,
+    "value_epochs": COUNT,
+    "value_minibatches": COUNT,
+    "discriminator_learning_rate": POSITIVE,
+    "discriminator_steps": COUNT,
+    "posterior_learning_rate": POSITIVE,
+    "posterior_steps": COUNT,
+    "reward_from": _one_of(REWARD_FROM),
+    "reward_form": _one_of(REWARD_FORMS),
+    "info_weight": NON_NEGATIVE,
+    "chunk_size": COUNT,
+    "seed_batch": _or_default(COUNT),
+}
+
+
+class SettingError(ValueError):
+    """A hyper-parameter outside its domain; ``key`` names it as ``--set`` does."""
+
+    def __init__(self, key: str, value, domain: Domain):
+        self.key, self.value, self.domain = key, value, domain
+        super().__init__(self.naming(key))
+
+    def naming(self, name: str) -> str:
+        """The message with the setting called ``name`` (e.g. its command-line option)."""
+        return f"{name} must be {self.domain.text}; got {self.value!r}"
 
 
 @dataclass(frozen=True)
@@ -93,21 +181,12 @@ class Config:
     seed_batch: int | None = None
 
     def __post_init__(self):
-        if self.eval_every < 1:
-            raise ValueError(f"eval_every must be at least 1; got {self.eval_every}")
-        for name, choices in (
-            ("intention_input", INTENTION_INPUTS),
-            ("responsibilities", RESPONSIBILITIES),
-            ("prior", PRIORS),
-            ("reward_from", REWARD_FROM),
-            ("reward_form", REWARD_FORMS),
-        ):
-            if getattr(self, name) not in choices:
-                raise ValueError(
-                    f"unknown {name.replace('_', ' ')} '{getattr(self, name)}': choose one of "
-                    f"{', '.join(choices)}"
-                )
-
+        for key, domain in DOMAINS.items():
+            value = self
+            for name in key.split("."):
+                value = getattr(value, name)
+            if not domain.holds(value):
+                raise SettingError(key, value, domain)
         if self.choose_intentions and (self.prior != "mixture" or self.algo == "gail"):
             raise ValueError(
                 "choosing the number of intentions needs a posterior and the mixture prior: "
@@ -140,7 +219,7 @@ class Config:
         """This config with the fields that do not shape the compiled update cleared: the host's
         schedule (iterations, evaluation cadence, chunks) and what is passed as data (the info
         weight, see ``training.RunData``)."""
-        return self.replace(iterations=0, eval_every=1, chunk_size=0, info_weight=0.0)
+        return self.replace(iterations=1, eval_every=1, chunk_size=1, info_weight=0.0)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
