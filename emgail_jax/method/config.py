@@ -82,6 +82,7 @@ DOMAINS = {
     "value_minibatches": COUNT,
     "discriminator_learning_rate": POSITIVE,
     "discriminator_steps": COUNT,
+    "discriminator_gradient_penalty": NON_NEGATIVE,
     "posterior_learning_rate": POSITIVE,
     "posterior_steps": COUNT,
     "reward_from": _one_of(REWARD_FROM),
