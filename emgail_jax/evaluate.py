@@ -3,8 +3,9 @@
     python -m emgail_jax.evaluate RUN_DIR [--episodes 10] [--seed 0]
 
 Prints, per seed, the normalised ERD (and each true intention's share of it) with the matching
-of true to learned intentions, and the clustering accuracy of the posterior as training measures
-it (eq. 29; in trajectory mode also the trajectory labels' accuracy), with the Hungarian mapping.
+of true to learned intentions, the clustering accuracy of the posterior as training measures
+it (eq. 29; in trajectory mode also the trajectory labels' accuracy), with the Hungarian mapping,
+and how many demonstrations each learned intention holds (none: a collapsed intention).
 Writes the same numbers to ``RUN_DIR/evaluation.json`` and figures to ``RUN_DIR/figures``:
 
 - ``learning_curves.png``: ERD and clustering accuracy over iterations (from ``metrics.csv``);
@@ -102,6 +103,8 @@ def score(run, seed: int, returns: np.ndarray) -> dict:
         counts = np.zeros((run.problem.true_intentions, run.num_intentions))
         np.add.at(counts, (demos.intentions, responsibilities.pair_labels), 1)
         result["cluster_of_intention"] = linear_sum_assignment(-counts)[1]
+    if run.algorithm.learns_posterior:
+        result["demonstrations_held"] = run.demonstrations_held(seed)
     if in_use is not None:
         result["intentions_chosen"] = int(in_use.sum())
     return result
@@ -259,6 +262,9 @@ def seed_line(run, seed: int, result: dict) -> str:
         parts.append(f"accuracy {result['cluster_accuracy']:.3f} [{clusters}]")
     if "trajectory_cluster_accuracy" in result:
         parts.append(f"trajectory accuracy {result['trajectory_cluster_accuracy']:.3f}")
+    if "demonstrations_held" in result:
+        held = " ".join(str(n) for n in result["demonstrations_held"])
+        parts.append(f"demonstrations held per learned intention {held}")
     if "intentions_chosen" in result:
         parts.append(f"K chosen {result['intentions_chosen']}")
     return " ".join(parts)

@@ -110,6 +110,13 @@ def parse_args(argv=None) -> argparse.Namespace:
         help="E-step prior over the intentions: uniform (default, the paper's) or mixture "
         "weights estimated from the demonstrations (for intentions in unequal shares)",
     )
+    parser.add_argument(
+        "--reseed",
+        default=None,
+        choices=("on", "off"),
+        help="re-seed an intention that holds no demonstration (default on; "
+        "docs/no-empty-intention.md)",
+    )
     parser.add_argument("--num-envs", type=int, default=None, help="envs per intention")
     parser.add_argument("--rollout-length", type=int, default=None, help="steps per rollout")
     parser.add_argument(
@@ -192,6 +199,7 @@ _RUN_OPTIONS = (
     "intention_input",
     "responsibilities",
     "prior",
+    "reseed",
     "set",
     "num_envs",
     "rollout_length",
@@ -244,6 +252,7 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         "responsibilities": args.responsibilities,
         "prior": "mixture" if choosing else args.prior,
         "choose_intentions": choosing or None,
+        "reseed": None if args.reseed is None else args.reseed == "on",
         "num_envs": args.num_envs,
         "rollout_length": args.rollout_length,
         "eval_every": args.eval_every,
@@ -421,8 +430,10 @@ def train(
     else:
         summary["status"] = "completed"
     summary["final"] = _final_summary(problem, config, history, timings, spec)
-    if config.choose_intentions:
+    if config.algo != "gail":
         final_state = recorder.host_state if recorder.host_state is not None else gather(state)
+        summary["final"].update(_held_final(problem, config, runner.data.demos, final_state))
+    if config.choose_intentions:
         chosen = _chosen_final(problem, config, runner.data.demos, final_state, history)
         summary["final"].update(chosen)
     write_json(summary_path, summary)
@@ -589,10 +600,30 @@ def _final_summary(problem, config, history, timings, spec) -> dict:
         summary["intention_weights"] = final["posterior/intention_weights"]
     if "posterior/intentions_in_use" in final:  # --intentions auto: [seeds]
         summary["intentions_held"] = np.rint(final["posterior/intentions_in_use"]).astype(int)
+    if "reseed/reseedings" in history:  # the re-seedings of emptied intentions, to the end
+        summary["reseedings"] = history["reseed/reseedings"][:, -1].astype(int)
     name = "trajectory_cluster_accuracy"
     if f"eval/{name}" in final:  # EM-GAIL and Info/IntentionGAIL in trajectory mode
         summary[name] = None if no_accuracy else final[f"eval/{name}"]
     return summary
+
+
+def _held_final(problem, config, demos, states) -> dict:
+    """``demonstrations_held[seed][K]``: how many demonstrations each learned intention holds
+    under the final state's E-step (none: a collapsed intention)."""
+    from emgail_jax.method.choosing import demonstrations_held
+    from emgail_jax.method.training import make_networks, responsibilities_of, seed_state
+
+    networks = make_networks(config, problem.env)
+    held = [
+        demonstrations_held(
+            np.asarray(responsibilities_of(networks, config, seed_state(states, s), demos).gamma),
+            demos.episode,
+            demos.episodes,
+        )
+        for s in range(states.intention_weights.shape[0])
+    ]
+    return {"demonstrations_held": np.stack(held)}
 
 
 def _chosen_final(problem, config, demos, states, history) -> dict:
@@ -697,6 +728,9 @@ def print_summary(summary: dict) -> None:
     table.add_column("per intention", justify="right")
     table.add_column("cluster acc.", justify="right")
     table.add_column("true returns (learned / expert)")
+    held = final.get("demonstrations_held")
+    if held is not None:
+        table.add_column("demos held", justify="right")
     chosen = final.get("intentions_chosen")
     if chosen is not None:
         table.add_column("K chosen", justify="right")
@@ -717,6 +751,7 @@ def print_summary(summary: dict) -> None:
             "-" if erd_i is None else " ".join(f"{e:.2f}" for e in erd_i),
             number(acc),
             pairs,
+            *([] if held is None else [" ".join(str(n) for n in held[seed])]),
             *([] if chosen is None else [str(chosen[seed])]),
         )
     console = Console()

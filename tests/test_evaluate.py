@@ -15,6 +15,7 @@ def test_evaluate_writes_its_figures(tiny_run, capsys):
     assert evaluate.main([str(tiny_run), "--episodes", "2", "--out", str(out)]) == 0
     printed = capsys.readouterr().out
     assert "seed 0: ERD" in printed and "seed 1: ERD" in printed and "accuracy" in printed
+    assert printed.count("demonstrations held per learned intention") == 2
     for name in ("learning_curves.png", "paths_seed0.png"):
         data = (out / name).read_bytes()
         assert data.startswith(PNG) and len(data) > 10_000, name
@@ -31,6 +32,9 @@ def test_evaluation_json_holds_what_evaluate_prints(tiny_run):
         assert sorted(result["matching"]) == [0, 1] and result["episodes"] == 2
         assert len(result["returns"]) == 2 and len(result["returns"][0]) == 2
         assert 0.5 <= result["cluster_accuracy"] <= 1.0
+        # Each of the 10 demonstrations is held by one learned intention.
+        assert len(result["demonstrations_held"]) == 2
+        assert sum(result["demonstrations_held"]) == 10
 
 
 @pytest.fixture(scope="module")

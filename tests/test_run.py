@@ -71,6 +71,13 @@ def test_summary_follows_the_run_contract(runs, algo):
     )
     machine = summary["machine"]  # results differ in the last bits from one CPU to another
     assert machine["cpu"] and machine["packages"]["jax"] and machine["python"]
+    if algo == "gail":  # no posterior: no demonstration is held by an intention, none re-seeded
+        assert "demonstrations_held" not in final and "reseedings" not in final
+    else:
+        # The default driver demonstrations: 5 per path, each held by one learned intention.
+        held = np.asarray(final["demonstrations_held"])
+        assert held.shape == (SEEDS, 2) and np.all(held.sum(1) == 10)
+        assert len(final["reseedings"]) == SEEDS and all(n >= 0 for n in final["reseedings"])
 
 
 def test_runs_differing_only_in_data_share_one_program(runs, tmp_path, monkeypatch):
@@ -251,6 +258,11 @@ def test_intentions_auto_starts_from_the_env_maximum_with_the_mixture_prior():
     assert spec.intentions == 2 and not spec.config.choose_intentions
     with pytest.raises(SystemExit):
         run.parse_args(["--intentions", "two"])
+
+
+def test_re_seeding_is_on_by_default_and_one_flag_from_off():
+    assert run.spec_from_args(run.parse_args([])).config.reseed
+    assert not run.spec_from_args(run.parse_args(["--reseed", "off"])).config.reseed
 
 
 def test_set_reaches_the_config_and_a_resume_refuses_it(tmp_path):

@@ -202,7 +202,12 @@ def test_update_metrics_have_the_documented_keys_and_shapes(emgail):
     for _, metrics in steps:
         assert set(metrics) >= COMMON_KEYS | POSTERIOR_KEYS
         for name, value in metrics.items():
-            per_intention = ("eval/returns", "eval/matching", "eval/erd_per_intention")
+            per_intention = (
+                "eval/returns",
+                "eval/matching",
+                "eval/erd_per_intention",
+                "reseed/demonstrations",
+            )
             expected = (K,) if name in per_intention else ()
             assert np.shape(value) == expected, name
     evaluated, skipped = (metrics for _, metrics in steps)
@@ -415,3 +420,29 @@ def test_the_mixture_prior_carries_its_weights_from_one_e_step_to_the_next(env, 
         weights = metrics["posterior/intention_weights"]
         assert weights.shape == (K,) and np.isclose(weights.sum(), 1.0, atol=1e-5)
         np.testing.assert_array_equal(state.intention_weights, weights)
+
+
+def test_an_intention_emptied_by_the_posterior_is_re_seeded(env, expert):
+    """A posterior that gives every demonstration to intention 0 (a large bias on its logit,
+    which 2 Adam steps per iteration cannot undo) leaves intention 1 empty; after `patience`
+    E-steps it takes the worse-explained half of the demonstrations, for `window` E-steps."""
+    config = CONFIG.replace(reseed_patience=2, reseed_window=2)
+    init, update, _ = make_train(config, env)
+    data = RunData.create(expert, env, config)
+    state = jax.jit(init)(jax.random.PRNGKey(0), data)
+    layers = state.posterior.params["params"]["MLP_0"]
+    last = f"Dense_{len(config.hidden)}"
+    bias = layers[last]["bias"].at[0].add(30.0)
+    params = {"params": {"MLP_0": {**layers, last: {**layers[last], "bias": bias}}}}
+    state = state.replace(posterior=state.posterior.replace(params=params))
+    step = jax.jit(update)
+    history = []
+    for _ in range(4):
+        state, metrics = step(state, jnp.bool_(False), data)
+        history.append(jax.device_get(metrics))
+    # The posterior's own responsibilities: every one of the 4 demonstrations in intention 0.
+    for metrics in history:
+        np.testing.assert_allclose(metrics["reseed/demonstrations"], [4.0, 0.0], atol=1e-3)
+    assert [int(m["reseed/target"]) for m in history] == [-1, 1, 1, -1]
+    assert [int(m["reseed/reseedings"]) for m in history] == [0, 1, 1, 1]
+    assert int(state.reseeding.taken.sum()) == 2  # half of intention 0's demonstrations

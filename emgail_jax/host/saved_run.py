@@ -26,7 +26,7 @@ from emgail_jax.host.seed_runner import Runner
 from emgail_jax.method import normalizer as obs_norm
 from emgail_jax.method.algorithms import Algorithm, make_algorithm
 from emgail_jax.method.batches import DemonstrationPairs
-from emgail_jax.method.choosing import chosen_intentions
+from emgail_jax.method.choosing import chosen_intentions, demonstrations_held
 from emgail_jax.method.config import Config
 from emgail_jax.method.discriminator import learned_reward
 from emgail_jax.method.networks import policy_action
@@ -202,6 +202,14 @@ class SavedRun:
         state = self.seed_state(seed)
         result = responsibilities_of(self.networks, self.config, state, self.demonstration_pairs)
         return jax.device_get(result)
+
+    def demonstrations_held(self, seed: int = 0) -> np.ndarray:
+        """``[K]`` how many demonstrations each learned intention of ``seed`` holds (the one
+        with the most responsibility over a demonstration's pairs holds it): an intention
+        holding none is a collapse to fewer intentions (docs/no-empty-intention.md)."""
+        pairs = self.demonstration_pairs
+        gamma = np.asarray(self.responsibilities(seed).gamma)
+        return demonstrations_held(gamma, pairs.episode, pairs.episodes)
 
     def clustering(self, seed: int = 0) -> dict[str, float]:
         """The clustering accuracies training logs (eq. 29, and in trajectory mode the

@@ -89,6 +89,14 @@ def demonstration_intentions(
     return np.argmax(np.where(held, per_demonstration, -1.0), -1)
 
 
+def demonstrations_held(gamma: np.ndarray, episode: np.ndarray, episodes: int) -> np.ndarray:
+    """``[K]`` how many demonstrations each intention holds: those it has the most
+    responsibility for over their pairs (``gamma [N, K]``, ``episode [N]``)."""
+    k = gamma.shape[-1]
+    labels = demonstration_intentions(gamma, episode, episodes, np.ones(k, bool))
+    return np.bincount(labels, minlength=k)
+
+
 def chosen_intentions(
     gamma: np.ndarray, weights: np.ndarray, episode: np.ndarray, episodes: int
 ) -> np.ndarray:

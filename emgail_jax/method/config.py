@@ -66,6 +66,13 @@ DOMAINS = {
     "intention_input": _one_of(INTENTION_INPUTS),
     "responsibilities": _one_of(RESPONSIBILITIES),
     "prior": _one_of(PRIORS),
+    "reseed": BOOLEAN,
+    "reseed_patience": COUNT,
+    "reseed_window": COUNT,
+    "reseed_attempts": Domain(
+        lambda v: isinstance(v, numbers.Integral) and not isinstance(v, bool) and v >= 0,
+        "an integer >= 0",
+    ),
     "choose_intentions": BOOLEAN,
     "init_log_std": FINITE,
     "obs_clip": POSITIVE,
@@ -136,6 +143,14 @@ class Config:
     # w_i estimated as EM does for a mixture: each intention's mean responsibility over the
     # demonstration pairs, updated every E-step), for demonstrations in unequal shares.
     prior: str = "uniform"
+    # Re-seeding an emptied intention (emgail_jax.method.reseeding, docs/no-empty-intention.md):
+    # one that holds less than half a demonstration's share for `reseed_patience` E-steps takes
+    # the worse-explained half of the largest intention's demonstrations for `reseed_window`
+    # E-steps, at most `reseed_attempts` times per intention. Off for runs written before it.
+    reseed: bool = True
+    reseed_patience: int = 10
+    reseed_window: int = 10
+    reseed_attempts: int = 3
     # Whether K is chosen from the data (`--intentions auto`): training starts with the most
     # intentions allowed, keeps those whose mixture weight holds demonstrations, and at the end
     # those the seeds agree on (emgail_jax.method.choosing): docs/choosing-k.md.
@@ -236,6 +251,7 @@ class Config:
         values.setdefault("eval_every", 1)
         values.setdefault("reward_from", "updated")
         values.setdefault("reward_form", "gail")
+        values.setdefault("reseed", False)
         values.pop("eval_episodes", None)  # runs written before evaluation used num_envs
         values["hidden"] = tuple(values["hidden"])
         values["trpo"] = TRPOConfig(**values["trpo"])

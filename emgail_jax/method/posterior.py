@@ -25,12 +25,23 @@ TRAJECTORY_MODES = ("trajectory", "trajectory-centered")
 
 
 def posterior_loss(
-    apply: Callable, params, obs: jax.Array, actions: jax.Array, intentions: jax.Array
+    apply: Callable,
+    params,
+    obs: jax.Array,
+    actions: jax.Array,
+    intentions: jax.Array,
+    weights: jax.Array | None = None,
 ):
-    """Cross-entropy of ``P(. | obs [M, D], actions [M, A])`` against ``intentions [M]``."""
+    """Cross-entropy of ``P(. | obs [M, D], actions [M, A])`` against ``intentions [M]``; with
+    ``weights [M]``, their weighted mean (and the accuracy's)."""
     logits = apply(params, obs, actions)
-    loss = optax.softmax_cross_entropy_with_integer_labels(logits, intentions).mean()
-    accuracy = jnp.mean(jnp.argmax(logits, -1) == intentions)
+    cross_entropy = optax.softmax_cross_entropy_with_integer_labels(logits, intentions)
+    correct = jnp.argmax(logits, -1) == intentions
+    if weights is None:
+        loss, accuracy = cross_entropy.mean(), jnp.mean(correct)
+    else:
+        loss = jnp.sum(weights * cross_entropy) / jnp.sum(weights)
+        accuracy = jnp.sum(weights * correct) / jnp.sum(weights)
     return loss, {"posterior/loss": loss, "posterior/policy_accuracy": accuracy}
 
 
@@ -42,10 +53,24 @@ def posterior_update(
     actions: jax.Array,
     intentions: jax.Array,
     steps: int,
+    weights: jax.Array | None = None,
 ) -> tuple[Learner, dict]:
-    """E-step training: ``steps`` full-batch steps on the policy samples (labels known)."""
-    loss = lambda p: posterior_loss(apply, p, obs, actions, intentions)
+    """E-step training: ``steps`` full-batch steps on the policy samples (labels known), each
+    weighted by ``weights`` (None: equally)."""
+    loss = lambda p: posterior_loss(apply, p, obs, actions, intentions, weights)
     return minimize(loss, optimizer, posterior, steps)
+
+
+@struct.dataclass
+class Lesson:
+    """Demonstration pairs the posterior learns beside the policy samples while a re-seeding
+    holds them for an intention (emgail_jax.method.reseeding): Info/IntentionGAIL's
+    discriminator ignores gamma, and its reward's log P(i | s, a) is how a re-seeding reaches
+    its policies."""
+
+    active: jax.Array  # [] bool: whether any pair is held
+    intentions: jax.Array  # [N] the intention each pair is taught as
+    weights: jax.Array  # [N] 1 for the held pairs, 0 for the others
 
 
 def log_posterior(apply: Callable, params, obs: jax.Array, actions: jax.Array) -> jax.Array:
@@ -202,6 +227,7 @@ def make_e_step(apply: Callable, optimizer: optax.GradientTransformation, config
         batch: NormalizedBatch,
         demos: DemonstrationPairs,
         weights: jax.Array,
+        lesson: Lesson | None = None,
     ) -> EStep:
         k, m = batch.obs.shape[:2]
         own_intention = batch.own_intention()
@@ -209,15 +235,23 @@ def make_e_step(apply: Callable, optimizer: optax.GradientTransformation, config
             uniform = jnp.full((demos.episode.shape[0], k), 1.0 / k)
             return EStep(None, None, uniform, jnp.zeros((k, m)), weights, {})
         flat = lambda x: x.reshape(k * m, -1)
-        trained, metrics = posterior_update(
-            apply,
-            optimizer,
-            posterior,
-            flat(batch.obs),
-            flat(batch.executed),
-            own_intention.reshape(-1),
-            config.posterior_steps,
+        obs, actions = flat(batch.obs), flat(batch.executed)
+        intentions = own_intention.reshape(-1)
+        train = lambda learner, obs, actions, intentions, weights=None: posterior_update(
+            apply, optimizer, learner, obs, actions, intentions, config.posterior_steps, weights
         )
+        trained, metrics = train(posterior, obs, actions, intentions)
+        if lesson is not None:
+            # More steps after the usual ones rather than other ones: a run without a
+            # re-seeding computes exactly what it did before the option existed.
+            taught = lambda: train(
+                trained,
+                jnp.concatenate([obs, batch.expert_obs]),
+                jnp.concatenate([actions, batch.expert_actions]),
+                jnp.concatenate([intentions, lesson.intentions]),
+                jnp.concatenate([jnp.ones(k * m), lesson.weights]),
+            )[0]
+            trained = jax.lax.cond(lesson.active, taught, lambda: trained)
         responsibilities = expert_responsibilities(
             apply,
             trained.params,

@@ -47,7 +47,7 @@ from emgail_jax.method.b_step import BStep, PolicySamples, make_b_step
 from emgail_jax.method.batches import DemonstrationPairs, LearningBatch, NormalizedBatch
 from emgail_jax.method.choosing import holds_demonstrations
 from emgail_jax.method.config import Config
-from emgail_jax.method.discriminator import learned_reward, make_m_step
+from emgail_jax.method.discriminator import expert_logits, learned_reward, make_m_step
 from emgail_jax.method.metrics import cluster_accuracy, normalized_erd
 from emgail_jax.method.networks import (
     Discriminator,
@@ -59,9 +59,21 @@ from emgail_jax.method.networks import (
 from emgail_jax.method.optim import Learner
 from emgail_jax.method.posterior import (
     TRAJECTORY_MODES,
+    EStep,
+    Lesson,
     Responsibilities,
     expert_responsibilities,
     make_e_step,
+    mixture_weights,
+)
+from emgail_jax.method.reseeding import (
+    Reseeding,
+    ReseedingRule,
+    count_down,
+    demonstration_responsibilities,
+    demonstration_scores,
+    held_responsibilities,
+    reseeding_step,
 )
 from emgail_jax.method.rollout import (
     Transitions,
@@ -88,6 +100,9 @@ class TrainState:
     env_state: envs.State  # [K, B] auto-resetting training envs
     key: jax.Array
     iteration: jax.Array
+    # The re-seeding of emptied intentions; None without a posterior or with `--reseed off`
+    # (a state of the layout runs had before the option).
+    reseeding: Reseeding | None = None
 
     def network_parameters(self) -> dict[str, Any]:
         """The parameters of each of the four networks (None for GAIL's posterior)."""
@@ -312,9 +327,26 @@ def make_init(config: Config, env: envs.Env, networks: Networks, optimizers: Opt
             env_state=batch_reset(train_env, keys["env"], (k, b)),
             key=keys["next"],
             iteration=jnp.zeros((), jnp.int32),
+            reseeding=(
+                Reseeding.create(k, data.demos.episodes) if reseeds(config, algorithm) else None
+            ),
         )
 
     return init
+
+
+def lesson_of(memory: Reseeding, demos: DemonstrationPairs) -> Lesson:
+    """The demonstrations a re-seeding split, as the posterior learns them."""
+    return Lesson(
+        active=memory.left > 0,
+        intentions=memory.taught_intentions()[demos.episode],
+        weights=memory.split[demos.episode].astype(jnp.float32),
+    )
+
+
+def reseeds(config: Config, algorithm: Algorithm) -> bool:
+    """Whether the run re-seeds emptied intentions: with a posterior, unless turned off."""
+    return config.reseed and algorithm.learns_posterior
 
 
 class Collector(NamedTuple):
@@ -457,6 +489,51 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
             return None
         return holds_demonstrations(state.intention_weights, data.demos.episodes)
 
+    rule = ReseedingRule(config.reseed_patience, config.reseed_window, config.reseed_attempts)
+
+    def reseed(
+        memory: Reseeding,
+        e: EStep,
+        discriminator: Learner,
+        seen: NormalizedBatch,
+        demos: DemonstrationPairs,
+        algorithm: Algorithm,
+    ) -> tuple[Reseeding, EStep]:
+        """The E-step's gamma (and mixture weights) with an emptied intention re-seeded
+        (:mod:`emgail_jax.method.reseeding`); the demonstrations it takes are those the
+        discriminator of their intention (before this M-step) tells best from its policy."""
+
+        def scores(holder: jax.Array) -> jax.Array:
+            logits = expert_logits(
+                networks.discriminator.apply,
+                discriminator.params,
+                seen.expert_obs,
+                seen.expert_actions,
+                algorithm.discriminator_conditions(k),
+            )  # [N, C]
+            column = holder[demos.episode] if algorithm.conditional_discriminator else 0
+            column = jnp.broadcast_to(column, demos.episode.shape)
+            pair = jnp.take_along_axis(logits, column[:, None], -1)[:, 0]
+            return demonstration_scores(pair, demos.episode, demos.episodes)
+
+        per_demonstration = lambda gamma: demonstration_responsibilities(
+            gamma, demos.episode, demos.episodes
+        )
+        held = held_responsibilities(e.gamma, memory, demos.episode)
+        memory = reseeding_step(memory, per_demonstration(held), scores, rule)
+        gamma = held_responsibilities(e.gamma, memory, demos.episode)
+        metrics = {
+            **e.metrics,
+            "reseed/demonstrations": per_demonstration(e.gamma).sum(0),
+            "reseed/reseedings": memory.reseedings.sum(),
+            "reseed/target": memory.target,
+        }
+        weights = e.weights
+        if config.prior == "mixture":
+            weights = mixture_weights(gamma)
+            metrics["posterior/intention_weights"] = weights
+        return count_down(memory), e.replace(gamma=gamma, weights=weights, metrics=metrics)
+
     def update(state: TrainState, evaluating: jax.Array, data: RunData) -> tuple[TrainState, dict]:
         """One iteration of Algorithm 1; ``evaluating`` (a bool scalar, not batched over seeds,
         so that the evaluation phases are really skipped) says whether to run the evaluation
@@ -468,7 +545,14 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
             state, evaluating, data, key_phases, in_use
         )
         seen = normalized(state, batch, data)
-        e = e_step(state.posterior, seen, data.demos, state.intention_weights)
+        reseeding = state.reseeding
+        # EM-GAIL's M-step sees a re-seeding in gamma; Info/IntentionGAIL's D(s, a) ignores
+        # gamma, so its posterior learns the held demonstrations instead.
+        teaches = reseeding is not None and not algorithm.conditional_discriminator
+        lesson = lesson_of(reseeding, data.demos) if teaches else None
+        e = e_step(state.posterior, seen, data.demos, state.intention_weights, lesson)
+        if reseeding is not None:
+            reseeding, e = reseed(reseeding, e, state.discriminator, seen, data.demos, algorithm)
         m = m_step(state.discriminator, seen, e.gamma, algorithm)
         rewarding = m.discriminator if config.reward_from == "updated" else state.discriminator
         b = improve(state, batch, seen, rewarding, e.own_log_posterior, algorithm, key_value)
@@ -482,6 +566,7 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
             env_state=end,
             key=key_next,
             iteration=state.iteration + 1,
+            reseeding=reseeding,
         )
         clustering = clustering_metrics(
             e.responsibilities, data.demos, k, config.responsibilities, in_use
