@@ -278,7 +278,7 @@ def quality(env, policy, key, episodes: int = 10) -> list[dict]:
     for i, name in enumerate(env.intention_names[:k]):
         q = {"intention": name, "return": float(returns[i, :, i].mean())}
         q["upright"] = float(np.mean(steps[i] == env.episode_length))
-        if "x" in trace:
+        if "x" in trace and hasattr(env, "dt"):  # the driver has no time step
             duration = np.maximum(steps[i] - 1, 1) * env.dt
             q["velocity"] = float(np.mean((last(trace["x"])[i] - trace["x"][0, i]) / duration))
         if "pitch" in trace:

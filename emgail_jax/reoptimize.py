@@ -1,19 +1,35 @@
 """Is the learned reward a reward? Train fresh policies on it and measure their ERD (paper §5.2).
 
-    python -m emgail_jax.reoptimize RUN_DIR [--seed 0] [--iterations N]
+    python -m emgail_jax.reoptimize RUN_DIR [--seed S] [--snapshot ITER] [--iterations N]
+        [--gamma G] [--no-baseline] [--cache DIR] [--out PATH]
 
-For every learned intention i, a new policy is trained from scratch with TRPO on the frozen
-pseudo-reward R_i(s, a) of the run's ``--seed`` (intentions vmapped), never seeing the true
-reward. Its deterministic episodes are scored under the true rewards; the normalised ERD takes
-the best matching of learned to true intentions. Beside it, the learned reward per step that
-the fresh policies earn and that the demonstrations the run assigned to each intention earn:
-fresh policies that out-earn the demonstrations yet score far from the experts have optimised a
-reward that pays off the demonstrations' support. Writes ``RUN_DIR/reoptimize.json``.
+For every run seed (or ``--seed S`` alone) and every learned intention, a new policy is trained
+from scratch with TRPO on the frozen pseudo-reward R_i(s, a) of that seed (the run's final
+networks, or those of the snapshot of ``--snapshot ITER``), never seeing the true reward; the
+seeds' and intentions' policies are vmapped in one program. Their deterministic episodes (as
+many per iteration as training evaluates, ``num_envs``) are scored under the true rewards; the
+ERD matches each true intention to the learned one the run itself matched it to (its jointly
+trained policies' matching at that iteration), one matching for every number reported. Each
+env's success measure (the experts' bars: velocity, upright, pitch turn, ball reached) is
+reported beside it, over the experts' 10 deterministic episodes.
+
+Beside the learned reward, the **true-reward baseline**: the same TRPO, settings and budget on
+the env's true rewards, the floor any learned reward is judged against (computed once per env
+and budget, then read from ``--cache``). The budget is the run's iterations and gamma unless
+:data:`BUDGETS` or the flags say otherwise.
+
+Also the learned reward per step that the fresh policies earn and that the demonstrations the
+run assigned to each intention earn: fresh policies that out-earn the demonstrations yet score
+far from the experts have optimised a reward that pays off the demonstrations' support. Writes
+``RUN_DIR/reoptimize.json`` (``reoptimize-snapshot-ITER.json`` for a snapshot).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import hashlib
+import json
 import os
 import sys
 import time
@@ -23,88 +39,178 @@ import numpy as np
 from emgail_jax.host import jax_setup
 
 
-def reoptimize(run, seed: int, iterations: int, chunk: int = 10, progress: bool = True) -> dict:
-    """Trains one policy per learned intention on ``run``'s frozen reward of ``seed``."""
+@dataclasses.dataclass(frozen=True)
+class Budget:
+    """What the fresh policies get: TRPO iterations and the discount."""
+
+    iterations: int
+    gamma: float
+
+
+# Envs whose experts needed more than an IRL run's budget (emgail_jax.experts.SPECS): the
+# swimmer's gait pays off over many steps.
+BUDGETS: dict[str, Budget] = {"swimmer": Budget(iterations=1500, gamma=0.9999)}
+
+# The fields of a run's config that shape TRPO on a given reward (the baseline's cache key).
+RL_FIELDS = (
+    "num_envs",
+    "rollout_length",
+    "hidden",
+    "init_log_std",
+    "obs_clip",
+    "gamma",
+    "gae_lambda",
+    "trpo",
+    "value_learning_rate",
+    "value_epochs",
+    "value_minibatches",
+)
+FINAL_WINDOW = 10  # iterations averaged for the final numbers, as training's
+SUCCESS_EPISODES = 10  # the experts' bars are defined over 10 deterministic episodes
+
+
+def default_budget(run) -> Budget:
+    return BUDGETS.get(run.spec.env, Budget(run.config.iterations, run.config.gamma))
+
+
+def default_cache() -> str:
+    root = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(root, "emgail-jax", "true-reward-baselines")
+
+
+@dataclasses.dataclass
+class FreshAgents:
+    """What training fresh policies on a reward left: per reward row ``S`` and policy ``K``."""
+
+    states: object  # RLState [S, K]
+    returns: np.ndarray  # [S, iterations, K, K env] deterministic true returns
+    earned: np.ndarray  # [S, iterations, K] the reward trained on, per step
+    compile_s: float
+    train_s: float
+
+
+def train_fresh(trainer, keys, reward_data, iterations: int, label: str, progress: bool):
+    """Trains ``trainer``'s policies from ``keys [S, K]`` (policy k of row s on intention k of
+    the reward ``reward_data[s]``) for ``iterations``, in chunks of 10."""
     import jax
     import jax.numpy as jnp
 
     from emgail_jax.host.progress import ProgressBar
     from emgail_jax.host.seed_runner import chunk_length, chunks, run_chunks
-    from emgail_jax.method.metrics import normalized_erd
-    from emgail_jax.method.rl import intention_chunk, make_rl_train
+    from emgail_jax.method.rl import seeds_chunk
 
-    env = run.problem.env
-    k = run.num_intentions
-    learned_reward = run.reward(seed)
-
-    def reward_fn(obs, action, true_reward, intention):
-        return learned_reward(obs, action, intention)
-
-    trainer = make_rl_train(run.config, env, reward_fn)
-    plan = chunks(0, iterations, chunk_length(iterations, chunk))
-    no_inputs = lambda first, length: np.zeros(length, bool)
-    # The policies' keys come from the run's seed, one per learned intention.
-    keys = jax.random.split(jax.random.PRNGKey(run.spec.first_seed + seed + 1000), k)
-    states = jax.jit(jax.vmap(trainer.init))(keys)
+    k = keys.shape[1]
+    states = jax.jit(jax.vmap(jax.vmap(trainer.init)))(keys)
+    plan = chunks(0, iterations, chunk_length(iterations, 10))
+    inputs = lambda first, length: np.zeros(length, bool)
     start = time.perf_counter()
-    step = intention_chunk(trainer, jnp.arange(k)).lower(states, no_inputs(*plan[0])).compile()
+    chunk = seeds_chunk(trainer, jnp.arange(k))
+    step = chunk.lower(states, inputs(*plan[0]), reward_data).compile()
     compile_s = time.perf_counter() - start
-    demos = run.problem.demos
-    expert_returns = demos.expert_returns
-    random_returns = run.problem.random_returns
-    in_use = run.intentions_in_use(seed)  # --intentions auto: the learned ones kept
-    score = lambda r: normalized_erd(r, expert_returns, random_returns, in_use)
-    erds, all_returns, earned = [], [], []
-    bar = ProgressBar("re-optimising", iterations, {"ERD": "-"}, enabled=progress)
+    returns, earned = [], []
+    bar = ProgressBar(label, iterations, {"return": "-"}, enabled=progress)
 
     def after_chunk(first, length, states, metrics) -> bool:
-        returns = np.asarray(metrics["eval/returns"])  # [chunk, K learned, K env]
-        all_returns.extend(returns)
-        earned.extend(np.asarray(metrics["train/reward"]))  # [chunk, K] learned reward per step
-        if expert_returns is not None:
-            for r in returns:
-                erds.append(float(score(r).mean))
-        bar.update(length, ERD=f"{erds[-1]:.3f}" if erds else "-")
+        returns.append(np.asarray(metrics["eval/returns"]))  # [L, S, K, K env]
+        earned.append(np.asarray(metrics["train/reward"]))  # [L, S, K]
+        own = np.diagonal(returns[-1][-1], axis1=-2, axis2=-1).mean(0)
+        bar.update(length, **{"return": " ".join(f"{r:.1f}" for r in own)})
         return True
 
     start = time.perf_counter()
-    run_chunks(step, states, plan, no_inputs, after_chunk)
+    states = run_chunks(lambda s, x: step(s, x, reward_data), states, plan, inputs, after_chunk)
     bar.close()
     train_s = time.perf_counter() - start
-    last = np.mean(all_returns[-10:], axis=0)
+    to_seed_major = lambda parts: np.swapaxes(np.concatenate(parts), 0, 1)
+    return FreshAgents(states, to_seed_major(returns), to_seed_major(earned), compile_s, train_s)
+
+
+def success(env, trainer, states, matching) -> list[dict]:
+    """The experts' quality and bars (:func:`emgail_jax.experts.quality`) of the fresh policies
+    ``states [K]``, true intention i acted by learned policy ``matching[i]``."""
+    import jax
+    import jax.numpy as jnp
+
+    from emgail_jax import experts
+
+    acting = jnp.asarray(matching)
+
+    def policy(obs, intention):
+        every = jax.vmap(lambda state: trainer.policy(state)(obs, None))(states)  # [K, ..., A]
+        chosen = acting[intention]
+        return jnp.take_along_axis(every, chosen[None, ..., None], axis=0)[0]
+
+    key_quality, _ = experts.evaluation_keys()
+    k_true = len(matching)
+    return experts.quality(env, policy, key_quality, SUCCESS_EPISODES)[:k_true]
+
+
+def _fresh_trainer(run, budget: Budget, reward_fn=None):
+    from emgail_jax.method.rl import make_rl_train, true_reward
+
+    config = run.config.replace(gamma=budget.gamma)
+    env = run.problem.env
+    return make_rl_train(config, env, reward_fn or true_reward, eval_episodes=config.num_envs)
+
+
+def scored(returns, matching, run, seed: int | None) -> dict:
+    """ERD per iteration and final (mean of the last 10) of ``returns [iterations, K, K env]``
+    with ``matching [K true]`` held fixed; a true intention matched to a learned one the run
+    does not keep scores 1, as random actions."""
+    from emgail_jax.method.metrics import reward_difference
+
+    problem = run.problem
+    # In float64: a baseline read back from its cache scores exactly as when computed.
+    expert = np.asarray(problem.demos.expert_returns, np.float64)
+    k_true = len(matching)
+    matched = np.asarray(returns, np.float64)[:, matching, np.arange(k_true)]  # [iter, K true]
     result = {
-        "run_seed": seed,
-        "iterations": iterations,
-        "returns": last,  # [K learned, K env], mean of the last 10 iterations
-        "expert_returns": expert_returns,
-        "random_returns": random_returns,
-        "erd": float(np.mean(erds[-10:])) if erds else None,
-        "erd_curve": erds,
-        "learned_reward_per_step": {
-            "fresh_policies": np.mean(earned[-10:], axis=0),  # [K], last 10 iterations
-            "demonstrations": demonstrations_reward(run, seed),  # [K]
-        },
-        "compile_time_s": compile_s,
-        "train_time_s": train_s,
+        "returns": matched[-FINAL_WINDOW:].mean(0),  # [K true] of the matched policies
+        "learned_returns": returns[-FINAL_WINDOW:].mean(0),  # [K learned, K env] unmatched
+        "matching": np.asarray(matching),
     }
-    if expert_returns is not None:
-        erd = score(last)
-        result["matching"] = np.asarray(erd.matching)
-        result["erd_per_intention"] = np.asarray(erd.per_intention)
-    return result
+    if problem.demos.expert_returns is None:
+        return {**result, "erd": None, "erd_per_intention": None, "erd_curve": None}
+    random = np.asarray(problem.random_returns, np.float64)
+    per_intention = reward_difference(matched, expert, random)
+    in_use = None if seed is None else run.intentions_in_use(seed)
+    if in_use is not None:
+        per_intention = np.where(np.asarray(in_use)[matching], per_intention, 1.0)
+    curve = per_intention.mean(-1)
+    return {
+        **result,
+        "erd": float(curve[-FINAL_WINDOW:].mean()),
+        "erd_per_intention": per_intention[-FINAL_WINDOW:].mean(0),
+        "erd_curve": curve,
+    }
 
 
-def demonstrations_reward(run, seed: int) -> np.ndarray:
+def run_matching(run, seed: int, iteration: int) -> np.ndarray:
+    """``[K true]`` the learned intention the run matched each true intention to when it last
+    evaluated its policies at or before ``iteration`` (the first evaluation after it if none
+    before); the identity when the run never evaluated (no expert returns)."""
+    matchings = np.asarray(run.history["eval/matching"][seed])  # [iterations, K true]
+    evaluated = np.flatnonzero(matchings[:, 0] >= 0) + 1  # iteration numbers
+    if not len(evaluated):
+        return np.arange(run.problem.true_intentions)
+    before = evaluated[evaluated <= iteration]
+    chosen = before[-1] if len(before) else evaluated[0]
+    return matchings[chosen - 1]
+
+
+def demonstrations_reward(run, seed: int, parameters=None) -> np.ndarray:
     """``[K]``: learned intention i's reward per step on the demonstration pairs, weighted by
     the run's responsibilities gamma_i (every pair alike without a posterior); NaN for an
-    intention the run assigned no demonstration to."""
+    intention the run assigned no demonstration to. ``parameters`` replace the seed's reward
+    parameters (a consolidated reward)."""
     pairs = run.demonstration_pairs
     k = run.num_intentions
     if run.algorithm.learns_posterior:
         gamma = np.asarray(run.responsibilities(seed).gamma)  # [N, K]
     else:
         gamma = np.ones((pairs.observations.shape[0], k))
-    reward = run.reward(seed)
+    parameters = parameters or run.reward_parameters(seed)
+    reward = lambda obs, action, i: run.reward_function()(parameters, obs, action, i)
     per_pair = np.stack(
         [np.asarray(reward(pairs.observations, pairs.actions, i)) for i in range(k)], -1
     )  # [N, K]
@@ -113,13 +219,194 @@ def demonstrations_reward(run, seed: int) -> np.ndarray:
     return np.divide(total, weight, out=np.full(k, np.nan), where=weight > 0)
 
 
+def reoptimize(
+    run, seeds: list[int], budget: Budget, progress: bool = True, parameters=None
+) -> dict:
+    """Trains one policy per learned intention on each of ``seeds``' frozen rewards of ``run``
+    (all seeds vmapped in one program) and scores them; ``parameters`` (one per seed) replace
+    the run's :meth:`~emgail_jax.host.saved_run.SavedRun.reward_parameters`."""
+    import jax
+
+    k = run.num_intentions
+    learned = run.reward_function()
+    reward_fn = lambda obs, action, true, intention, parameters: learned(
+        parameters, obs, action, intention
+    )
+    trainer = _fresh_trainer(run, budget, reward_fn)
+    per_seed_parameters = parameters or [run.reward_parameters(seed) for seed in seeds]
+    parameters = jax.tree.map(lambda *x: np.stack(x), *per_seed_parameters)
+    # Each seed's policies take their keys from the run's seed, one per learned intention.
+    keys = np.stack(
+        [jax.random.split(jax.random.PRNGKey(run.spec.first_seed + s + 1000), k) for s in seeds]
+    )
+    fresh = train_fresh(trainer, keys, parameters, budget.iterations, "re-optimising", progress)
+    iteration = run.snapshot or run.iteration
+    per_seed = []
+    for row, seed in enumerate(seeds):
+        matching = run_matching(run, seed, iteration)
+        result = {"run_seed": seed, **scored(fresh.returns[row], matching, run, seed)}
+        states = jax.tree.map(lambda x, r=row: x[r], fresh.states)
+        result["success"] = success(run.problem.env, trainer, states, matching)
+        result["learned_reward_per_step"] = {  # learned intentions' order
+            "fresh_policies": fresh.earned[row, -FINAL_WINDOW:].mean(0),
+            "demonstrations": demonstrations_reward(run, seed, per_seed_parameters[row]),
+        }
+        per_seed.append(result)
+    erds = [r["erd"] for r in per_seed]
+    return {
+        "iteration": iteration,
+        "snapshot": run.snapshot,
+        "budget": dataclasses.asdict(budget),
+        "eval_episodes": run.config.num_envs,
+        "expert_returns": run.problem.demos.expert_returns,
+        "random_returns": run.problem.random_returns,
+        "seeds": list(seeds),
+        "erd": erds,
+        "erd_mean": None if None in erds else float(np.mean(erds)),
+        "erd_std": None if None in erds else float(np.std(erds)),
+        "meets_bar": [[q["meets_bar"] for q in r["success"]] for r in per_seed],
+        "per_seed": per_seed,
+        "compile_time_s": fresh.compile_s,
+        "train_time_s": fresh.train_s,
+    }
+
+
+def baseline_key(run, budget: Budget) -> str:
+    """What the true-reward baseline depends on: the env, its options and K, the budget and
+    the TRPO settings, as a file name."""
+    config = run.config.to_dict()
+    env = run.problem.env
+    described = {
+        "env": env.name,
+        "options": env.options(),
+        "intentions": env.num_intentions,
+        "budget": dataclasses.asdict(budget),
+        "config": {name: config[name] for name in RL_FIELDS if name != "gamma"},
+    }
+    text = json.dumps(described, sort_keys=True, default=str)
+    digest = hashlib.sha256(text.encode()).hexdigest()[:12]
+    return f"{env.name}-k{env.num_intentions}-{budget.iterations}it-g{budget.gamma}-{digest}"
+
+
+def true_reward_baseline(run, budget: Budget, cache: str | None, progress: bool = True) -> dict:
+    """TRPO on the env's true rewards with the fresh policies' settings and budget, policy i on
+    intention i (one RL seed), scored like them; read from ``cache`` when computed before."""
+    import jax
+
+    from emgail_jax.host import records
+
+    path = None if cache is None else os.path.join(cache, baseline_key(run, budget) + ".json")
+    k_true = run.problem.true_intentions
+    identity = np.arange(k_true)
+    if path is not None and os.path.exists(path):
+        with open(path) as f:
+            stored = json.load(f)
+        returns = np.asarray(stored["returns"])
+        found = stored["success"]
+    else:
+        trainer = _fresh_trainer(run, budget)
+        keys = jax.random.split(jax.random.PRNGKey(1000), run.num_intentions)[None]
+        fresh = train_fresh(trainer, keys, None, budget.iterations, "true reward", progress)
+        returns = fresh.returns[0]
+        states = jax.tree.map(lambda x: x[0], fresh.states)
+        found = records.to_json_value(success(run.problem.env, trainer, states, identity))
+        if path is not None:
+            os.makedirs(cache, exist_ok=True)
+            records.write_json(path, {"returns": returns, "success": found})
+    result = scored(returns, identity, run, None)
+    return {**result, "success": found, "meets_bar": [q["meets_bar"] for q in found], "cache": path}
+
+
+def print_result(run, result: dict) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    names = run.problem.env.intention_names
+    budget = result["budget"]
+    table = Table(
+        title=f"fresh TRPO on the learned rewards of iteration {result['iteration']}, "
+        f"{budget['iterations']} iterations, gamma {budget['gamma']} (mean of the last "
+        f"{FINAL_WINDOW})"
+    )
+    for column in ("reward", "norm. ERD", "per intention", "true returns (expert)", "bars met"):
+        table.add_column(column)
+    expert = result["expert_returns"]
+    number = lambda x: "-" if x is None else f"{x:.3f}"
+    two = lambda x: "-" if x is None else f"{x:.2f}"
+
+    def row(label, scores):
+        returns = ", ".join(
+            f"{names[i]} {r:.1f}" + ("" if expert is None else f" ({expert[i]:.1f})")
+            for i, r in enumerate(scores["returns"])
+        )
+        per = scores["erd_per_intention"]
+        bars = scores["meets_bar"]
+        met = "-" if None in bars else f"{sum(bars)}/{len(bars)}"
+        per_text = "-" if per is None else " ".join(f"{e:.2f}" for e in per)
+        table.add_row(label, number(scores["erd"]), per_text, returns, met)
+
+    for seed_result in result["per_seed"]:
+        seed_result = {**seed_result, "meets_bar": [q["meets_bar"] for q in seed_result["success"]]}
+        row(f"seed {seed_result['run_seed']}", seed_result)
+    if result.get("baseline"):
+        row("true reward", result["baseline"])
+    console = Console(width=140)
+    console.print(table)
+    if result["erd_mean"] is not None:
+        console.print(
+            f"re-optimised ERD {result['erd_mean']:.3f} ± {result['erd_std']:.3f} over "
+            f"{len(result['seeds'])} seeds"
+        )
+    for seed_result in result["per_seed"]:
+        earned = seed_result["learned_reward_per_step"]
+        pairs = zip(earned["fresh_policies"], earned["demonstrations"], strict=True)
+        console.print(
+            f"seed {seed_result['run_seed']}: learned reward per step, fresh policies / "
+            "demonstrations: " + ", ".join(f"{two(a)} / {two(b)}" for a, b in pairs)
+        )
+
+
 def main(argv=None) -> int:
+    from emgail_jax.method.algorithms import REWARD_FORMS
+
     parser = argparse.ArgumentParser(
         prog="python -m emgail_jax.reoptimize", description=__doc__.split("\n")[0]
     )
     parser.add_argument("run_dir")
-    parser.add_argument("--seed", type=int, default=0, help="whose learned reward (0..seeds-1)")
-    parser.add_argument("--iterations", type=int, default=None, help="default: the run's")
+    parser.add_argument("--seed", type=int, default=None, help="one run seed (default: all)")
+    parser.add_argument(
+        "--snapshot", type=int, default=None, metavar="ITER", help="the rewards of this snapshot"
+    )
+    parser.add_argument("--iterations", type=int, default=None, help="default: the env's budget")
+    parser.add_argument("--gamma", type=float, default=None, help="default: the env's budget")
+    parser.add_argument(
+        "--no-baseline", dest="baseline", action="store_false", help="skip the true reward"
+    )
+    parser.add_argument(
+        "--cache", default=None, help=f"true-reward baselines (default {default_cache()})"
+    )
+    parser.add_argument(
+        "--consolidate",
+        type=int,
+        default=0,
+        metavar="STEPS",
+        help="first refit each discriminator STEPS steps against every snapshot's policy "
+        "(emgail_jax.host.consolidation; default 0: the run's reward as it is)",
+    )
+    parser.add_argument(
+        "--consolidate-penalty",
+        type=float,
+        default=0.0,
+        metavar="WEIGHT",
+        help="with --consolidate: the refit's gradient penalty (default 0: none)",
+    )
+    parser.add_argument(
+        "--reward-form",
+        default=None,
+        choices=REWARD_FORMS,
+        help="the reward the discriminator defines (default: the run's)",
+    )
+    parser.add_argument("--out", default=None, help="default: RUN_DIR/reoptimize[-...].json")
     parser.add_argument("--quiet", action="store_true")
     args = parser.parse_args(argv)
     jax_setup.setup(host_devices=1)
@@ -130,42 +417,76 @@ def main(argv=None) -> int:
     from emgail_jax.host.demonstration_files import DemonstrationError
     from emgail_jax.host.run_spec import RunError
     from emgail_jax.host.saved_run import SavedRun
+    from emgail_jax.method.algorithms import make_algorithm
 
     try:
-        run = SavedRun.open(args.run_dir)
-        run.seed_state(args.seed)
         if args.iterations is not None and args.iterations < 1:
             raise RunError("--iterations must be at least 1")
+        if args.gamma is not None and not 0 < args.gamma <= 1:
+            raise RunError("--gamma must be in (0, 1]")
+        if args.consolidate < 0:
+            raise RunError("--consolidate must be 0 (none) or more steps")
+        if args.consolidate_penalty < 0 or (args.consolidate_penalty and not args.consolidate):
+            raise RunError("--consolidate-penalty is a weight >= 0 and goes with --consolidate")
+        run = SavedRun.open(args.run_dir, snapshot=args.snapshot)
+        seeds = list(range(run.spec.seeds)) if args.seed is None else [args.seed]
+        run.seed_state(seeds[0])  # checks --seed
+        if args.reward_form is not None:
+            config = run.config
+            run.algorithm = make_algorithm(config.algo, config.info_weight, args.reward_form)
+        parameters, consolidation = None, None
+        if args.consolidate:
+            parameters, consolidation = consolidated(
+                run, seeds, args.consolidate, args.consolidate_penalty
+            )
     except (RunError, CheckpointError, envs.EnvError, DemonstrationError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
-    iterations = args.iterations or run.config.iterations
-    result = reoptimize(run, args.seed, iterations, progress=not args.quiet)
-    path = os.path.join(args.run_dir, "reoptimize.json")
+    budget = default_budget(run)
+    budget = Budget(args.iterations or budget.iterations, args.gamma or budget.gamma)
+    result = reoptimize(run, seeds, budget, progress=not args.quiet, parameters=parameters)
+    result["reward_form"] = run.algorithm.reward_form
+    result["consolidation"] = consolidation
+    result["baseline"] = None
+    if args.baseline:
+        cache = args.cache or default_cache()
+        result["baseline"] = true_reward_baseline(run, budget, cache, not args.quiet)
+    path = args.out or os.path.join(args.run_dir, default_name(args))
     records.write_json(path, result)
-    names = run.problem.env.intention_names
-    learned = np.asarray(result["returns"])
-    if result["erd"] is None:
-        print("no expert returns in the demonstrations: ERD cannot be computed")
-    else:
-        matched = ", ".join(
-            f"{names[i]}: {learned[j, i]:.1f} (expert {result['expert_returns'][i]:.1f})"
-            for i, j in enumerate(result["matching"])
-        )
-        print(
-            f"re-optimised on the learned reward of seed {args.seed} for {iterations} iterations: "
-            f"normalised ERD {result['erd']:.3f} (mean of the last 10) [{matched}]"
-        )
-    earned = result["learned_reward_per_step"]
-    print(
-        "learned reward per step, fresh policies / demonstrations: "
-        + ", ".join(
-            f"{a:.2f} / {b:.2f}"
-            for a, b in zip(earned["fresh_policies"], earned["demonstrations"], strict=True)
-        )
-    )
+    print_result(run, records.to_json_value(result))
     print(f"wrote {path}")
     return 0
+
+
+def default_name(args) -> str:
+    """``reoptimize[-snapshot-ITER][-consolidated-STEPS][-FORM].json``"""
+    parts = ["reoptimize"]
+    if args.snapshot is not None:
+        parts.append(f"snapshot-{args.snapshot}")
+    if args.consolidate:
+        parts.append(f"consolidated-{args.consolidate}")
+    if args.consolidate_penalty:
+        parts.append(f"penalty-{args.consolidate_penalty:g}")
+    if args.reward_form:
+        parts.append(args.reward_form)
+    return "-".join(parts) + ".json"
+
+
+def consolidated(run, seeds: list[int], steps: int, gradient_penalty: float = 0.0):
+    """Every seed's consolidated reward parameters and the refit's losses."""
+    import jax
+
+    from emgail_jax.host.consolidation import consolidated_parameters
+
+    parameters, metrics = [], []
+    for seed in seeds:
+        key = jax.random.PRNGKey(run.spec.first_seed + seed + 2000)
+        found, losses = consolidated_parameters(run, seed, steps, key, gradient_penalty)
+        parameters.append(found)
+        metrics.append(
+            {"run_seed": seed, "steps": steps, "gradient_penalty": gradient_penalty, **losses}
+        )
+    return parameters, metrics
 
 
 if __name__ == "__main__":

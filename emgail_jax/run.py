@@ -34,8 +34,9 @@ from emgail_jax.host.run_spec import (
     stored_sources,
 )
 
-OUTPUTS = ("summary.json", "metrics.csv", "tensorboard", "checkpoints")
+OUTPUTS = ("summary.json", "metrics.csv", "tensorboard", "checkpoints", "snapshots")
 DEFAULT_CHECKPOINT_EVERY = 50
+DEFAULT_SNAPSHOT_EVERY = 50
 DEFAULT_SEEDS = 4
 
 
@@ -146,6 +147,13 @@ def parse_args(argv=None) -> argparse.Namespace:
         default=DEFAULT_CHECKPOINT_EVERY,
         help=f"iterations between checkpoints (default {DEFAULT_CHECKPOINT_EVERY})",
     )
+    parser.add_argument(
+        "--snapshot-every",
+        type=int,
+        default=DEFAULT_SNAPSHOT_EVERY,
+        help="iterations between snapshots of the learned networks, all kept (default "
+        f"{DEFAULT_SNAPSHOT_EVERY}; 0: none)",
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace an earlier run")
     parser.add_argument(
         "--coordinator",
@@ -205,6 +213,8 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
     from emgail_jax.host.demonstration_sources import canonical
     from emgail_jax.method.config import Config, SettingError
 
+    if args.snapshot_every < 0:
+        raise RunError("--snapshot-every must be 0 (none) or more")
     if args.resume is not None:
         given = [f"--{name.replace('_', '-')}" for name in _RUN_OPTIONS if getattr(args, name)]
         if given or args.out or args.overwrite:
@@ -351,6 +361,7 @@ def train(
     progress: bool = True,
     signals: stopping.Signals | None = None,
     wandb_run=None,
+    snapshot_every: int = DEFAULT_SNAPSHOT_EVERY,
 ) -> dict:
     """Trains (or, with ``resume``, continues) the run ``spec`` and writes its outputs to ``out``
     (and the metrics to ``wandb_run``, a W&B run of :func:`~emgail_jax.host.records.start_wandb`).
@@ -389,7 +400,16 @@ def train(
     plan = chunks(done, config.iterations, config.chunk_size)
     signals = signals or stopping.Signals()
     recorder = _ChunkRecorder(
-        out, config, history, done, resume, checkpoint_every, writes, signals, wandb_run
+        out,
+        config,
+        history,
+        done,
+        resume,
+        checkpoint_every,
+        writes,
+        signals,
+        wandb_run,
+        snapshot_every,
     )
     if plan:
         evaluating = lambda first, length: evaluation_plan(
@@ -422,8 +442,10 @@ def train(
 
 @dataclasses.dataclass
 class _ChunkRecorder:
-    """After each chunk: the metrics to ``metrics.csv``/TensorBoard, the progress bar, and a
-    checkpoint every ``checkpoint_every`` iterations and at the end (or on a stop request)."""
+    """After each chunk: the metrics to ``metrics.csv``/TensorBoard, the progress bar, a
+    checkpoint every ``checkpoint_every`` iterations and at the end (or on a stop request), and
+    a snapshot of the learned networks after each chunk that reaches a multiple of
+    ``snapshot_every`` and at the end (0: none)."""
 
     out: str
     config: object  # the resolved Config
@@ -434,6 +456,7 @@ class _ChunkRecorder:
     writes: bool  # process 0 of the run
     signals: stopping.Signals
     wandb_run: object = None
+    snapshot_every: int = DEFAULT_SNAPSHOT_EVERY
 
     def __post_init__(self):
         self.last_saved = self.iteration
@@ -474,6 +497,11 @@ class _ChunkRecorder:
             if self.writes:
                 checkpoints.save(self.out, self.iteration, host_state, self.history)
             self.last_saved, self.host_state = self.iteration, host_state
+        every = self.snapshot_every
+        if every and (finished or self.iteration // every > first // every):
+            snapshot = gather(checkpoints.snapshot_of(state))  # every process takes part
+            if self.writes:
+                checkpoints.save_snapshot(self.out, self.iteration, snapshot)
         self.signals.progressed()
         return self.stopped_by is None
 
@@ -796,6 +824,7 @@ def _command(
             progress=not args.quiet,
             signals=signals,
             wandb_run=wandb_run,
+            snapshot_every=args.snapshot_every,
         )
     if wandb_run is not None:
         records.finish_wandb(wandb_run, summary)

@@ -638,7 +638,9 @@ def collect(out: str, cells: list[Cell], seeds: int, iterations: int) -> dict[st
         path = os.path.join(run_dir, "reoptimize.json")
         if os.path.exists(path):
             with open(path) as f:
-                reoptimized = json.load(f).get("erd")
+                check = json.load(f)
+            # Since every seed is re-optimised, "erd" lists them; older files hold one float.
+            reoptimized = check.get("erd_mean", check.get("erd"))
         results[cell.name] = CellResult(
             cell=cell,
             erd=np.asarray(final["erd"], float),

@@ -26,7 +26,8 @@ jax_setup.setup(host_devices=2, cache_dir=str(_REPO / ".cache" / "jax"))
 
 @pytest.fixture(scope="session")
 def tiny_run(tmp_path_factory):
-    """A finished tiny EM-GAIL driver run (2 seeds, 4 iterations) with its checkpoint. Its sizes
+    """A finished tiny EM-GAIL driver run (2 seeds, 4 iterations) with its checkpoint and
+    snapshots of iterations 2 and 4. Its sizes
     and chunk are those of the other tiny driver runs (test_run, test_resume, test_distributed),
     so that they all share one compiled program through the persistent compilation cache."""
     from emgail_jax import run
@@ -34,7 +35,8 @@ def tiny_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("tiny") / "emgail"
     args = [
         *("--env", "driver", "--seeds", "2", "--iterations", "4", "--num-envs", "2"),
-        *("--rollout-length", "20", "--chunk-size", "2", "--quiet", "--out", str(out)),
+        *("--rollout-length", "20", "--chunk-size", "2", "--snapshot-every", "2", "--quiet"),
+        *("--out", str(out)),
     ]
     assert run.main(args) == 0
     return out

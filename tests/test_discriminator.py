@@ -242,3 +242,43 @@ def test_learned_reward_is_the_algorithms_pseudo_reward_of_the_own_condition(alg
         logit = logit + params[intention]
     expected = jax.nn.softplus(logit) + (0.5 * -0.7 if algo == "infogail" else 0.0)
     np.testing.assert_allclose(reward, expected, rtol=1e-6)
+
+
+def test_gradient_penalty_hand_computed_on_a_linear_logit():
+    """toy_apply's logit has slope 1 in s_0 and in a_0: a squared input-gradient norm of 2 on
+    every expert pair (under every condition, weights summing to one) and policy sample."""
+    from emgail_jax.method.discriminator import input_gradient_norms
+
+    batch = dict(
+        expert_obs=jnp.array([[0.3, 1.0], [-2.0, 0.5]]),
+        expert_actions=jnp.zeros((2, 1)),
+        expert_weights=jnp.array([[0.25, 0.75], [1.0, 0.0]]),
+        conditions=jnp.eye(2),
+        policy_obs=jnp.ones((2, 3, 2)),
+        policy_actions=jnp.zeros((2, 3, 1)),
+        policy_conditions=jnp.broadcast_to(jnp.eye(2)[:, None], (2, 3, 2)),
+    )
+    params = jnp.array([0.0, LN3])
+    assert float(input_gradient_norms(toy_apply, params, **batch)) == pytest.approx(2.0)
+    plain, metrics = discriminator_loss(toy_apply, params, **batch)
+    penalised, penalised_metrics = discriminator_loss(
+        toy_apply, params, **batch, gradient_penalty=0.5
+    )
+    assert float(penalised) == pytest.approx(float(plain) + 1.0)
+    assert "discriminator/gradient_norm" not in metrics
+    assert float(penalised_metrics["discriminator/gradient_norm"]) == pytest.approx(2.0)
+
+
+def test_gradient_penalty_flattens_the_trained_logit(network_batch):
+    from emgail_jax.method.discriminator import input_gradient_norms
+
+    net, params, batch = network_batch
+    optimizer = optax.adam(1e-2)
+    norms = {}
+    for weight in (0.0, 1.0):
+        fit = lambda p, w=weight: discriminator_update(
+            net.apply, optimizer, p, 100, **batch, gradient_penalty=w
+        )
+        trained, _ = jax.jit(fit)(Learner.create(params, optimizer))
+        norms[weight] = float(input_gradient_norms(net.apply, trained.params, **batch))
+    assert norms[1.0] < 0.5 * norms[0.0]

@@ -271,3 +271,14 @@ def test_gaussian_mixture_accuracy_is_the_raw_accuracy_separability_normalises()
     assert np.all((accuracies > 0.5) & (accuracies < 1.0))
     mean, _ = separability(obs, actions, labels)
     assert mean == pytest.approx(np.mean(2 * accuracies - 1))
+
+
+def test_reward_difference_is_zero_at_the_expert_and_one_at_random():
+    from emgail_jax.method.metrics import reward_difference
+
+    expert, random = np.array([10.0, -2.0]), np.array([0.0, -12.0])
+    np.testing.assert_allclose(reward_difference(expert, expert, random), [0, 0])
+    np.testing.assert_allclose(reward_difference(random, expert, random), [1, 1])
+    np.testing.assert_allclose(
+        reward_difference(np.array([15.0, -7.0]), expert, random), [0.5, 0.5]
+    )

@@ -1,35 +1,119 @@
-"""python -m emgail_jax.reoptimize on a tiny run."""
+"""python -m emgail_jax.reoptimize on a tiny run: every seed, the true-reward baseline (cached),
+one matching, the success measures, snapshots."""
 
 import json
 
 import numpy as np
+import pytest
 
 from emgail_jax import reoptimize
+from emgail_jax.method.metrics import reward_difference
 
 
-def test_reoptimize_writes_an_erd(tiny_run, capsys):
-    assert reoptimize.main([str(tiny_run), "--iterations", "2", "--quiet"]) == 0
-    result = json.loads((tiny_run / "reoptimize.json").read_text())
-    assert result["iterations"] == 2 and len(result["erd_curve"]) == 2
-    assert np.isfinite(result["erd"]) and result["erd"] >= 0
-    assert np.asarray(result["returns"]).shape == (2, 2)
-    assert sorted(result["matching"]) == [0, 1]
-    earned = result["learned_reward_per_step"]
-    assert np.asarray(earned["fresh_policies"]).shape == (2,)
-    assert np.asarray(earned["demonstrations"]).shape == (2,)
-    assert np.all(np.isfinite(earned["fresh_policies"]))
-    out = capsys.readouterr().out
-    assert "normalised ERD" in out and "fresh policies / demonstrations" in out
+@pytest.fixture(scope="module")
+def reoptimized(tiny_run, tmp_path_factory):
+    cache = tmp_path_factory.mktemp("baselines")
+    assert reoptimize.main([str(tiny_run), "--iterations", "2", "--cache", str(cache)]) == 0
+    return json.loads((tiny_run / "reoptimize.json").read_text()), cache
 
 
-def test_demonstrations_reward_weights_pairs_by_their_responsibilities(tiny_run):
+@pytest.fixture(scope="module")
+def saved(tiny_run):
     from emgail_jax.host.saved_run import SavedRun
 
-    run = SavedRun.open(str(tiny_run))
-    expert = run.demonstration_pairs
-    gamma = np.asarray(run.responsibilities(0).gamma)
-    reward = run.reward(0)
-    earned = reoptimize.demonstrations_reward(run, 0)
+    return SavedRun.open(str(tiny_run))
+
+
+def test_every_seed_is_reoptimised_beside_the_true_reward(reoptimized, capsys):
+    result, cache = reoptimized
+    assert result["seeds"] == [0, 1] and len(result["erd"]) == 2
+    assert result["budget"] == {"iterations": 2, "gamma": 0.995}
+    assert result["eval_episodes"] == 2  # the tiny run's num_envs, as training evaluates
+    assert np.isclose(result["erd_mean"], np.mean(result["erd"]))
+    for seed, per_seed in enumerate(result["per_seed"]):
+        assert per_seed["run_seed"] == seed and per_seed["erd"] == result["erd"][seed]
+        assert len(per_seed["erd_curve"]) == 2 and len(per_seed["success"]) == 2
+        assert [q["intention"] for q in per_seed["success"]] == ["path1", "path2"]
+        earned = per_seed["learned_reward_per_step"]
+        assert np.all(np.isfinite(earned["fresh_policies"]))
+    baseline = result["baseline"]
+    assert baseline["matching"] == [0, 1] and len(baseline["erd_curve"]) == 2
+    assert baseline["cache"].startswith(str(cache)) and baseline["cache"].endswith(".json")
+
+
+def test_one_matching_scores_every_number(reoptimized, saved):
+    result, _ = reoptimized
+    expert, random = np.asarray(result["expert_returns"]), np.asarray(result["random_returns"])
+    for seed, per_seed in enumerate(result["per_seed"]):
+        matching = per_seed["matching"]
+        np.testing.assert_array_equal(matching, saved.history["eval/matching"][seed, -1])
+        e = reward_difference(np.asarray(per_seed["returns"]), expert, random)
+        # The final ERD averages the last iterations' ERDs under that matching (here both).
+        assert np.isclose(np.mean(per_seed["erd_curve"]), per_seed["erd"])
+        assert np.allclose(np.asarray(per_seed["erd_per_intention"]), e, rtol=1e-5)
+
+
+def test_the_run_matching_is_the_last_evaluation_at_or_before_the_iteration(saved):
+    history = saved.history["eval/matching"]
+    for iteration in (1, 2, 4):
+        np.testing.assert_array_equal(
+            reoptimize.run_matching(saved, 1, iteration), history[1, iteration - 1]
+        )
+
+
+def test_the_baseline_is_read_from_the_cache_the_second_time(tiny_run, reoptimized, monkeypatch):
+    first, cache = reoptimized
+    trained = []
+    original = reoptimize.train_fresh
+    monkeypatch.setattr(
+        reoptimize, "train_fresh", lambda *a, **k: trained.append(a[-2]) or original(*a, **k)
+    )
+    out = tiny_run / "again.json"
+    args = [str(tiny_run), "--iterations", "2", "--cache", str(cache), "--out", str(out)]
+    assert reoptimize.main([*args, "--quiet"]) == 0
+    assert trained == ["re-optimising"]  # the learned rewards only
+    again = json.loads(out.read_text())
+    assert again["baseline"]["erd_curve"] == first["baseline"]["erd_curve"]
+    assert again["erd"] == first["erd"]  # the same keys: the same fresh policies
+
+
+def test_a_snapshot_is_reoptimised_on_its_own_networks(tiny_run, reoptimized):
+    first, _ = reoptimized
+    args = [str(tiny_run), "--iterations", "2", "--snapshot", "2", "--no-baseline", "--quiet"]
+    assert reoptimize.main(args) == 0
+    result = json.loads((tiny_run / "reoptimize-snapshot-2.json").read_text())
+    assert result["snapshot"] == 2 and result["iteration"] == 2 and result["baseline"] is None
+    earned = [r["learned_reward_per_step"]["demonstrations"] for r in result["per_seed"]]
+    final = [r["learned_reward_per_step"]["demonstrations"] for r in first["per_seed"]]
+    assert earned != final  # another discriminator
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--snapshot", "3"], "no snapshot of iteration 3"),
+        (["--seed", "5"], "the run has seeds 0..1"),
+        (["--gamma", "0"], "--gamma must be in (0, 1]"),
+        (["--iterations", "0"], "--iterations must be at least 1"),
+        (["--consolidate", "-1"], "--consolidate must be 0 (none) or more steps"),
+    ],
+)
+def test_bad_input_gives_one_line_and_exit_code_2(tiny_run, capsys, extra, message):
+    assert reoptimize.main([str(tiny_run), *extra]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and message in err and err.count("\n") == 1
+
+
+def test_a_directory_without_a_run(tmp_path, capsys):
+    assert reoptimize.main([str(tmp_path)]) == 2
+    assert "no summary.json" in capsys.readouterr().err
+
+
+def test_demonstrations_reward_weights_pairs_by_their_responsibilities(saved):
+    expert = saved.demonstration_pairs
+    gamma = np.asarray(saved.responsibilities(0).gamma)
+    reward = saved.reward(0)
+    earned = reoptimize.demonstrations_reward(saved, 0)
     for i in range(2):
         if gamma[:, i].sum() == 0:  # no demonstration assigned: nothing to earn on
             assert np.isnan(earned[i])
@@ -39,6 +123,13 @@ def test_demonstrations_reward_weights_pairs_by_their_responsibilities(tiny_run)
         np.testing.assert_allclose(earned[i], expected, rtol=1e-5)
 
 
-def test_reoptimize_bad_input(tmp_path, capsys):
-    assert reoptimize.main([str(tmp_path)]) == 2
-    assert "no summary.json" in capsys.readouterr().err
+def test_a_consolidated_reward_in_the_logit_form(tiny_run, reoptimized):
+    first, _ = reoptimized
+    args = [str(tiny_run), "--iterations", "2", "--consolidate", "5", "--reward-form", "logit"]
+    assert reoptimize.main([*args, "--no-baseline", "--quiet"]) == 0
+    result = json.loads((tiny_run / "reoptimize-consolidated-5-logit.json").read_text())
+    assert result["reward_form"] == "logit" and first["reward_form"] == "gail"
+    assert [c["run_seed"] for c in result["consolidation"]] == [0, 1]
+    assert all(c["steps"] == 5 for c in result["consolidation"])
+    earned = result["per_seed"][0]["learned_reward_per_step"]["demonstrations"]
+    assert earned != first["per_seed"][0]["learned_reward_per_step"]["demonstrations"]

@@ -22,6 +22,7 @@ TINY = [
     "--rollout-length", "20",
     "--chunk-size", "2",
     "--checkpoint-every", "2",
+    "--snapshot-every", "4",
     "--quiet",
 ]  # fmt: skip
 
@@ -46,6 +47,16 @@ def _same_results(a, b):
 
 def test_resume_gives_the_straight_run_bit_for_bit(straight_and_resumed):
     _same_results(*straight_and_resumed)
+
+
+def test_snapshots_survive_a_resume_bit_for_bit(straight_and_resumed):
+    straight, resumed = straight_and_resumed
+    assert checkpoints.snapshot_iterations(str(straight)) == [4, 8]
+    assert checkpoints.snapshot_iterations(str(resumed)) == [4, 8]
+    for name in ("iteration_000004.msgpack", "iteration_000008.msgpack"):
+        assert (straight / "snapshots" / name).read_bytes() == (
+            resumed / "snapshots" / name
+        ).read_bytes()
 
 
 def test_resumed_summary_accumulates(straight_and_resumed):

@@ -31,3 +31,25 @@ def test_one_seed_chunk_trains_every_intention_on_its_own_reward(trainer):
     returns, own = seen[1][1]["eval/returns"], seen[1][1]["eval/own_return"]
     np.testing.assert_allclose(own, np.stack([returns[:, i, i] for i in range(k)], -1))
     assert np.asarray(states.iteration).tolist() == [4, 4]
+
+
+def test_seeds_chunk_trains_each_row_on_its_own_reward_parameters():
+    """Row s trains on reward_data[s]: a scale of 1 is the true reward (what intention_chunk
+    trains on, bit for bit), a scale of -1 another reward and so another policy."""
+    from emgail_jax.method.rl import seeds_chunk
+
+    env = envs.make("driver")
+    scaled = lambda obs, action, true, intention, scale: scale * jnp.take(true, intention, -1)
+    trainer = make_rl_train(CONFIG, env, scaled, eval_episodes=1)
+    plain = make_rl_train(CONFIG, env, eval_episodes=1)
+    k = 2
+    keys = jax.random.split(jax.random.PRNGKey(0), k)
+    one = jax.jit(jax.vmap(plain.init))(keys)
+    both = jax.tree.map(lambda x: np.stack([x, x]), one)
+    inputs = np.zeros(3, bool)
+    _, metrics = seeds_chunk(trainer, jnp.arange(k))(both, inputs, jnp.array([1.0, -1.0]))
+    _, expected = intention_chunk(plain, jnp.arange(k))(one, inputs)
+    np.testing.assert_array_equal(metrics["eval/returns"][:, 0], expected["eval/returns"])
+    # The first rollout is the same policy's: only the reward differs.
+    np.testing.assert_allclose(metrics["train/reward"][0, 1], -expected["train/reward"][0], 1e-6)
+    assert not np.array_equal(metrics["eval/returns"][-1, 1], expected["eval/returns"][-1])

@@ -87,3 +87,56 @@ def test_clustering_equals_what_training_logged_last(saved):
 def test_unknown_seed_is_refused(saved):
     with pytest.raises(RunError, match=r"seeds 0\.\.1"):
         saved.seed_state(2)
+
+
+def _learned(state):
+    return {
+        name: getattr(state, name) for name in ("policy", "normalizer", "intention_weights")
+    } | {
+        "discriminator": state.discriminator.params,
+        "posterior": state.posterior.params,
+    }
+
+
+def _equal(a, b) -> bool:
+    leaves = zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True)
+    return all(np.array_equal(x, y) for x, y in leaves)
+
+
+def test_snapshots_are_kept_at_every_multiple_and_the_last_is_the_final_state(tiny_run, saved):
+    from emgail_jax.host import checkpoints
+
+    assert checkpoints.snapshot_iterations(str(tiny_run)) == [2, 4]
+    last = SavedRun.open(str(tiny_run), snapshot=4)
+    assert last.snapshot == 4 and _equal(_learned(last.state), _learned(saved.state))
+
+
+def test_a_snapshot_replaces_the_learned_networks_only(tiny_run, saved):
+    earlier = SavedRun.open(str(tiny_run), snapshot=2)
+    assert not _equal(earlier.state.discriminator.params, saved.state.discriminator.params)
+    assert not _equal(earlier.state.policy, saved.state.policy)
+    assert _equal(earlier.state.value, saved.state.value)  # the checkpoint's, not learned
+    obs = np.asarray(saved.demonstration_pairs.observations[:5])
+    actions = np.asarray(saved.demonstration_pairs.actions[:5])
+    assert not np.allclose(earlier.reward(0)(obs, actions, 0), saved.reward(0)(obs, actions, 0))
+
+
+def test_a_missing_snapshot_is_a_clear_error(tiny_run):
+    from emgail_jax.host.checkpoints import CheckpointError
+
+    with pytest.raises(
+        CheckpointError, match=r"no snapshot of iteration 3 \(snapshots kept: 2, 4\)"
+    ):
+        SavedRun.open(str(tiny_run), snapshot=3)
+
+
+def test_reward_function_takes_any_seeds_parameters(saved):
+    obs = np.asarray(saved.demonstration_pairs.observations[:5])
+    actions = np.asarray(saved.demonstration_pairs.actions[:5])
+    reward = jax.jit(saved.reward_function())
+    for seed in (0, 1):
+        np.testing.assert_allclose(
+            reward(saved.reward_parameters(seed), obs, actions, 1),
+            saved.reward(seed)(obs, actions, 1),
+            rtol=1e-6,
+        )

@@ -199,3 +199,87 @@ def restore(run_dir: str, target_state, iteration: int | None = None):
     history = {name: np.asarray(values) for name, values in restored.history.items()}
     state = _with_empty(restored.state, target_state)
     return state, history, int(restored.meta["iteration"])
+
+
+# ---- snapshots: what was learned, kept through training -------------------------------------
+#
+# A checkpoint holds the whole state and only the two newest survive; a snapshot holds what a
+# learned reward or policy is made of (every seed's policy, discriminator, posterior,
+# observation statistics and mixture weights), a few hundred kB, and every one is kept, so
+# that the reward of any point of training can be re-optimised (``reoptimize --snapshot``).
+
+SNAPSHOT_FIELDS = ("policy", "discriminator", "posterior", "normalizer", "intention_weights")
+
+
+def snapshot_directory(run_dir: str) -> str:
+    return os.path.join(os.path.abspath(run_dir), "snapshots")
+
+
+def _snapshot_path(run_dir: str, iteration: int) -> str:
+    return os.path.join(snapshot_directory(run_dir), f"iteration_{iteration:06d}.msgpack")
+
+
+def snapshot_of(state) -> dict:
+    """The learned parts of a train state (every seed), without optimiser states or envs."""
+    learned = {name: getattr(state, name) for name in SNAPSHOT_FIELDS}
+    learned["discriminator"] = state.discriminator.params
+    learned["posterior"] = None if state.posterior is None else state.posterior.params
+    return learned
+
+
+def save_snapshot(run_dir: str, iteration: int, snapshot: dict) -> None:
+    """Writes :func:`snapshot_of`'s host arrays for ``iteration``, atomically (renamed into
+    place once written)."""
+    from flax import serialization
+
+    os.makedirs(snapshot_directory(run_dir), exist_ok=True)
+    path = _snapshot_path(run_dir, iteration)
+    with open(path + ".tmp", "wb") as f:
+        f.write(serialization.to_bytes(snapshot))
+    os.replace(path + ".tmp", path)
+
+
+def snapshot_iterations(run_dir: str) -> list[int]:
+    """The iterations of the snapshots a run kept, in order."""
+    if not os.path.isdir(snapshot_directory(run_dir)):
+        return []
+    names = os.listdir(snapshot_directory(run_dir))
+    return sorted(
+        int(name[len("iteration_") : -len(".msgpack")])
+        for name in names
+        if name.startswith("iteration_") and name.endswith(".msgpack")
+    )
+
+
+def restore_snapshot(run_dir: str, iteration: int, state):
+    """``state`` (every seed's, host arrays) with its learned parts replaced by the snapshot of
+    ``iteration``; the optimiser states and envs stay ``state``'s.
+
+    Raises:
+      CheckpointError: no snapshot of that iteration, or one that does not fit ``state``.
+    """
+    from flax import serialization
+
+    path = _snapshot_path(run_dir, iteration)
+    if not os.path.exists(path):
+        kept = snapshot_iterations(run_dir)
+        listed = ", ".join(map(str, kept)) if kept else "none"
+        raise CheckpointError(
+            f"'{run_dir}' holds no snapshot of iteration {iteration} (snapshots kept: {listed})"
+        )
+    target = jax.tree.map(np.asarray, snapshot_of(state))
+    try:
+        with open(path, "rb") as f:
+            learned = serialization.from_bytes(target, f.read())
+    except Exception as error:  # msgpack and flax raise many types for foreign files
+        raise CheckpointError(f"the snapshot '{path}' cannot be read ({error})") from None
+    leaves, expected = jax.tree.leaves(learned), jax.tree.leaves(target)
+    if len(leaves) != len(expected) or any(
+        np.shape(a) != np.shape(b) for a, b in zip(leaves, expected, strict=False)
+    ):
+        raise CheckpointError(f"the snapshot '{path}' does not fit this run's networks")
+    replaced = dict(learned)
+    replaced["discriminator"] = state.discriminator.replace(params=learned["discriminator"])
+    if state.posterior is not None:
+        replaced["posterior"] = state.posterior.replace(params=learned["posterior"])
+    return state.replace(**replaced)

@@ -61,10 +61,12 @@ class SavedRun:
     # The demonstrations as training sees them (no ERD references).
     demonstration_pairs: DemonstrationPairs
     _kept: np.ndarray | None = None  # [seeds, K] the intentions kept, once computed
+    snapshot: int | None = None  # the iteration whose learned networks ``state`` holds
 
     @classmethod
-    def open(cls, run_dir: str) -> SavedRun:
-        """Reads ``summary.json`` and the newest checkpoint.
+    def open(cls, run_dir: str, snapshot: int | None = None) -> SavedRun:
+        """Reads ``summary.json`` and the newest checkpoint, and with ``snapshot`` the learned
+        networks of that iteration's snapshot in place of the checkpoint's.
 
         Raises ``RunError``/``CheckpointError`` (and the env's and demonstrations' errors) with
         one-line messages.
@@ -81,6 +83,8 @@ class SavedRun:
         runner = Runner(init, update, spec.seeds, RunData.create(pairs, env, config))
         target = runner.abstract_state(jax.random.PRNGKey(spec.first_seed))
         state, history, iteration = checkpoints.restore(run_dir, target)
+        if snapshot is not None:
+            state = checkpoints.restore_snapshot(run_dir, snapshot, state)
         return cls(
             run_dir=run_dir,
             summary=summary,
@@ -93,6 +97,7 @@ class SavedRun:
             history=history,
             iteration=iteration,
             demonstration_pairs=pairs,
+            snapshot=snapshot,
         )
 
     @property
@@ -140,26 +145,50 @@ class SavedRun:
         -log(1 - D(s, a, i)) for EM-GAIL (eq. 20), plus lambda log P(i | s, a) for
         Info/IntentionGAIL (eq. 23), -log(1 - D(s, a)) for GAIL. The action is clipped to the
         env's range first: the discriminator learned on executed actions."""
+        parameters = self.reward_parameters(seed)
+        reward = self.reward_function()
+        return lambda obs, action, intention: reward(parameters, obs, action, intention)
+
+    def reward_parameters(self, seed: int = 0) -> dict:
+        """What :meth:`reward_function` reads of ``seed``: its discriminator's and posterior's
+        parameters and its observation statistics."""
         state = self.seed_state(seed)
+        posterior = state.posterior.params if self.algorithm.learns_posterior else None
+        return {
+            "discriminator": state.discriminator.params,
+            "posterior": posterior,
+            "normalizer": state.normalizer,
+        }
+
+    def reward_function(self) -> Callable:
+        """:meth:`reward` as ``R(parameters, obs, action, intention)``, the parameters
+        (:meth:`reward_parameters` of a seed) an argument, so that one compiled program
+        serves every seed's reward."""
         k, algorithm, clip = self.num_intentions, self.algorithm, self.config.obs_clip
         networks, env = self.networks, self.problem.env
 
-        def reward(obs, action, intention):
+        def reward(parameters, obs, action, intention):
             obs = jnp.asarray(obs, jnp.float32)
             action = env.clip_action(jnp.asarray(action, jnp.float32))
             intention = jnp.broadcast_to(jnp.asarray(intention, jnp.int32), obs.shape[:-1])
-            normalized = obs_norm.normalize(state.normalizer, obs, clip)
+            normalized = obs_norm.normalize(parameters["normalizer"], obs, clip)
             own = (
                 own_log_posterior(
-                    networks.posterior.apply, state.posterior.params, normalized, action, intention
+                    networks.posterior.apply, parameters["posterior"], normalized, action, intention
                 )
                 if algorithm.learns_posterior
                 else jnp.zeros(intention.shape)
             )
             discriminator = networks.discriminator.apply
-            params = state.discriminator.params
             return learned_reward(
-                discriminator, params, algorithm, k, normalized, action, intention, own
+                discriminator,
+                parameters["discriminator"],
+                algorithm,
+                k,
+                normalized,
+                action,
+                intention,
+                own,
             )
 
         return reward

@@ -89,6 +89,7 @@ DOMAINS = {
     "value_minibatches": COUNT,
     "discriminator_learning_rate": POSITIVE,
     "discriminator_steps": COUNT,
+    "discriminator_gradient_penalty": NON_NEGATIVE,
     "posterior_learning_rate": POSITIVE,
     "posterior_steps": COUNT,
     "reward_from": _one_of(REWARD_FROM),
@@ -171,6 +172,10 @@ class Config:
     # of steps is not given, ours are measured on the driver: docs/defaults.md).
     discriminator_learning_rate: float = 1e-3
     discriminator_steps: int = 10
+    # Weight of a zero-centred gradient penalty on the discriminator's logit, on the expert
+    # pairs and the policy samples alike (Lipschitz control for a reward that re-optimises,
+    # docs/rewards-that-reoptimise.md); 0, the default, computes none.
+    discriminator_gradient_penalty: float = 0.0
     posterior_learning_rate: float = 1e-3
     posterior_steps: int = 20
     # Which discriminator (and, for Info/IntentionGAIL, posterior) scores the B-step's reward:

@@ -42,8 +42,10 @@ def discriminator_loss(
     policy_obs: jax.Array,
     policy_actions: jax.Array,
     policy_conditions: jax.Array,
+    gradient_penalty: float = 0.0,
 ):
-    """Logistic loss: expert pairs are real, weighted over conditions; policy samples are fake.
+    """Logistic loss: expert pairs are real, weighted over conditions; policy samples are fake;
+    plus ``gradient_penalty`` times :func:`input_gradient_norms` (none computed at 0).
 
     Args:
       expert_obs, expert_actions: ``[N, D]``, ``[N, A]`` (normalised observations).
@@ -59,11 +61,54 @@ def discriminator_loss(
     policy_term = jnp.mean(jax.nn.softplus(fake))
     loss = expert_term + policy_term
     real_d = jnp.sum(expert_weights * jax.nn.sigmoid(real), -1)
-    return loss, {
+    metrics = {
         "discriminator/loss": loss,
         "discriminator/expert_d": jnp.mean(real_d),
         "discriminator/policy_d": jnp.mean(jax.nn.sigmoid(fake)),
     }
+    if gradient_penalty:
+        norms = input_gradient_norms(
+            apply,
+            params,
+            expert_obs,
+            expert_actions,
+            expert_weights,
+            conditions,
+            policy_obs,
+            policy_actions,
+            policy_conditions,
+        )
+        loss = loss + gradient_penalty * norms
+        metrics["discriminator/gradient_norm"] = norms
+    return loss, metrics
+
+
+def input_gradient_norms(
+    apply: Callable,
+    params,
+    expert_obs,
+    expert_actions,
+    expert_weights,
+    conditions,
+    policy_obs,
+    policy_actions,
+    policy_conditions,
+) -> jax.Array:
+    """The mean squared norm of d f / d(s, a) on the expert pairs (under each condition, weighted
+    as in the loss) and on the policy samples, half each: a zero-centred penalty that keeps
+    the logit, and so the reward, from growing steeply where the data lie."""
+
+    def squared(grads):
+        return sum(jnp.sum(g**2, -1) for g in grads)
+
+    real = []
+    for c in range(conditions.shape[0]):  # K <= 4 heads, each pair's gradient under each
+        one = lambda o, a, c=c: jnp.sum(expert_logits(apply, params, o, a, conditions)[:, c])
+        real.append(squared(jax.grad(one, (0, 1))(expert_obs, expert_actions)))
+    real = jnp.mean(jnp.sum(expert_weights * jnp.stack(real, -1), -1))
+    fake_sum = lambda o, a: jnp.sum(apply(params, o, a, policy_conditions, intention_major=True))
+    fake = jnp.mean(squared(jax.grad(fake_sum, (0, 1))(policy_obs, policy_actions)))
+    return 0.5 * (real + fake)
 
 
 def discriminator_update(
@@ -86,12 +131,17 @@ class MStep:
     metrics: dict
 
 
-def make_m_step(apply: Callable, optimizer: optax.GradientTransformation, steps: int):
+def make_m_step(
+    apply: Callable,
+    optimizer: optax.GradientTransformation,
+    steps: int,
+    gradient_penalty: float = 0.0,
+):
     """``m_step(discriminator, batch, gamma, algorithm) -> MStep`` (Algorithm 1, M-step): the
     discriminator (a :class:`Learner`) learns the expert pairs of ``batch`` (a
     :class:`NormalizedBatch`), weighted over intentions by ``gamma [N, K]`` as ``algorithm``
     says (eq. 19 or 22), against the policy samples under their own intention; ``steps``
-    full-batch steps."""
+    full-batch steps, with the gradient penalty of weight ``gradient_penalty``."""
 
     def m_step(
         discriminator: Learner, batch: NormalizedBatch, gamma: jax.Array, algorithm: Algorithm
@@ -111,6 +161,7 @@ def make_m_step(apply: Callable, optimizer: optax.GradientTransformation, steps:
             policy_obs=batch.obs,
             policy_actions=batch.executed,
             policy_conditions=algorithm.discriminator_condition(own_intention, k),
+            gradient_penalty=gradient_penalty,
         )
         return MStep(trained, metrics)
 

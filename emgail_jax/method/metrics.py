@@ -42,6 +42,13 @@ class ERD(NamedTuple):
     matching: jax.Array  # [K] learned intention assigned to each true intention
 
 
+def reward_difference(matched_returns, expert_returns, random_returns):
+    """``[..., K]`` eq. 28's ``e_i = |J_i(expert_i) - J_i(learned)| / |J_i(expert_i) -
+    J_i(random)|`` of the learned returns ``matched_returns [..., K]`` under their true
+    intention (0 is the expert, 1 random actions), of numpy or JAX arrays alike."""
+    return abs(expert_returns - matched_returns) / abs(expert_returns - random_returns)
+
+
 def normalized_erd(
     returns: jax.Array,
     expert_returns: jax.Array,
@@ -69,8 +76,7 @@ def normalized_erd(
     k_learned, k = returns.shape[0], expert_returns.shape[0]
     maps = jnp.asarray(matchings(k_learned, k))  # [M, K]
     matched = returns[maps, jnp.arange(k)]  # [M, K] J_i of learned sigma(i)
-    scale = jnp.abs(expert_returns - random_returns)  # [K]
-    per_intention = jnp.abs(expert_returns - matched) / scale  # [M, K]
+    per_intention = reward_difference(matched, expert_returns, random_returns)  # [M, K]
     if in_use is not None:
         used = in_use[maps]  # [M, K]
         per_intention = jnp.where(used, per_intention, 1.0)

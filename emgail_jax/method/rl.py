@@ -11,6 +11,10 @@ intentions (and seeds):
 
 or, over seeds and in compiled chunks (host side),
 ``seed_runner.intention_runner(trainer, jnp.arange(K), seeds)``.
+
+A learned reward takes its parameters as ``reward_data`` (an argument of the compiled program,
+not constants in it), so that the rewards of several run seeds share one program
+(:func:`seeds_chunk`).
 """
 
 from __future__ import annotations
@@ -32,11 +36,12 @@ from emgail_jax.method.networks import GaussianPolicy, ValueNet, policy_action
 from emgail_jax.method.optim import Learner
 from emgail_jax.method.rollout import batch_reset, episode_returns, rollout
 
-# (obs [T, 1, B, D] raw, action [T, 1, B, A], true_reward [T, 1, B, K], intention []) -> [T, 1, B]
-RewardFn = Callable[[jax.Array, jax.Array, jax.Array, jax.Array], jax.Array]
+# (obs [T, 1, B, D] raw, action [T, 1, B, A], true_reward [T, 1, B, K], intention [],
+#  reward_data: the reward's parameters, any pytree or None) -> [T, 1, B]
+RewardFn = Callable[[jax.Array, jax.Array, jax.Array, jax.Array, Any], jax.Array]
 
 
-def true_reward(obs, action, reward, intention):
+def true_reward(obs, action, reward, intention, reward_data=None):
     """The env's own reward of the intention being trained (for the experts)."""
     return jnp.take(reward, intention, axis=-1)
 
@@ -54,9 +59,9 @@ class RLState:
 def make_rl_train(
     config: Config, env: envs.Env, reward_fn: RewardFn = true_reward, eval_episodes: int = 5
 ):
-    """Builds ``init(key) -> RLState``, ``update(state, intention) -> (state, metrics)`` and
-    ``policy(state, deterministic) -> (obs, key) -> action``; every update scores the new policy
-    on ``eval_episodes`` deterministic episodes."""
+    """Builds ``init(key) -> RLState``, ``update(state, intention, reward_data=None) -> (state,
+    metrics)`` and ``policy(state, deterministic) -> (obs, key) -> action``; every update scores
+    the new policy on ``eval_episodes`` deterministic episodes."""
     config = config.resolved(env)
     b, t = config.num_envs, config.rollout_length
     train_env = envs.wrap_for_training(env)
@@ -90,11 +95,11 @@ def make_rl_train(
             iteration=jnp.zeros((), jnp.int32),
         )
 
-    def update(state: RLState, intention: jax.Array) -> tuple[RLState, dict]:
+    def update(state: RLState, intention: jax.Array, reward_data=None) -> tuple[RLState, dict]:
         key_next, key_rollout, key_value, key_eval = jax.random.split(state.key, 4)
         behaviour = act(state.policy, state.normalizer, deterministic=False)
         env_state, batch = rollout(train_env, behaviour, state.env_state, key_rollout, t)
-        reward = reward_fn(batch.obs, batch.action, batch.true_reward, intention)
+        reward = reward_fn(batch.obs, batch.action, batch.true_reward, intention, reward_data)
         normalizer = obs_norm.update(state.normalizer, batch.obs)
         normalize = lambda x: obs_norm.normalize(normalizer, x, config.obs_clip)
         learning = LearningBatch.of(batch, env_state, env.episode_length)
@@ -127,17 +132,31 @@ def make_rl_train(
 
 class RLTrainer(NamedTuple):
     init: Callable[[jax.Array], RLState]
-    update: Callable[[RLState, jax.Array], tuple[RLState, dict]]
+    update: Callable[..., tuple[RLState, dict]]
     policy: Callable[..., Callable]
 
 
 def intention_chunk(trainer: RLTrainer, intentions: jax.Array) -> Callable:
     """One seed's ``chunk(states [I], inputs [L]) -> (states, metrics [L, I, ...])``, jitted:
     ``L`` iterations of one policy per entry of ``intentions [I]`` (vmapped), for callers that
-    hold one seed's states themselves (re-optimisation, experiments/rl_floor.py)."""
+    hold one seed's states themselves (experiments/rl_floor.py)."""
 
     def chunk(states, inputs):
         step = lambda s, _: jax.vmap(trainer.update)(s, intentions)
+        return jax.lax.scan(step, states, inputs)
+
+    return jax.jit(chunk)
+
+
+def seeds_chunk(trainer: RLTrainer, intentions: jax.Array) -> Callable:
+    """``chunk(states [S, I], inputs [L], reward_data [S, ...]) -> (states, metrics [L, S, I,
+    ...])``, jitted: :func:`intention_chunk` for ``S`` rewards at once, reward ``s`` (its
+    parameters ``reward_data[s]``, shared by its ``I`` policies) training the row ``s`` of
+    policies (re-optimising every seed of a run, :mod:`emgail_jax.reoptimize`)."""
+
+    def chunk(states, inputs, reward_data):
+        one_reward = lambda s, data: jax.vmap(trainer.update, (0, 0, None))(s, intentions, data)
+        step = lambda s, _: jax.vmap(one_reward)(s, reward_data)
         return jax.lax.scan(step, states, inputs)
 
     return jax.jit(chunk)

@@ -460,7 +460,10 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
     collector = make_collector(config, env, networks)
     e_step = make_e_step(networks.posterior.apply, optimizers.posterior, config)
     m_step = make_m_step(
-        networks.discriminator.apply, optimizers.discriminator, config.discriminator_steps
+        networks.discriminator.apply,
+        optimizers.discriminator,
+        config.discriminator_steps,
+        config.discriminator_gradient_penalty,
     )
     b_step = make_b_step(networks.policy.apply, networks.value.apply, optimizers.value, config)
     improve = make_improve(config, env, networks, b_step)

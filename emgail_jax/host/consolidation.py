@@ -1,0 +1,106 @@
+"""A reward consolidated at the end of a run: each seed's discriminator refitted on its
+gamma-weighted demonstrations against the samples of every policy the run kept a snapshot of.
+
+During training the discriminator only ever tells the expert from the *latest* policy, so
+behaviour the policies left behind long ago (and any a fresh agent may find) can be paid more
+than the demonstrations. Refitting against all the run's policies at once is one way to take
+that away (the issue's "consolidated reward"); it changes nothing in training: it reads the
+snapshots (``run --snapshot-every``) after the run.
+"""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+
+import envs
+from emgail_jax.host import checkpoints
+from emgail_jax.method import normalizer as obs_norm
+from emgail_jax.method.discriminator import discriminator_update
+from emgail_jax.method.rollout import batch_reset, intention_major
+from emgail_jax.method.training import (
+    RunData,
+    make_collector,
+    make_optimizers,
+    seed_state,
+)
+
+
+def snapshot_policy_samples(run, seed: int, key: jax.Array, iterations=None):
+    """``(obs [K, M, D] raw, executed [K, M, A])``: one training rollout (``num_envs`` x
+    ``rollout_length`` steps per intention, from fresh starts, with exploration) of the policy
+    of every snapshot of ``seed`` (``iterations``; default all up to the networks ``run``
+    holds), concatenated."""
+    config, env = run.config, run.problem.env
+    k, b = env.num_intentions, config.num_envs
+    collector = make_collector(config, env, run.networks)
+    data = RunData.create(run.demonstration_pairs, env, config)
+    train_env = envs.wrap_for_training(env.bind(data.env))
+
+    @jax.jit
+    def collect(state, key):
+        key_reset, key_rollout = jax.random.split(key)
+        start = batch_reset(train_env, key_reset, (k, b))
+        policy = collector.acting(state, data)
+        _, transitions = collector.collect(start, policy, key_rollout, True, data)
+        return intention_major(transitions.obs), env.clip_action(
+            intention_major(transitions.action)
+        )
+
+    if iterations is None:
+        last = run.snapshot or run.iteration
+        iterations = [i for i in checkpoints.snapshot_iterations(run.run_dir) if i <= last]
+    if not iterations:
+        raise checkpoints.CheckpointError(
+            f"'{run.run_dir}' kept no snapshots to consolidate from (run --snapshot-every)"
+        )
+    obs, executed = [], []
+    for iteration, snapshot_key in zip(
+        iterations, jax.random.split(key, len(iterations)), strict=True
+    ):
+        state = seed_state(checkpoints.restore_snapshot(run.run_dir, iteration, run.state), seed)
+        o, a = collect(state, snapshot_key)
+        obs.append(np.asarray(o))
+        executed.append(np.asarray(a))
+    return np.concatenate(obs, 1), np.concatenate(executed, 1)
+
+
+def consolidated_parameters(
+    run, seed: int, steps: int, key: jax.Array, gradient_penalty: float = 0.0
+) -> tuple[dict, dict]:
+    """``(reward parameters, metrics)``: :meth:`SavedRun.reward_parameters` of ``seed`` with
+    its discriminator trained ``steps`` more full-batch steps (the run's optimiser and
+    learning rate, from its final state) on the expert pairs weighted by the final
+    responsibilities against the policy samples of every snapshot, with the M-step's gradient
+    penalty of weight ``gradient_penalty``; the metrics are those of the M-step's loss before
+    and after."""
+    parameters = run.reward_parameters(seed)
+    state = run.seed_state(seed)
+    algorithm, config, k = run.algorithm, run.config, run.num_intentions
+    pairs = run.demonstration_pairs
+    obs, executed = snapshot_policy_samples(run, seed, key)
+    normalize = lambda x: obs_norm.normalize(state.normalizer, x, config.obs_clip)
+    if algorithm.learns_posterior:
+        gamma = np.asarray(run.responsibilities(seed).gamma)
+    else:
+        gamma = np.ones((pairs.observations.shape[0], k))
+    own = np.broadcast_to(np.arange(k)[:, None], obs.shape[:2])
+    batch = dict(
+        expert_obs=normalize(pairs.observations),
+        expert_actions=pairs.actions,
+        expert_weights=algorithm.expert_weights(gamma),
+        conditions=algorithm.discriminator_conditions(k),
+        policy_obs=normalize(obs),
+        policy_actions=executed,
+        policy_conditions=algorithm.discriminator_condition(own, k),
+        gradient_penalty=gradient_penalty,
+    )
+    apply = run.networks.discriminator.apply
+    optimizer = make_optimizers(config).discriminator
+    fit = jax.jit(lambda learner: discriminator_update(apply, optimizer, learner, steps, **batch))
+    trained, before = fit(state.discriminator)
+    _, after = jax.jit(lambda learner: discriminator_update(apply, optimizer, learner, 1, **batch))(
+        trained
+    )
+    metrics = {"before": jax.device_get(before), "after": jax.device_get(after)}
+    return {**parameters, "discriminator": trained.params}, metrics
