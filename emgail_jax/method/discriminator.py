@@ -70,13 +70,13 @@ def discriminator_loss(
         norms = input_gradient_norms(
             apply,
             params,
-            expert_obs,
-            expert_actions,
-            expert_weights,
-            conditions,
-            policy_obs,
-            policy_actions,
-            policy_conditions,
+            expert_obs=expert_obs,
+            expert_actions=expert_actions,
+            expert_weights=expert_weights,
+            conditions=conditions,
+            policy_obs=policy_obs,
+            policy_actions=policy_actions,
+            policy_conditions=policy_conditions,
         )
         loss = loss + gradient_penalty * norms
         metrics["discriminator/gradient_norm"] = norms
@@ -86,6 +86,7 @@ def discriminator_loss(
 def input_gradient_norms(
     apply: Callable,
     params,
+    *,
     expert_obs,
     expert_actions,
     expert_weights,
