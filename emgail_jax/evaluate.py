@@ -151,7 +151,7 @@ def plot_intention_weights(run, path: str) -> None:
             style = "-" if kept is None or kept[i] else "--"
             ax.plot(np.arange(1, iterations + 1), weights[seed, :, i], color=COLORS[i],
                     ls=style, label=f"learned {i}", lw=1.2)  # fmt: skip
-        if run.config.choose_intentions:
+        if run.config.method.choose_intentions:
             ax.axhline(kept_share(run.demonstration_pairs.episodes), color="k", ls=":", lw=1,
                        label="kept above")  # fmt: skip
             ax.axvspan(max(iterations - FINAL_WINDOW, 0), iterations, color="0.9")
@@ -327,7 +327,7 @@ def main(argv=None) -> int:
         return 2
 
     env = run.problem.env
-    print(f"{run.config.algo} on {env.name} (K={run.num_intentions}), iteration {run.iteration}, "
+    print(f"{run.spec.algo} on {env.name} (K={run.num_intentions}), iteration {run.iteration}, "
           f"{args.episodes} deterministic episodes per learned intention")  # fmt: skip
     key = jax.random.PRNGKey(EVALUATION_SEED)
     results = []

@@ -69,16 +69,15 @@ def checkpoint_dir(env_name: str, root: str | None = None) -> str:
 
 
 def _config(spec: ExpertSpec):
-    from emgail_jax.method.config import Config
+    from emgail_jax.method.config import BStepConfig, MethodConfig, NetworkConfig, RolloutConfig
     from emgail_jax.method.trpo import TRPOConfig
 
-    return Config(
-        num_envs=spec.num_envs,
-        rollout_length=spec.rollout_length,
-        gamma=spec.gamma,
-        init_log_std=spec.init_log_std,
-        value_epochs=spec.value_epochs,
-        trpo=TRPOConfig(max_kl=spec.max_kl),
+    return MethodConfig(
+        rollout=RolloutConfig(num_envs=spec.num_envs, rollout_length=spec.rollout_length),
+        networks=NetworkConfig(init_log_std=spec.init_log_std),
+        b_step=BStepConfig(
+            gamma=spec.gamma, value_epochs=spec.value_epochs, trpo=TRPOConfig(max_kl=spec.max_kl)
+        ),
     )
 
 
@@ -194,11 +193,12 @@ def make_policy(env, experts, spec: ExpertSpec | None = None):
     from emgail_jax.method.networks import GaussianPolicy, policy_action
 
     config = _config(spec or SPECS[env.name])
-    net = GaussianPolicy(env.action_size, config.hidden, config.init_log_std)
+    shape = config.networks
+    net = GaussianPolicy(env.action_size, shape.hidden, shape.init_log_std)
 
     def mean_action(params, stats, obs):
         no_condition = jnp.zeros((*obs.shape[:-1], 0))
-        return policy_action(net, params, stats, obs, no_condition, config.obs_clip)
+        return policy_action(net, params, stats, obs, no_condition, obs_clip=shape.obs_clip)
 
     def policy(obs, intention):
         every = jax.vmap(mean_action, in_axes=(0, 0, None))(

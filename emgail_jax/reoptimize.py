@@ -70,7 +70,9 @@ SUCCESS_EPISODES = 10  # the experts' bars are defined over 10 deterministic epi
 
 
 def default_budget(run) -> Budget:
-    return BUDGETS.get(run.spec.env, Budget(run.config.iterations, run.config.gamma))
+    return BUDGETS.get(
+        run.spec.env, Budget(run.config.schedule.iterations, run.config.method.b_step.gamma)
+    )
 
 
 def default_cache() -> str:
@@ -148,9 +150,10 @@ def success(env, trainer, states, matching) -> list[dict]:
 def _fresh_trainer(run, budget: Budget, reward_fn=None):
     from emgail_jax.method.rl import make_rl_train, true_reward
 
-    config = run.config.replace(gamma=budget.gamma)
+    config = run.config.with_values(gamma=budget.gamma).method
     env = run.problem.env
-    return make_rl_train(config, env, reward_fn or true_reward, eval_episodes=config.num_envs)
+    episodes = config.rollout.num_envs
+    return make_rl_train(config, env, reward_fn or true_reward, eval_episodes=episodes)
 
 
 def scored(returns, matching, run, seed: int | None) -> dict:
@@ -257,7 +260,7 @@ def reoptimize(
         "iteration": iteration,
         "snapshot": run.snapshot,
         "budget": dataclasses.asdict(budget),
-        "eval_episodes": run.config.num_envs,
+        "eval_episodes": run.config.method.rollout.num_envs,
         "expert_returns": run.problem.demos.expert_returns,
         "random_returns": run.problem.random_returns,
         "seeds": list(seeds),
@@ -433,7 +436,7 @@ def main(argv=None) -> int:
         run.seed_state(seeds[0])  # checks --seed
         if args.reward_form is not None:
             config = run.config
-            run.algorithm = make_algorithm(config.algo, config.info_weight, args.reward_form)
+            run.algorithm = make_algorithm(config.method.algo, config.info_weight, args.reward_form)
         parameters, consolidation = None, None
         if args.consolidate:
             parameters, consolidation = consolidated(

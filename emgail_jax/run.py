@@ -132,7 +132,7 @@ def parse_args(argv=None) -> argparse.Namespace:
         default=[],
         metavar="KEY=VALUE",
         dest="set",
-        help="any other hyper-parameter of emgail_jax.method.config.Config, e.g. --set "
+        help="any other hyper-parameter of emgail_jax.method.config (its flat key), e.g. --set "
         "discriminator_steps=5 --set trpo.cg_damping=0 (repeatable)",
     )
     parser.add_argument(
@@ -144,13 +144,13 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument(
         "--checkpoint-every",
         type=int,
-        default=DEFAULT_CHECKPOINT_EVERY,
+        default=None,
         help=f"iterations between checkpoints (default {DEFAULT_CHECKPOINT_EVERY})",
     )
     parser.add_argument(
         "--snapshot-every",
         type=int,
-        default=DEFAULT_SNAPSHOT_EVERY,
+        default=None,
         help="iterations between snapshots of the learned networks, all kept (default "
         f"{DEFAULT_SNAPSHOT_EVERY}; 0: none)",
     )
@@ -211,10 +211,14 @@ _RUN_OPTIONS = (
 
 def spec_from_args(args: argparse.Namespace) -> RunSpec:
     from emgail_jax.host.demonstration_sources import canonical
-    from emgail_jax.method.config import Config, SettingError
+    from emgail_jax.method.config import RunConfig
 
-    if args.snapshot_every < 0:
-        raise RunError("--snapshot-every must be 0 (none) or more")
+    # What may change on resume: the host's schedule of outputs and the total.
+    continued = {
+        "iterations": args.iterations,
+        "checkpoint_every": args.checkpoint_every,
+        "snapshot_every": args.snapshot_every,
+    }
     if args.resume is not None:
         given = [f"--{name.replace('_', '-')}" for name in _RUN_OPTIONS if getattr(args, name)]
         if given or args.out or args.overwrite:
@@ -224,13 +228,8 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
                 "(only --iterations, the new total, may be given)"
             )
         spec = RunSpec.from_summary(read_summary(args.resume))
-        if args.iterations is not None:
-            try:
-                config = spec.config.replace(iterations=args.iterations)
-            except SettingError as error:
-                raise RunError(error.naming("--iterations")) from None
-            spec = dataclasses.replace(spec, config=config)
-        return spec
+        config = _with_options(spec.config, continued)
+        return dataclasses.replace(spec, config=config)
 
     env = args.env or "driver"
     # The run's own counts; the config checks its hyper-parameters itself.
@@ -245,8 +244,8 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
             raise RunError("--radius applies to the driver env only")
         env_options["radius"] = args.radius
     overrides = {
+        **continued,
         "algo": args.algo,
-        "iterations": args.iterations,
         "info_weight": args.info_weight,
         "intention_input": args.intention_input,
         "responsibilities": args.responsibilities,
@@ -259,11 +258,7 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         "chunk_size": args.chunk_size,
         "seed_batch": args.seed_batch,
     }
-    given = {k: v for k, v in overrides.items() if v is not None}
-    try:
-        config = Config().replace(**given)
-    except SettingError as error:  # an option's own value: named as the option
-        raise RunError(error.naming(f"--{error.key.replace('_', '-')}")) from None
+    config = _with_options(RunConfig(), overrides)
     try:
         config = config.with_settings(args.set)
     except ValueError as error:
@@ -272,7 +267,7 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         env=env,
         intentions=intentions,
         env_options=env_options,
-        algo=config.algo,
+        algo=config.method.algo.value,
         seeds=args.seeds or DEFAULT_SEEDS,
         first_seed=args.seed or 0,
         demo_sources=tuple(map(canonical, args.demos or ())),
@@ -282,10 +277,23 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
     )
 
 
+def _with_options(config, options: dict):
+    """``config`` with the settings of the command line's options (None: not given); a value
+    out of its domain is named as the option."""
+    from emgail_jax.method.config import SettingError
+
+    given = {key: value for key, value in options.items() if value is not None}
+    try:
+        return config.with_values(**given)
+    except SettingError as error:
+        raise RunError(error.naming(f"--{error.key.replace('_', '-')}")) from None
+
+
 def _learned_intentions(args: argparse.Namespace, env: str) -> tuple[int | None, bool]:
     """``(K learned or None for the env's default, whether K is chosen from the data)``; auto
     starts from ``--max-intentions``, by default all the env has."""
     import envs
+    from emgail_jax.method.algorithms import AlgorithmName
 
     choosing = args.intentions == "auto"
     if args.max_intentions is not None and not choosing:
@@ -299,7 +307,7 @@ def _learned_intentions(args: argparse.Namespace, env: str) -> tuple[int | None,
         raise RunError("--intentions and --max-intentions must be at least 1")
     if choosing and args.prior == "uniform":
         raise RunError("--intentions auto weighs the intentions: drop --prior uniform")
-    if choosing and args.algo == "gail":
+    if choosing and args.algo is not None and not AlgorithmName(args.algo).learns_posterior:
         raise RunError("--intentions auto needs a posterior: use --algo emgail or infogail")
     return count, choosing
 
@@ -357,11 +365,9 @@ def train(
     problem,
     out: str,
     resume: bool = False,
-    checkpoint_every: int = DEFAULT_CHECKPOINT_EVERY,
     progress: bool = True,
     signals: stopping.Signals | None = None,
     wandb_run=None,
-    snapshot_every: int = DEFAULT_SNAPSHOT_EVERY,
 ) -> dict:
     """Trains (or, with ``resume``, continues) the run ``spec`` and writes its outputs to ``out``
     (and the metrics to ``wandb_run``, a W&B run of :func:`~emgail_jax.host.records.start_wandb`).
@@ -397,7 +403,8 @@ def train(
         write_json(summary_path, running)
 
     # Chunks only group iterations into compiled calls; they do not change the results.
-    plan = chunks(done, config.iterations, config.chunk_size)
+    schedule = config.schedule
+    plan = chunks(done, schedule.iterations, schedule.chunk_size)
     signals = signals or stopping.Signals()
     recorder = _ChunkRecorder(
         out,
@@ -405,15 +412,15 @@ def train(
         history,
         done,
         resume,
-        checkpoint_every,
+        schedule.checkpoint_every,
         writes,
         signals,
         wandb_run,
-        snapshot_every,
+        schedule.snapshot_every,
     )
     if plan:
         evaluating = lambda first, length: evaluation_plan(
-            first, length, config.iterations, config.eval_every
+            first, length, schedule.iterations, schedule.eval_every
         )
         with signals.stoppable(), recorder.open(progress and writes):
             runner.run(state, plan, evaluating, recorder.after_chunk)
@@ -425,15 +432,15 @@ def train(
     iteration, history = recorder.iteration, recorder.history
 
     summary.update(timings=timings, iterations_done=iteration)
-    if iteration < config.iterations:
+    if iteration < schedule.iterations:
         summary.update(status="interrupted", stopped_by=signal.Signals(recorder.stopped_by).name)
     else:
         summary["status"] = "completed"
     summary["final"] = _final_summary(problem, config, history, timings, spec)
-    if config.algo != "gail":
+    if config.method.algo.learns_posterior:
         final_state = recorder.host_state if recorder.host_state is not None else gather(state)
         summary["final"].update(_held_final(problem, config, runner.data.demos, final_state))
-    if config.choose_intentions:
+    if config.method.choose_intentions:
         chosen = _chosen_final(problem, config, runner.data.demos, final_state, history)
         summary["final"].update(chosen)
     write_json(summary_path, summary)
@@ -448,7 +455,7 @@ class _ChunkRecorder:
     ``snapshot_every`` and at the end (0: none)."""
 
     out: str
-    config: object  # the resolved Config
+    config: object  # the resolved RunConfig
     history: dict | None
     iteration: int  # iterations done
     resume: bool
@@ -474,7 +481,7 @@ class _ChunkRecorder:
         )
         fields = {"ERD": "-", "acc": "-"}
         self.bar = ProgressBar(
-            "training", self.config.iterations, fields, self.iteration, enabled=progress
+            "training", self.config.schedule.iterations, fields, self.iteration, enabled=progress
         )
         try:
             yield self
@@ -491,7 +498,7 @@ class _ChunkRecorder:
         self.iteration = first + length
         self.bar.update(length, **_progress_fields(self.history))
         self.stopped_by = _agreed_signal(self.signals.requested)
-        finished = self.iteration >= self.config.iterations or self.stopped_by is not None
+        finished = self.iteration >= self.config.schedule.iterations or self.stopped_by is not None
         if finished or self.iteration - self.last_saved >= self.checkpoint_every:
             host_state = gather(state)  # every process takes part
             if self.writes:
@@ -529,11 +536,11 @@ def _runner(spec: RunSpec, problem, config):
     pairs = DemonstrationPairs.create(
         problem.demos, problem.random_returns, problem.true_intentions
     )
-    data = RunData.create(pairs, env, config)
-    init, update, _ = make_train(config, env)
+    data = RunData.create(pairs, env, config.info_weight)
+    init, update, _ = make_train(config.method, env)
     # Runs of one process that differ only in data (the sweep's driver radii) share programs.
     program_key = (config.program_key(), env.program_key())
-    runner = Runner(init, update, spec.seeds, data, config.seed_batch, program_key)
+    runner = Runner(init, update, spec.seeds, data, config.schedule.seed_batch, program_key)
     return runner, parameter_counts(init, data)
 
 
@@ -552,11 +559,11 @@ def _summary_header(spec: RunSpec, problem, config) -> dict:
     return {
         "env": env.name,
         "env_options": env.options(),
-        "algo": config.algo,
+        "algo": config.method.algo.value,
         "intentions": env.num_intentions,
         "seeds": spec.seeds,
         "first_seed": spec.first_seed,
-        "iterations": config.iterations,
+        "iterations": config.schedule.iterations,
         "random_episodes": spec.random_episodes,
         "demonstrations": {
             "source": problem.demos_source,
@@ -576,13 +583,14 @@ def _final_summary(problem, config, history, timings, spec) -> dict:
     from emgail_jax.method.training import evaluation_phases
 
     env = problem.env
-    k, b, t = env.num_intentions, config.num_envs, config.rollout_length
+    rollout = config.method.rollout
+    k, b, t = env.num_intentions, rollout.num_envs, rollout.rollout_length
     final = final_metrics(history)
     iterations = history["eval/returns"].shape[1]
     evaluated = int(np.sum(~np.isnan(history["eval/returns"][0, :, 0])))
-    eval_steps = b * t * evaluation_phases(config, env)  # per intention and evaluation
+    eval_steps = b * t * evaluation_phases(config.method, env)  # per intention and evaluation
     env_steps = k * (b * t * iterations + eval_steps * evaluated)
-    no_accuracy = config.algo == "gail" or problem.demos.intentions is None
+    no_accuracy = not config.method.algo.learns_posterior or problem.demos.intentions is None
     no_erd = problem.demos.expert_returns is None
     summary = {
         "erd": None if no_erd else final["eval/erd"],
@@ -614,10 +622,11 @@ def _held_final(problem, config, demos, states) -> dict:
     from emgail_jax.method.choosing import demonstrations_held
     from emgail_jax.method.training import make_networks, responsibilities_of, seed_state
 
-    networks = make_networks(config, problem.env)
+    method = config.method
+    networks = make_networks(method, problem.env)
     held = [
         demonstrations_held(
-            np.asarray(responsibilities_of(networks, config, seed_state(states, s), demos).gamma),
+            np.asarray(responsibilities_of(networks, method, seed_state(states, s), demos).gamma),
             demos.episode,
             demos.episodes,
         )
@@ -642,10 +651,11 @@ def _chosen_final(problem, config, demos, states, history) -> dict:
         seed_state,
     )
 
-    networks = make_networks(config, problem.env)
+    method = config.method
+    networks = make_networks(method, problem.env)
     seeds = states.intention_weights.shape[0]
     responsibilities = [
-        responsibilities_of(networks, config, seed_state(states, seed), demos)
+        responsibilities_of(networks, method, seed_state(states, seed), demos)
         for seed in range(seeds)
     ]
     gamma = np.stack([np.asarray(r.gamma) for r in responsibilities])
@@ -676,7 +686,7 @@ def _chosen_final(problem, config, demos, states, history) -> dict:
             values["returns"] = np.mean(matched, 0)
         if demos.has_labels:
             clustering = clustering_metrics(
-                responsibilities[seed], demos, m, config.responsibilities, kept[seed]
+                responsibilities[seed], demos, m, method.e_step.responsibilities, kept[seed]
             )
             values.update({name[5:]: float(v) for name, v in clustering.items()})
         per_seed.append(values)
@@ -794,7 +804,7 @@ def _command(
         if args.resume is not None and latest_iteration(out) is None and not unfinished:
             raise CheckpointError(f"'{out}' holds no checkpoint to resume from")
         problem = problem_of(spec)
-        if spec.config.responsibilities == "labels" and problem.demos.intentions is None:
+        if spec.config.method.e_step.responsibilities.oracle and problem.demos.intentions is None:
             raise RunError("--responsibilities labels needs demonstrations with hidden labels")
         logs_to_wandb = args.wandb is not None and primary
         if logs_to_wandb:
@@ -820,11 +830,9 @@ def _command(
             problem,
             out,
             resume=args.resume is not None,
-            checkpoint_every=args.checkpoint_every,
             progress=not args.quiet,
             signals=signals,
             wandb_run=wandb_run,
-            snapshot_every=args.snapshot_every,
         )
     if wandb_run is not None:
         records.finish_wandb(wandb_run, summary)

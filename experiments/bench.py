@@ -52,15 +52,16 @@ def child(env_name: str, k: int, seed_counts: list[int], chunks: int, cache: str
     from emgail_jax.host.problem import make_problem
     from emgail_jax.host.seed_runner import Runner, evaluation_plan
     from emgail_jax.method.batches import DemonstrationPairs, LearningBatch
-    from emgail_jax.method.config import Config
+    from emgail_jax.method.config import RunConfig, RunSchedule
     from emgail_jax.method.rollout import episode_totals, fresh_starts
     from emgail_jax.method.training import RunData, algorithm_of, evaluation_phases, make_train
 
     problem = make_problem(env_name, k)
     env = problem.env
-    config = Config(eval_every=EVAL_EVERY).resolved(env)
+    run_config = RunConfig(schedule=RunSchedule(eval_every=EVAL_EVERY)).resolved(env)
+    config = run_config.method
     pairs = DemonstrationPairs.create(problem.demos, problem.random_returns, env.num_intentions)
-    data = RunData.create(pairs, env, config)
+    data = RunData.create(pairs, env, run_config.info_weight)
     trainer = make_train(config, env)
     # A chunk in the middle of a 400-iteration run: one evaluation in ten iterations.
     steady = evaluation_plan(100, CHUNK, 400, EVAL_EVERY)
@@ -116,7 +117,7 @@ def child(env_name: str, k: int, seed_counts: list[int], chunks: int, cache: str
             more, alive = episode_totals(batch, alive)
             return (end, totals + more, alive), None
 
-        shape = (k, config.num_envs)
+        shape = (k, config.rollout.num_envs)
         carry = (fresh_starts(state.env_state), jnp.zeros((*shape, k)), jnp.ones(shape))
         return jax.lax.scan(phase, carry, jnp.arange(phases))[0][1]
 
@@ -125,7 +126,15 @@ def child(env_name: str, k: int, seed_counts: list[int], chunks: int, cache: str
         "E-step": (steps.e_step, (state.posterior, seen, data.demos, state.intention_weights)),
         "M-step": (m_step, (state.discriminator, seen, e.gamma)),
         "B-step": (
-            lambda *args: steps.improve(*args, algorithm, key),
+            lambda state, batch, seen, discriminator, own: steps.improve(
+                state,
+                batch,
+                seen,
+                discriminator=discriminator,
+                own_log_posterior=own,
+                algorithm=algorithm,
+                key=key,
+            ),
             (state, batch, seen, discriminator, e.own_log_posterior),
         ),
         "evaluation": (evaluation, (state, data)),
@@ -154,7 +163,9 @@ def child(env_name: str, k: int, seed_counts: list[int], chunks: int, cache: str
         result["pieces_compile_s"]["physics step"] = compile_timed(*physics)[1]
 
     result["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    steps_per_iteration = k * config.num_envs * config.rollout_length * (1 + phases / EVAL_EVERY)
+    steps_per_iteration = (
+        k * config.rollout.num_envs * config.rollout.rollout_length * (1 + phases / EVAL_EVERY)
+    )
     result["env_steps_per_iteration"] = steps_per_iteration
     if hasattr(env, "mj_model"):
         result["native_s"] = native_seconds(env, steps_per_iteration)

@@ -27,7 +27,7 @@ from emgail_jax.method import normalizer as obs_norm
 from emgail_jax.method.algorithms import Algorithm, make_algorithm
 from emgail_jax.method.batches import DemonstrationPairs
 from emgail_jax.method.choosing import chosen_intentions, demonstrations_held
-from emgail_jax.method.config import Config
+from emgail_jax.method.config import RunConfig
 from emgail_jax.method.discriminator import learned_reward
 from emgail_jax.method.networks import policy_action
 from emgail_jax.method.posterior import (
@@ -52,7 +52,7 @@ class SavedRun:
     summary: dict
     spec: RunSpec
     problem: Problem
-    config: Config  # resolved for the env
+    config: RunConfig  # resolved for the env
     algorithm: Algorithm
     networks: Networks
     state: TrainState  # every seed, leading axis
@@ -79,8 +79,8 @@ class SavedRun:
         # Only `init`'s shapes are needed; ERD's references do not enter them.
         k_true = problem.true_intentions
         pairs = DemonstrationPairs.create(problem.demos, np.full(k_true, np.nan), k_true)
-        init, update, _ = make_train(config, env)
-        runner = Runner(init, update, spec.seeds, RunData.create(pairs, env, config))
+        init, update, _ = make_train(config.method, env)
+        runner = Runner(init, update, spec.seeds, RunData.create(pairs, env, config.info_weight))
         target = runner.abstract_state(jax.random.PRNGKey(spec.first_seed))
         state, history, iteration = checkpoints.restore(run_dir, target)
         if snapshot is not None:
@@ -91,8 +91,10 @@ class SavedRun:
             spec=spec,
             problem=problem,
             config=config,
-            algorithm=make_algorithm(config.algo, config.info_weight, config.reward_form),
-            networks=make_networks(config, env),
+            algorithm=make_algorithm(
+                config.method.algo, config.info_weight, config.method.reward.form
+            ),
+            networks=make_networks(config.method, env),
             state=state,
             history=history,
             iteration=iteration,
@@ -109,7 +111,7 @@ class SavedRun:
         (``--intentions auto``), decided by all the run's seeds together as training decided
         at its end (:func:`~emgail_jax.method.choosing.chosen_intentions`); None when K was
         given."""
-        if not self.config.choose_intentions:
+        if not self.config.method.choose_intentions:
             return None
         self.seed_state(seed)  # checks the seed
         if self._kept is None:
@@ -129,13 +131,19 @@ class SavedRun:
         """Deterministic ``pi(obs [..., D], intention [...]) -> action [..., A]`` (raw obs)."""
         state = self.seed_state(seed)
         env, k = self.problem.env, self.num_intentions
-        network, algorithm, clip = self.networks.policy, self.algorithm, self.config.obs_clip
+        network, algorithm, clip = (
+            self.networks.policy,
+            self.algorithm,
+            self.config.method.networks.obs_clip,
+        )
 
         def policy(obs, intention):
             obs = jnp.asarray(obs, jnp.float32)
             intention = jnp.broadcast_to(jnp.asarray(intention, jnp.int32), obs.shape[:-1])
             condition = algorithm.policy_condition(intention, k)
-            mean = policy_action(network, state.policy, state.normalizer, obs, condition, clip)
+            mean = policy_action(
+                network, state.policy, state.normalizer, obs, condition, obs_clip=clip
+            )
             return jnp.clip(mean, env.action_low, env.action_high)
 
         return policy
@@ -164,7 +172,11 @@ class SavedRun:
         """:meth:`reward` as ``R(parameters, obs, action, intention)``, the parameters
         (:meth:`reward_parameters` of a seed) an argument, so that one compiled program
         serves every seed's reward."""
-        k, algorithm, clip = self.num_intentions, self.algorithm, self.config.obs_clip
+        k, algorithm, clip = (
+            self.num_intentions,
+            self.algorithm,
+            self.config.method.networks.obs_clip,
+        )
         networks, env = self.networks, self.problem.env
 
         def reward(parameters, obs, action, intention):
@@ -185,10 +197,10 @@ class SavedRun:
                 parameters["discriminator"],
                 algorithm,
                 k,
-                normalized,
-                action,
-                intention,
-                own,
+                obs=normalized,
+                executed=action,
+                intention=intention,
+                own_log_posterior=own,
             )
 
         return reward
@@ -198,9 +210,11 @@ class SavedRun:
         ``seed`` (gamma ``[N, K]`` and the pair and trajectory labels), computed as training
         computes them, in the run's ``responsibilities`` mode."""
         if not self.algorithm.learns_posterior:
-            raise RunError(f"{self.config.algo} learns no posterior")
+            raise RunError(f"{self.config.method.algo} learns no posterior")
         state = self.seed_state(seed)
-        result = responsibilities_of(self.networks, self.config, state, self.demonstration_pairs)
+        result = responsibilities_of(
+            self.networks, self.config.method, state, self.demonstration_pairs
+        )
         return jax.device_get(result)
 
     def demonstrations_held(self, seed: int = 0) -> np.ndarray:
@@ -221,7 +235,7 @@ class SavedRun:
             self.responsibilities(seed),
             self.demonstration_pairs,
             self.num_intentions,
-            self.config.responsibilities,
+            self.config.method.e_step.responsibilities,
             self.intentions_in_use(seed),
         )
         return {name.removeprefix("eval/"): float(value) for name, value in metrics.items()}

@@ -31,7 +31,7 @@ import envs
 from emgail_jax.method import normalizer as obs_norm
 from emgail_jax.method.b_step import PolicySamples, make_b_step
 from emgail_jax.method.batches import LearningBatch
-from emgail_jax.method.config import Config
+from emgail_jax.method.config import MethodConfig
 from emgail_jax.method.networks import GaussianPolicy, ValueNet, policy_action
 from emgail_jax.method.optim import Learner
 from emgail_jax.method.rollout import batch_reset, episode_returns, rollout
@@ -57,27 +57,38 @@ class RLState:
 
 
 def make_rl_train(
-    config: Config, env: envs.Env, reward_fn: RewardFn = true_reward, eval_episodes: int = 5
+    config: MethodConfig,
+    env: envs.Env,
+    reward_fn: RewardFn = true_reward,
+    eval_episodes: int = 5,
 ):
     """Builds ``init(key) -> RLState``, ``update(state, intention, reward_data=None) -> (state,
     metrics)`` and ``policy(state, deterministic) -> (obs, key) -> action``; every update scores
     the new policy on ``eval_episodes`` deterministic episodes."""
     config = config.resolved(env)
-    b, t = config.num_envs, config.rollout_length
+    b, t = config.rollout.num_envs, config.rollout.rollout_length
+    nets, obs_clip = config.networks, config.networks.obs_clip
     train_env = envs.wrap_for_training(env)
     eval_env = envs.EpisodeWrapper(env)
-    policy_net = GaussianPolicy(env.action_size, config.hidden, config.init_log_std)
-    value_net = ValueNet(config.hidden)
-    value_opt = optax.adam(config.value_learning_rate)
+    policy_net = GaussianPolicy(env.action_size, nets.hidden, nets.init_log_std)
+    value_net = ValueNet(nets.hidden)
+    value_opt = optax.adam(config.b_step.value_learning_rate)
     no_condition = lambda *shape: jnp.zeros((*shape, 0))
-    b_step = make_b_step(policy_net.apply, value_net.apply, value_opt, config)
+    b_step = make_b_step(policy_net.apply, value_net.apply, value_opt, config.b_step)
 
     def act(params, normalizer, deterministic):
         def policy(obs, key):
             condition = no_condition(*obs.shape[:-1])
             key = None if deterministic else key
             return policy_action(
-                policy_net, params, normalizer, obs, condition, config.obs_clip, key, True
+                policy_net,
+                params,
+                normalizer,
+                obs,
+                condition,
+                obs_clip=obs_clip,
+                key=key,
+                explore=True,
             )
 
         return policy
@@ -101,7 +112,7 @@ def make_rl_train(
         env_state, batch = rollout(train_env, behaviour, state.env_state, key_rollout, t)
         reward = reward_fn(batch.obs, batch.action, batch.true_reward, intention, reward_data)
         normalizer = obs_norm.update(state.normalizer, batch.obs)
-        normalize = lambda x: obs_norm.normalize(normalizer, x, config.obs_clip)
+        normalize = lambda x: obs_norm.normalize(normalizer, x, obs_clip)
         learning = LearningBatch.of(batch, env_state, env.episode_length)
         samples = PolicySamples.of(learning, normalize, no_condition(t, 1, b), no_condition(1, b))
         improved = b_step(state.policy, state.value, samples, reward, key_value)

@@ -46,7 +46,7 @@ from emgail_jax.method.algorithms import Algorithm, make_algorithm
 from emgail_jax.method.b_step import BStep, PolicySamples, make_b_step
 from emgail_jax.method.batches import DemonstrationPairs, LearningBatch, NormalizedBatch
 from emgail_jax.method.choosing import holds_demonstrations
-from emgail_jax.method.config import Config
+from emgail_jax.method.config import MethodConfig, ResponsibilityMode
 from emgail_jax.method.discriminator import expert_logits, learned_reward, make_m_step
 from emgail_jax.method.metrics import cluster_accuracy, normalized_erd
 from emgail_jax.method.networks import (
@@ -58,7 +58,6 @@ from emgail_jax.method.networks import (
 )
 from emgail_jax.method.optim import Learner
 from emgail_jax.method.posterior import (
-    TRAJECTORY_MODES,
     EStep,
     Lesson,
     Responsibilities,
@@ -126,8 +125,8 @@ class RunData:
     info_weight: jax.Array  # [] Info/IntentionGAIL's lambda (eq. 23)
 
     @classmethod
-    def create(cls, demos: DemonstrationPairs, env: envs.Env, config: Config) -> RunData:
-        return cls(demos, env.data(), np.float32(config.info_weight))
+    def create(cls, demos: DemonstrationPairs, env: envs.Env, info_weight: float) -> RunData:
+        return cls(demos, env.data(), np.float32(info_weight))
 
 
 @dataclass(frozen=True)
@@ -138,17 +137,18 @@ class Networks:
     posterior: Posterior
 
 
-def make_networks(config: Config, env: envs.Env) -> Networks:
-    heads = config.intention_input == "heads"
+def make_networks(config: MethodConfig, env: envs.Env) -> Networks:
+    shape = config.networks
+    heads = shape.intention_input.heads
     return Networks(
-        policy=GaussianPolicy(env.action_size, config.hidden, config.init_log_std, heads),
-        value=ValueNet(config.hidden, heads),
-        discriminator=Discriminator(config.hidden, heads),
-        posterior=Posterior(env.num_intentions, config.hidden),
+        policy=GaussianPolicy(env.action_size, shape.hidden, shape.init_log_std, heads),
+        value=ValueNet(shape.hidden, heads),
+        discriminator=Discriminator(shape.hidden, heads),
+        posterior=Posterior(env.num_intentions, shape.hidden),
     )
 
 
-def policy_function(networks: Networks, algorithm: Algorithm, config: Config, k: int):
+def policy_function(networks: Networks, algorithm: Algorithm, config: MethodConfig, k: int):
     """``(params, normalizer) -> policy(obs [K, B, D], key, explore)``: row k acts as intention
     k (GAIL's single policy ignores the row). ``explore`` (a possibly traced bool) adds the
     Gaussian noise; without it the policy takes its mean."""
@@ -163,9 +163,9 @@ def policy_function(networks: Networks, algorithm: Algorithm, config: Config, k:
                 normalizer,
                 obs,
                 condition,
-                config.obs_clip,
-                key,
-                explore,
+                obs_clip=config.networks.obs_clip,
+                key=key,
+                explore=explore,
                 intention_major=True,
             )
 
@@ -178,7 +178,7 @@ def clustering_metrics(
     e_step: Responsibilities | None,
     demos: DemonstrationPairs,
     k: int,
-    mode: str,
+    mode: ResponsibilityMode,
     in_use: jax.Array | None = None,
 ) -> dict:
     """The clustering accuracy of eq. 29 (the posterior's argmax on every expert pair) and, when
@@ -187,7 +187,7 @@ def clustering_metrics(
     ``k`` learned intentions, of which ``in_use [K]`` (None: all) are kept: each pair and
     demonstration is then labelled with its most likely kept intention."""
     names = ["eval/cluster_accuracy"]
-    if mode in TRAJECTORY_MODES and e_step is not None:
+    if mode.per_demonstration and e_step is not None:
         names.append("eval/trajectory_cluster_accuracy")
     if e_step is None or not demos.has_labels:
         return {name: jnp.float32(jnp.nan) for name in names}
@@ -201,21 +201,21 @@ def clustering_metrics(
 
 
 def responsibilities_of(
-    networks: Networks, config: Config, state: TrainState, demos: DemonstrationPairs
+    networks: Networks, config: MethodConfig, state: TrainState, demos: DemonstrationPairs
 ) -> Responsibilities:
     """The E-step's responsibilities of ``demos`` under one seed's ``state`` (its posterior,
     observation statistics and mixture weights), computed as training computes them."""
-    expert_obs = obs_norm.normalize(state.normalizer, demos.observations, config.obs_clip)
+    expert_obs = obs_norm.normalize(state.normalizer, demos.observations, config.networks.obs_clip)
     return expert_responsibilities(
         networks.posterior.apply,
         state.posterior.params,
         expert_obs,
         demos.actions,
-        demos.episode,
-        demos.episodes,
-        config.responsibilities,
-        demos.labels if demos.has_labels else None,
-        state.intention_weights if config.prior == "mixture" else None,
+        episode=demos.episode,
+        episodes=demos.episodes,
+        mode=config.e_step.responsibilities,
+        labels=demos.labels if demos.has_labels else None,
+        weights=state.intention_weights if config.e_step.prior.estimated else None,
     )
 
 
@@ -260,14 +260,14 @@ def no_evaluation(k: int, learned: int | None = None) -> dict:
     return metrics
 
 
-def evaluation_phases(config: Config, env: envs.Env) -> int:
+def evaluation_phases(config: MethodConfig, env: envs.Env) -> int:
     """Rollouts of ``rollout_length`` steps that cover one evaluation episode."""
-    return math.ceil(env.episode_length / config.rollout_length)
+    return math.ceil(env.episode_length / config.rollout.rollout_length)
 
 
-def algorithm_of(config: Config, data: RunData) -> Algorithm:
+def algorithm_of(config: MethodConfig, data: RunData) -> Algorithm:
     """The run's algorithm, with Info/IntentionGAIL's lambda from the run's data."""
-    return make_algorithm(config.algo, data.info_weight, config.reward_form)
+    return make_algorithm(config.algo, data.info_weight, config.reward.form)
 
 
 def own_intentions(k: int, m: int) -> np.ndarray:
@@ -281,17 +281,17 @@ class Optimizers(NamedTuple):
     posterior: optax.GradientTransformation
 
 
-def make_optimizers(config: Config) -> Optimizers:
+def make_optimizers(config: MethodConfig) -> Optimizers:
     return Optimizers(
-        value=optax.adam(config.value_learning_rate),
-        discriminator=optax.adam(config.discriminator_learning_rate),
-        posterior=optax.adam(config.posterior_learning_rate),
+        value=optax.adam(config.b_step.value_learning_rate),
+        discriminator=optax.adam(config.m_step.learning_rate),
+        posterior=optax.adam(config.e_step.learning_rate),
     )
 
 
-def make_init(config: Config, env: envs.Env, networks: Networks, optimizers: Optimizers):
+def make_init(config: MethodConfig, env: envs.Env, networks: Networks, optimizers: Optimizers):
     """``init(key, data) -> TrainState``: fresh networks and ``[K, B]`` reset training envs."""
-    k, b = env.num_intentions, config.num_envs
+    k, b = env.num_intentions, config.rollout.num_envs
 
     def init(key: jax.Array, data: RunData) -> TrainState:
         algorithm = algorithm_of(config, data)
@@ -327,9 +327,7 @@ def make_init(config: Config, env: envs.Env, networks: Networks, optimizers: Opt
             env_state=batch_reset(train_env, keys["env"], (k, b)),
             key=keys["next"],
             iteration=jnp.zeros((), jnp.int32),
-            reseeding=(
-                Reseeding.create(k, data.demos.episodes) if reseeds(config, algorithm) else None
-            ),
+            reseeding=Reseeding.create(k, data.demos.episodes) if config.reseeds else None,
         )
 
     return init
@@ -344,11 +342,6 @@ def lesson_of(memory: Reseeding, demos: DemonstrationPairs) -> Lesson:
     )
 
 
-def reseeds(config: Config, algorithm: Algorithm) -> bool:
-    """Whether the run re-seeds emptied intentions: with a posterior, unless turned off."""
-    return config.reseed and algorithm.learns_posterior
-
-
 class Collector(NamedTuple):
     """Step 1 of an update (and the evaluation episodes), and its pieces for the benchmark."""
 
@@ -357,8 +350,8 @@ class Collector(NamedTuple):
     collect_and_evaluate: Callable  # (state, evaluating, data, key) -> (end, batch, metrics)
 
 
-def make_collector(config: Config, env: envs.Env, networks: Networks) -> Collector:
-    k, b, t = env.num_intentions, config.num_envs, config.rollout_length
+def make_collector(config: MethodConfig, env: envs.Env, networks: Networks) -> Collector:
+    k, b, t = env.num_intentions, config.rollout.num_envs, config.rollout.rollout_length
     eval_phases = evaluation_phases(config, env)
 
     def collect(env_state: envs.State, policy, key, explore, data: RunData):
@@ -419,27 +412,27 @@ def make_collector(config: Config, env: envs.Env, networks: Networks) -> Collect
     return Collector(collect, acting, collect_and_evaluate)
 
 
-def make_improve(config: Config, env: envs.Env, networks: Networks, b_step: Callable):
-    """``improve(state, batch, seen, discriminator, own_log_posterior, algorithm, key) ->
+def make_improve(config: MethodConfig, env: envs.Env, networks: Networks, b_step: Callable):
+    """``improve(state, batch, seen, *, discriminator, own_log_posterior, algorithm, key) ->
     BStep``: step 4, TRPO on the learned reward of every sample under its own intention."""
-    k, b, t = env.num_intentions, config.num_envs, config.rollout_length
+    k, b, t = env.num_intentions, config.rollout.num_envs, config.rollout.rollout_length
     own_intention = own_intentions(k, t * b)
 
-    def improve(state, batch, seen, discriminator, own_log_posterior, algorithm, key) -> BStep:
+    def improve(state, batch, seen, *, discriminator, own_log_posterior, algorithm, key) -> BStep:
         reward = learned_reward(
             networks.discriminator.apply,
             discriminator.params,
             algorithm,
             k,
-            seen.obs,
-            seen.executed,
-            own_intention,
-            own_log_posterior,
+            obs=seen.obs,
+            executed=seen.executed,
+            intention=own_intention,
+            own_log_posterior=own_log_posterior,
             intention_major=True,
         )  # [K, T * B]
         samples = PolicySamples.of(
             batch,
-            lambda x: obs_norm.normalize(seen.normalizer, x, config.obs_clip),
+            lambda x: obs_norm.normalize(seen.normalizer, x, config.networks.obs_clip),
             time_major(algorithm.policy_condition(own_intention, k), t),
             algorithm.policy_condition(own_intentions(k, b), k),
         )
@@ -449,7 +442,7 @@ def make_improve(config: Config, env: envs.Env, networks: Networks, b_step: Call
     return improve
 
 
-def make_train(config: Config, env: envs.Env) -> Trainer:
+def make_train(config: MethodConfig, env: envs.Env) -> Trainer:
     """Builds ``init(key, data) -> TrainState`` and
     ``update(state, evaluating, data) -> (state, metrics)`` (see the module docstring)."""
     config = config.resolved(env)
@@ -458,21 +451,23 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
     optimizers = make_optimizers(config)
     init = make_init(config, env, networks, optimizers)
     collector = make_collector(config, env, networks)
-    e_step = make_e_step(networks.posterior.apply, optimizers.posterior, config)
-    m_step = make_m_step(
-        networks.discriminator.apply,
-        optimizers.discriminator,
-        config.discriminator_steps,
-        config.discriminator_gradient_penalty,
+    e_step = make_e_step(
+        networks.posterior.apply,
+        optimizers.posterior,
+        config.e_step,
+        reward_from=config.reward.source,
     )
-    b_step = make_b_step(networks.policy.apply, networks.value.apply, optimizers.value, config)
+    m_step = make_m_step(networks.discriminator.apply, optimizers.discriminator, config.m_step)
+    b_step = make_b_step(
+        networks.policy.apply, networks.value.apply, optimizers.value, config.b_step
+    )
     improve = make_improve(config, env, networks, b_step)
 
     def normalized(state: TrainState, batch: LearningBatch, data: RunData) -> NormalizedBatch:
         """The rollout and the demonstrations as the posterior and the discriminator see them;
         TRPO keeps the raw samples."""
         normalizer = obs_norm.update(state.normalizer, batch.obs)
-        normalize = lambda x: obs_norm.normalize(normalizer, x, config.obs_clip)
+        normalize = lambda x: obs_norm.normalize(normalizer, x, config.networks.obs_clip)
         return NormalizedBatch(
             normalizer=normalizer,
             obs=normalize(intention_major(batch.obs)),
@@ -489,7 +484,8 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
             return None
         return holds_demonstrations(state.intention_weights, data.demos.episodes)
 
-    rule = ReseedingRule(config.reseed_patience, config.reseed_window, config.reseed_attempts)
+    e_config = config.e_step
+    rule = ReseedingRule(e_config.reseed_patience, e_config.reseed_window, e_config.reseed_attempts)
 
     def reseed(
         memory: Reseeding,
@@ -529,7 +525,7 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
             "reseed/target": memory.target,
         }
         weights = e.weights
-        if config.prior == "mixture":
+        if config.e_step.prior.estimated:
             weights = mixture_weights(gamma)
             metrics["posterior/intention_weights"] = weights
         return count_down(memory), e.replace(gamma=gamma, weights=weights, metrics=metrics)
@@ -554,8 +550,18 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
         if reseeding is not None:
             reseeding, e = reseed(reseeding, e, state.discriminator, seen, data.demos, algorithm)
         m = m_step(state.discriminator, seen, e.gamma, algorithm)
-        rewarding = m.discriminator if config.reward_from == "updated" else state.discriminator
-        b = improve(state, batch, seen, rewarding, e.own_log_posterior, algorithm, key_value)
+        rewarding = config.reward.source.choose(
+            updated=m.discriminator, previous=state.discriminator
+        )
+        b = improve(
+            state,
+            batch,
+            seen,
+            discriminator=rewarding,
+            own_log_posterior=e.own_log_posterior,
+            algorithm=algorithm,
+            key=key_value,
+        )
         new_state = TrainState(
             policy=b.policy,
             value=b.value,
@@ -569,7 +575,7 @@ def make_train(config: Config, env: envs.Env) -> Trainer:
             reseeding=reseeding,
         )
         clustering = clustering_metrics(
-            e.responsibilities, data.demos, k, config.responsibilities, in_use
+            e.responsibilities, data.demos, k, config.e_step.responsibilities, in_use
         )
         metrics = {**evaluation, **clustering, **e.metrics, **m.metrics, **b.metrics}
         if in_use is not None:
