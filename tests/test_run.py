@@ -7,6 +7,8 @@ import numpy as np
 import pytest
 
 from emgail_jax import run
+from emgail_jax.method.algorithms import AlgorithmName
+from emgail_jax.method.config import Prior
 
 SEEDS, ITERATIONS = 2, 2
 TINY = [
@@ -249,27 +251,30 @@ def test_without_out_a_run_takes_the_first_free_directory(tmp_path):
 def test_intentions_auto_starts_from_the_env_maximum_with_the_mixture_prior():
     spec = run.spec_from_args(run.parse_args(["--env", "hopper", "--intentions", "auto"]))
     assert spec.intentions == 3
-    assert spec.config.choose_intentions and spec.config.prior == "mixture"
+    method = spec.config.method
+    assert method.choose_intentions and method.e_step.prior is Prior.MIXTURE
     spec = run.spec_from_args(
         run.parse_args(["--intentions", "auto", "--max-intentions", "3", "--algo", "infogail"])
     )
-    assert spec.intentions == 3 and spec.config.algo == "infogail"
+    assert spec.intentions == 3 and spec.config.method.algo is AlgorithmName.INFOGAIL
     spec = run.spec_from_args(run.parse_args(["--intentions", "2"]))
-    assert spec.intentions == 2 and not spec.config.choose_intentions
+    assert spec.intentions == 2 and not spec.config.method.choose_intentions
     with pytest.raises(SystemExit):
         run.parse_args(["--intentions", "two"])
 
 
 def test_re_seeding_is_on_by_default_and_one_flag_from_off():
-    assert run.spec_from_args(run.parse_args([])).config.reseed
-    assert not run.spec_from_args(run.parse_args(["--reseed", "off"])).config.reseed
+    assert run.spec_from_args(run.parse_args([])).config.method.e_step.reseed
+    off = run.spec_from_args(run.parse_args(["--reseed", "off"]))
+    assert not off.config.method.e_step.reseed
 
 
 def test_set_reaches_the_config_and_a_resume_refuses_it(tmp_path):
     spec = run.spec_from_args(
         run.parse_args(["--set", "discriminator_steps=3", "--set", "trpo.max_kl=0.02"])
     )
-    assert spec.config.discriminator_steps == 3 and spec.config.trpo.max_kl == 0.02
+    method = spec.config.method
+    assert method.m_step.steps == 3 and method.b_step.trpo.max_kl == 0.02
     with pytest.raises(run.RunError, match="drop --set"):
         run.spec_from_args(run.parse_args(["--resume", str(tmp_path), "--set", "gamma=0.99"]))
 

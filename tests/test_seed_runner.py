@@ -19,7 +19,7 @@ from emgail_jax.host.seed_runner import (
     intention_runner,
     seed_sharding,
 )
-from emgail_jax.method.config import Config
+from emgail_jax.method.config import RunConfig
 from emgail_jax.method.rl import make_rl_train
 
 CHUNK = 3
@@ -355,8 +355,8 @@ def test_vmapped_seed_batches_give_the_sequential_results(four_seeds, seed_batch
 
 
 def test_intention_runner_gives_each_seed_its_own_policies():
-    config = Config(hidden=(8,), num_envs=2, rollout_length=10, value_epochs=1)
-    trainer = make_rl_train(config, envs.make("driver"), eval_episodes=1)
+    config = RunConfig().with_values(hidden=(8,), num_envs=2, rollout_length=10, value_epochs=1)
+    trainer = make_rl_train(config.method, envs.make("driver"), eval_episodes=1)
     runner = intention_runner(trainer, jnp.arange(2), seeds=2)
     stop_after_first = lambda first, length, states, metrics: False
     states = runner.run(

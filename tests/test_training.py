@@ -10,13 +10,13 @@ import pytest
 import envs
 from emgail_jax.method import demonstrations
 from emgail_jax.method.batches import DemonstrationPairs
-from emgail_jax.method.config import Config
+from emgail_jax.method.config import RunConfig
 from emgail_jax.method.demonstrations import Demonstrations
 from emgail_jax.method.training import RunData, TrainState, make_train
 
 K, B, T = 2, 2, 10
 RANDOM_RETURNS = np.array([-300.0, -250.0])
-CONFIG = Config(
+CONFIG = RunConfig().with_values(
     num_envs=B,
     rollout_length=T,
     hidden=(8,),
@@ -62,8 +62,8 @@ def expert(demos):
 def _train(config, env, expert, iterations, evaluating=(True, False)):
     """``(state_0, [(state_i, metrics_i)] for i = 1..iterations)`` with jitted init/update;
     iteration i evaluates if ``evaluating[i]``."""
-    init, update, _ = make_train(config, env)
-    data = RunData.create(expert, env, config)
+    init, update, _ = make_train(config.method, env)
+    data = RunData.create(expert, env, config.info_weight)
     state = jax.jit(init)(jax.random.PRNGKey(0), data)
     step = jax.jit(update)
     steps = []
@@ -82,7 +82,7 @@ def emgail(env, expert):
 
 @pytest.fixture(scope="module")
 def gail(env, expert):
-    return _train(CONFIG.replace(algo="gail"), env, expert, 1)
+    return _train(CONFIG.with_values(algo="gail"), env, expert, 1)
 
 
 def _leaves(tree):
@@ -97,13 +97,13 @@ def _first_kernel(params):
 
 @pytest.fixture(scope="module")
 def emgail_onehot(env, expert):
-    return _train(CONFIG.replace(intention_input="onehot"), env, expert, 1)
+    return _train(CONFIG.with_values(intention_input="onehot"), env, expert, 1)
 
 
 @pytest.fixture(scope="module")
 def emgail_pair(env, expert):
     """The paper's per-pair E-step (eq. 18); the default is trajectory responsibilities."""
-    return _train(CONFIG.replace(responsibilities="pair"), env, expert, 1)
+    return _train(CONFIG.with_values(responsibilities="pair"), env, expert, 1)
 
 
 # ---- DemonstrationPairs --------------------------------------------------------------------------
@@ -151,7 +151,9 @@ def test_init_gives_a_finite_state_with_k_by_b_envs(emgail):
     np.testing.assert_array_equal(state.env_state.info["steps"], np.zeros((K, B)))
     assert int(state.iteration) == 0 and state.iteration.dtype == jnp.int32
     assert float(state.normalizer.count) == 0.0
-    np.testing.assert_allclose(state.policy["params"]["log_std"], [CONFIG.init_log_std])
+    np.testing.assert_allclose(
+        state.policy["params"]["log_std"], [CONFIG.method.networks.init_log_std]
+    )
     assert state.posterior is not None and state.posterior.opt_state is not None
 
 
@@ -227,7 +229,7 @@ def test_update_metrics_have_the_documented_keys_and_shapes(emgail):
 def test_update_respects_the_trust_region(emgail):
     _, steps, _ = emgail
     for _, metrics in steps:
-        assert 0.0 <= metrics["policy/kl"] <= CONFIG.trpo.max_kl * (1 + 1e-3)
+        assert 0.0 <= metrics["policy/kl"] <= CONFIG.method.b_step.trpo.max_kl * (1 + 1e-3)
 
 
 def test_erd_is_the_mean_normalised_gap_of_the_matched_returns(emgail, expert):
@@ -260,9 +262,9 @@ def test_discriminator_and_posterior_see_the_executed_actions(env, expert, monke
         lambda x: seen.setdefault(name, []).append(float(x)), jnp.max(jnp.abs(actions))
     )
 
-    def posterior_update(*args):
+    def posterior_update(*args, **options):
         record("posterior", args[4])
-        return original_posterior(*args)
+        return original_posterior(*args, **options)
 
     def discriminator_update(*args, **batch):
         record("discriminator", batch["policy_actions"])
@@ -273,7 +275,7 @@ def test_discriminator_and_posterior_see_the_executed_actions(env, expert, monke
     original_discriminator = discriminator.discriminator_update
     monkeypatch.setattr(posterior, "posterior_update", posterior_update)
     monkeypatch.setattr(discriminator, "discriminator_update", discriminator_update)
-    _, [(_, metrics)], _ = _train(CONFIG.replace(init_log_std=2.0), env, expert, 1, (False,))
+    _, [(_, metrics)], _ = _train(CONFIG.with_values(init_log_std=2.0), env, expert, 1, (False,))
     jax.effects_barrier()
     assert seen["posterior"] == [1.0] and seen["discriminator"] == [1.0]
     assert seen["expert"][0] <= 1.0
@@ -311,7 +313,7 @@ def test_gail_has_no_posterior_and_no_accuracy(gail):
     for name, value in metrics.items():
         if name != "eval/cluster_accuracy":
             assert np.all(np.isfinite(value)), name
-    assert 0.0 <= metrics["policy/kl"] <= CONFIG.trpo.max_kl * (1 + 1e-3)
+    assert 0.0 <= metrics["policy/kl"] <= CONFIG.method.b_step.trpo.max_kl * (1 + 1e-3)
 
 
 @pytest.mark.slow  # two more compiles of the whole update (vmapped init and update)
@@ -332,9 +334,9 @@ def test_vmapped_update_over_seeds_equals_one_seed_at_a_time(env, expert, emgail
 @pytest.mark.slow  # op-by-op execution of a whole update takes about half a minute
 def test_update_without_jit_equals_the_jitted_update(env, expert, gail):
     state0, [(state1, metrics)], _ = gail
-    config = CONFIG.replace(algo="gail")
-    _, update, _ = make_train(config, env)
-    data = RunData.create(expert, env, config)
+    config = CONFIG.with_values(algo="gail")
+    _, update, _ = make_train(config.method, env)
+    data = RunData.create(expert, env, config.info_weight)
     eager_state, eager_metrics = update(state0, jnp.bool_(True), data)
     assert set(eager_metrics) == set(metrics)
     for name in metrics:
@@ -375,12 +377,12 @@ def test_trajectory_responsibilities_label_whole_demonstrations(emgail, expert):
 def test_runs_that_differ_only_in_data_share_one_program(expert):
     """The driver's radius and Info/IntentionGAIL's lambda are data: the lowered update is the
     same program at another radius and another lambda (so the compilation cache serves both)."""
-    config = CONFIG.replace(algo="infogail")
+    config = CONFIG.with_values(algo="infogail")
 
     def lowered(radius, info_weight):
         env = envs.make("driver", intentions=K, radius=radius)
-        init, update, _ = make_train(config, env)
-        data = RunData.create(expert, env, config.replace(info_weight=info_weight))
+        init, update, _ = make_train(config.method, env)
+        data = RunData.create(expert, env, info_weight)
         state = jax.eval_shape(init, jax.random.PRNGKey(0), data)
         return jax.jit(update).lower(state, jnp.bool_(True), data).as_text()
 
@@ -397,7 +399,7 @@ def test_reward_from_previous_changes_only_which_networks_score_the_reward(env, 
     """The M-step is the same either way; only the B-step's reward (and so the policy) differs:
     it comes from the discriminator and posterior before this iteration's E- and M-step."""
     _, updated, _ = emgail
-    _, previous, _ = _train(CONFIG.replace(reward_from="previous"), env, expert, 1)
+    _, previous, _ = _train(CONFIG.with_values(reward_from="previous"), env, expert, 1)
     (state_updated, metrics_updated), (state_previous, metrics_previous) = updated[0], previous[0]
     for a, b in zip(
         _leaves(state_updated.discriminator), _leaves(state_previous.discriminator), strict=True
@@ -415,7 +417,7 @@ def test_the_mixture_prior_carries_its_weights_from_one_e_step_to_the_next(env, 
     np.testing.assert_array_equal(first.intention_weights, np.full(K, 1 / K, np.float32))
     np.testing.assert_array_equal(uniform_state.intention_weights, first.intention_weights)
     assert "posterior/intention_weights" not in uniform_metrics
-    _, steps, _ = _train(CONFIG.replace(prior="mixture"), env, expert, 2)
+    _, steps, _ = _train(CONFIG.with_values(prior="mixture"), env, expert, 2)
     for state, metrics in steps:
         weights = metrics["posterior/intention_weights"]
         assert weights.shape == (K,) and np.isclose(weights.sum(), 1.0, atol=1e-5)
@@ -426,12 +428,12 @@ def test_an_intention_emptied_by_the_posterior_is_re_seeded(env, expert):
     """A posterior that gives every demonstration to intention 0 (a large bias on its logit,
     which 2 Adam steps per iteration cannot undo) leaves intention 1 empty; after `patience`
     E-steps it takes the worse-explained half of the demonstrations, for `window` E-steps."""
-    config = CONFIG.replace(reseed_patience=2, reseed_window=2)
-    init, update, _ = make_train(config, env)
-    data = RunData.create(expert, env, config)
+    config = CONFIG.with_values(reseed_patience=2, reseed_window=2)
+    init, update, _ = make_train(config.method, env)
+    data = RunData.create(expert, env, config.info_weight)
     state = jax.jit(init)(jax.random.PRNGKey(0), data)
     layers = state.posterior.params["params"]["MLP_0"]
-    last = f"Dense_{len(config.hidden)}"
+    last = f"Dense_{len(config.method.networks.hidden)}"
     bias = layers[last]["bias"].at[0].add(30.0)
     params = {"params": {"MLP_0": {**layers, last: {**layers[last], "bias": bias}}}}
     state = state.replace(posterior=state.posterior.replace(params=params))
