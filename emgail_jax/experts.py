@@ -339,7 +339,7 @@ def _intention_indices(env, names: list[str] | None) -> list[int] | None:
     return [env.intention_names.index(name) for name in names]
 
 
-def _train_and_save(env, spec: ExpertSpec, args, root: str, meta: dict, only, kept):
+def _train_and_save(env, spec: ExpertSpec, args, root: str, meta: dict, *, only, kept):
     """Trains the experts of every intention (or of the indices ``only``, taking the others
     from the saved experts ``kept``), saves them and returns them with ``meta`` updated by
     their training record."""
@@ -452,7 +452,7 @@ def main(argv=None) -> int:
         except (ExpertError, ValueError) as error:
             print(f"error: {error}", file=sys.stderr)
             return 2
-        experts, meta = _train_and_save(env, spec, args, root, meta, only, kept)
+        experts, meta = _train_and_save(env, spec, args, root, meta, only=only, kept=kept)
     policy = make_policy(env, experts)
     results = quality(env, policy, key_quality)
     print_quality(env.name, results)

@@ -364,6 +364,7 @@ def train(
     spec: RunSpec,
     problem,
     out: str,
+    *,
     resume: bool = False,
     progress: bool = True,
     signals: stopping.Signals | None = None,
