@@ -62,7 +62,7 @@ def expert(demos):
 def _train(config, env, expert, iterations, evaluating=(True, False)):
     """``(state_0, [(state_i, metrics_i)] for i = 1..iterations)`` with jitted init/update;
     iteration i evaluates if ``evaluating[i]``."""
-    init, update, _ = make_train(config, env)
+    init, update = make_train(config, env)
     data = RunData.create(expert, env, config)
     state = jax.jit(init)(jax.random.PRNGKey(0), data)
     step = jax.jit(update)
@@ -333,7 +333,7 @@ def test_vmapped_update_over_seeds_equals_one_seed_at_a_time(env, expert, emgail
 def test_update_without_jit_equals_the_jitted_update(env, expert, gail):
     state0, [(state1, metrics)], _ = gail
     config = CONFIG.replace(algo="gail")
-    _, update, _ = make_train(config, env)
+    _, update = make_train(config, env)
     data = RunData.create(expert, env, config)
     eager_state, eager_metrics = update(state0, jnp.bool_(True), data)
     assert set(eager_metrics) == set(metrics)
@@ -379,7 +379,7 @@ def test_runs_that_differ_only_in_data_share_one_program(expert):
 
     def lowered(radius, info_weight):
         env = envs.make("driver", intentions=K, radius=radius)
-        init, update, _ = make_train(config, env)
+        init, update = make_train(config, env)
         data = RunData.create(expert, env, config.replace(info_weight=info_weight))
         state = jax.eval_shape(init, jax.random.PRNGKey(0), data)
         return jax.jit(update).lower(state, jnp.bool_(True), data).as_text()
@@ -427,7 +427,7 @@ def test_an_intention_emptied_by_the_posterior_is_re_seeded(env, expert):
     which 2 Adam steps per iteration cannot undo) leaves intention 1 empty; after `patience`
     E-steps it takes the worse-explained half of the demonstrations, for `window` E-steps."""
     config = CONFIG.replace(reseed_patience=2, reseed_window=2)
-    init, update, _ = make_train(config, env)
+    init, update = make_train(config, env)
     data = RunData.create(expert, env, config)
     state = jax.jit(init)(jax.random.PRNGKey(0), data)
     layers = state.posterior.params["params"]["MLP_0"]
