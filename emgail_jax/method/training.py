@@ -6,7 +6,9 @@ demonstrations, ERD's references, the env's data such as the driver's path curva
 Info/IntentionGAIL's lambda) is an argument of the compiled program rather than constants in it,
 so runs that differ only in their data share one program (and the persistent compilation cache).
 
-One update is Algorithm 1 of the paper, for all K intentions at once (``update`` reads as it):
+One update is Algorithm 1 of the paper, for all K intentions at once: the trainer skeleton of
+:mod:`emgail_jax.method.skeleton` (the rollout, the normalisation, the B-step), whose reward
+stage is steps 2-3 and the learned reward (:class:`LearnedRewardStage`, which reads as them):
 
 1. rollout: B envs per intention, T steps, with the current policy;
 2. E-step (:mod:`emgail_jax.method.posterior`): the posterior learns P(i | s, a) on those samples;
