@@ -258,11 +258,6 @@ def algorithm_of(config: Config, data: RunData) -> Algorithm:
     return make_algorithm(config.algo, data.info_weight, config.reward_form)
 
 
-def own_intentions(k: int, m: int) -> np.ndarray:
-    """``[K, M]``: the intention of every sample in the intention-major layout (row i is i)."""
-    return np.broadcast_to(np.arange(k)[:, None], (k, m))
-
-
 class Optimizers(NamedTuple):
     discriminator: optax.GradientTransformation
     posterior: optax.GradientTransformation
@@ -492,7 +487,7 @@ class LearnedRewardStage:
             k,
             seen.obs,
             seen.executed,
-            own_intentions(k, m),
+            intention_rows((k, m)),
             own_log_posterior,
             intention_major=True,
         )
