@@ -538,7 +538,7 @@ def _runner(spec: RunSpec, problem, config):
         problem.demos, problem.random_returns, problem.true_intentions
     )
     data = RunData.create(pairs, env, config.info_weight)
-    init, update, _ = make_train(config.method, env)
+    init, update = make_train(config.method, env)
     # Runs of one process that differ only in data (the sweep's driver radii) share programs.
     program_key = (config.program_key(), env.program_key())
     runner = Runner(init, update, spec.seeds, data, config.schedule.seed_batch, program_key)

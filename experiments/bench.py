@@ -47,14 +47,11 @@ def child(env_name: str, k: int, seed_counts: list[int], chunks: int, cache: str
 
     jax_setup.setup(cache_dir=cache)
     import jax
-    import jax.numpy as jnp
 
     from emgail_jax.host.problem import make_problem
-    from emgail_jax.host.seed_runner import Runner, evaluation_plan
-    from emgail_jax.method.batches import DemonstrationPairs, LearningBatch
+    from emgail_jax.method.batches import DemonstrationPairs
     from emgail_jax.method.config import RunConfig, RunSchedule
-    from emgail_jax.method.rollout import episode_totals, fresh_starts
-    from emgail_jax.method.training import RunData, algorithm_of, evaluation_phases, make_train
+    from emgail_jax.method.training import RunData, evaluation_phases, make_train
 
     problem = make_problem(env_name, k)
     env = problem.env
@@ -63,10 +60,39 @@ def child(env_name: str, k: int, seed_counts: list[int], chunks: int, cache: str
     pairs = DemonstrationPairs.create(problem.demos, problem.random_returns, env.num_intentions)
     data = RunData.create(pairs, env, run_config.info_weight)
     trainer = make_train(config, env)
+    result = {"env": f"{env_name}-{k}"}
+    result.update(time_runs(trainer, data, seed_counts, chunks))
+
+    state = jax.jit(trainer.init)(jax.random.PRNGKey(0), data)
+    pieces = piece_programs(config, env, state, data)
+    result["pieces_s"], result["pieces_compile_s"] = time_pieces(pieces, env_name)
+    if hasattr(env, "mj_model"):  # the physics alone, compiled only: its share of the rollout's
+        # [K, B] -> [K * B], shapes explicit: some MJX leaves have zero size.
+        flatten = lambda x: x.reshape(x.shape[0] * x.shape[1], *x.shape[2:])
+        flat = jax.tree.map(flatten, state.env_state.physics)
+        physics = (jax.vmap(env.physics_step), (flat, flat.ctrl))
+        result["pieces_compile_s"]["physics step"] = compile_timed(*physics)[1]
+
+    result["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    phases = evaluation_phases(config, env)
+    rollout = config.rollout
+    steps_per_iteration = k * rollout.num_envs * rollout.rollout_length * (1 + phases / EVAL_EVERY)
+    result["env_steps_per_iteration"] = steps_per_iteration
+    if hasattr(env, "mj_model"):
+        result["native_s"] = native_seconds(env, steps_per_iteration)
+    return result
+
+
+def time_runs(trainer, data, seed_counts: list[int], chunks: int) -> dict:
+    """Seconds per seed-iteration of whole chunks for every seed count, and the 2-seed run's
+    compile times (cold, its ``init`` alone, and warm)."""
+    import jax
+
+    from emgail_jax.host.seed_runner import Runner, evaluation_plan
+
     # A chunk in the middle of a 400-iteration run: one evaluation in ten iterations.
     steady = evaluation_plan(100, CHUNK, 400, EVAL_EVERY)
-    result = {"env": f"{env_name}-{k}", "seconds_per_seed_iteration": {}}
-
+    result = {"seconds_per_seed_iteration": {}}
     for seeds in seed_counts:
         runner = Runner(trainer.init, trainer.update, seeds, data)
         state = runner.init(jax.random.PRNGKey(0))
@@ -84,92 +110,98 @@ def child(env_name: str, k: int, seed_counts: list[int], chunks: int, cache: str
             state, _ = runner.step(state, steady)
         elapsed = time.perf_counter() - start
         result["seconds_per_seed_iteration"][seeds] = elapsed / (chunks * CHUNK * seeds)
+    return result
 
-    # The pieces, one seed, each compiled alone on the shapes of a real iteration.
-    steps = trainer.steps
-    state = jax.jit(trainer.init)(jax.random.PRNGKey(0), data)
-    key = jax.random.PRNGKey(1)
 
-    def rollout(state, data):
-        return steps.collector.collect(
-            state.env_state, steps.collector.acting(state, data), key, True, data
-        )
+def piece_programs(config, env, state, data) -> dict:
+    """``{piece: (function, args)}``: the pieces of one update, composed of the trainer's
+    public stages on the shapes of a real iteration (one seed): the rollout, the E-step, the
+    M-step, the B-step (the learned reward, TRPO and the value fit) and the evaluation."""
+    import jax
+    import jax.numpy as jnp
+
+    from emgail_jax.method import normalizer as obs_norm
+    from emgail_jax.method import training
+    from emgail_jax.method.batches import LearningBatch
+    from emgail_jax.method.rollout import episode_totals, fresh_starts, time_major
+
+    networks = training.make_networks(config, env)
+    stages = training.make_policy_stages(config, env, networks)
+    learned = training.LearnedRewardStage.create(
+        config, env, networks, training.make_optimizers(config)
+    )
+    algorithm = training.algorithm_of(config, data)
+    key, k = jax.random.PRNGKey(1), env.num_intentions
+
+    def rollout(state, data, explore=True):
+        policy = stages.acting(state.policy, state.normalizer, explore)
+        return stages.collect(training.training_env(env, data), policy, state.env_state, key)
 
     end, transitions = jax.jit(rollout)(state, data)
     batch = LearningBatch.of(transitions, end, env.episode_length)
-    algorithm = algorithm_of(config, data)
-    seen = jax.jit(steps.normalized)(state, batch, data)
-    e = jax.jit(steps.e_step)(state.posterior, seen, data.demos, state.intention_weights)
-    m_step = lambda discriminator, seen, gamma: steps.m_step(discriminator, seen, gamma, algorithm)
+    normalizer = obs_norm.update(state.normalizer, transitions.obs)
+    seen = training.normalized_batch(
+        normalizer, transitions, data.demos, env, config.networks.obs_clip
+    )
+    e = jax.jit(learned.e_step)(state.posterior, seen, data.demos, state.intention_weights)
+    m_step = lambda discriminator, seen, gamma: learned.m_step(
+        discriminator, seen, gamma, algorithm
+    )
     discriminator = jax.jit(m_step)(state.discriminator, seen, e.gamma).discriminator
-    phases = evaluation_phases(config, env)
+
+    def b_step(state, batch, seen, discriminator, own_log_posterior):
+        reward = learned.pseudo_reward(discriminator, algorithm, seen, own_log_posterior)
+        reward = time_major(reward, config.rollout.rollout_length)
+        return stages.improve(state, batch, seen.normalizer, reward, key)
 
     def evaluation(state, data):
         def phase(carry, index):
             env_state, totals, alive = carry
-            end, batch = steps.collector.collect(
-                env_state,
-                steps.collector.acting(state, data),
-                jax.random.fold_in(key, index),
-                False,
-                data,
+            # Explore off as a traced flag, as in training's evaluation phases.
+            policy = stages.acting(state.policy, state.normalizer, jnp.asarray(False))
+            train_env = training.training_env(env, data)
+            end, batch = stages.collect(
+                train_env, policy, env_state, jax.random.fold_in(key, index)
             )
             more, alive = episode_totals(batch, alive)
             return (end, totals + more, alive), None
 
         shape = (k, config.rollout.num_envs)
         carry = (fresh_starts(state.env_state), jnp.zeros((*shape, k)), jnp.ones(shape))
-        return jax.lax.scan(phase, carry, jnp.arange(phases))[0][1]
+        phases = jnp.arange(training.evaluation_phases(config, env))
+        return jax.lax.scan(phase, carry, phases)[0][1]
 
-    pieces = {
+    return {
         "rollout": (rollout, (state, data)),
-        "E-step": (steps.e_step, (state.posterior, seen, data.demos, state.intention_weights)),
+        "E-step": (learned.e_step, (state.posterior, seen, data.demos, state.intention_weights)),
         "M-step": (m_step, (state.discriminator, seen, e.gamma)),
-        "B-step": (
-            lambda state, batch, seen, discriminator, own: steps.improve(
-                state,
-                batch,
-                seen,
-                discriminator=discriminator,
-                own_log_posterior=own,
-                algorithm=algorithm,
-                key=key,
-            ),
-            (state, batch, seen, discriminator, e.own_log_posterior),
-        ),
+        "B-step": (b_step, (state, batch, seen, discriminator, e.own_log_posterior)),
         "evaluation": (evaluation, (state, data)),
     }
 
-    def compile_timed(function, args):
-        start = time.perf_counter()
-        compiled = jax.jit(function).lower(*args).compile()
-        return compiled, time.perf_counter() - start
 
-    result["pieces_s"], result["pieces_compile_s"] = {}, {}
+def compile_timed(function, args):
+    import jax
+
+    start = time.perf_counter()
+    compiled = jax.jit(function).lower(*args).compile()
+    return compiled, time.perf_counter() - start
+
+
+def time_pieces(pieces: dict, env_name: str) -> tuple[dict, dict]:
+    """``(seconds per call, compile seconds)`` of every piece, each compiled alone."""
+    import jax
+
+    seconds, compile_seconds = {}, {}
     for name, (function, args) in pieces.items():
-        compiled, result["pieces_compile_s"][name] = compile_timed(function, args)
+        compiled, compile_seconds[name] = compile_timed(function, args)
         jax.block_until_ready(compiled(*args))
         repeats = 5 if env_name == "driver" else 3
         start = time.perf_counter()
         for _ in range(repeats):
             jax.block_until_ready(compiled(*args))
-        result["pieces_s"][name] = (time.perf_counter() - start) / repeats
-
-    if hasattr(env, "mj_model"):  # the physics alone, compiled only: its share of the rollout's
-        # [K, B] -> [K * B], shapes explicit: some MJX leaves have zero size.
-        flatten = lambda x: x.reshape(x.shape[0] * x.shape[1], *x.shape[2:])
-        flat = jax.tree.map(flatten, state.env_state.physics)
-        physics = (jax.vmap(env.physics_step), (flat, flat.ctrl))
-        result["pieces_compile_s"]["physics step"] = compile_timed(*physics)[1]
-
-    result["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    steps_per_iteration = (
-        k * config.rollout.num_envs * config.rollout.rollout_length * (1 + phases / EVAL_EVERY)
-    )
-    result["env_steps_per_iteration"] = steps_per_iteration
-    if hasattr(env, "mj_model"):
-        result["native_s"] = native_seconds(env, steps_per_iteration)
-    return result
+        seconds[name] = (time.perf_counter() - start) / repeats
+    return seconds, compile_seconds
 
 
 def native_seconds(env, env_steps: float) -> float:

@@ -11,6 +11,7 @@ from emgail_jax.method import demonstrations
 from emgail_jax.method.rollout import (
     batch_reset,
     episode_returns,
+    episode_totals,
     intention_major,
     rollout,
     time_major,
@@ -235,3 +236,17 @@ def test_intention_major_groups_samples_by_intention_and_time_major_undoes_it():
         for s in range(t * b):
             np.testing.assert_array_equal(major[i, s], x[s // b, i, s % b])
     np.testing.assert_array_equal(time_major(jnp.asarray(major), t), x)
+
+
+def test_rollout_and_episode_totals_are_the_same_jitted_and_not():
+    env = envs.wrap_for_training(_Counter(), 4)
+    state = batch_reset(env, jax.random.PRNGKey(2), (K, B))
+
+    def go(state, key):
+        end, transitions = rollout(env, uniform_random_policy(env), state, key, 6)
+        return end, transitions, episode_totals(transitions, jnp.ones((K, B)))
+
+    eager = go(state, jax.random.PRNGKey(3))
+    jitted = jax.jit(go)(state, jax.random.PRNGKey(3))
+    for a, b in zip(jax.tree.leaves(eager), jax.tree.leaves(jitted), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-6)

@@ -13,16 +13,16 @@ from __future__ import annotations
 import jax
 import numpy as np
 
-import envs
 from emgail_jax.host import checkpoints
 from emgail_jax.method import normalizer as obs_norm
 from emgail_jax.method.discriminator import discriminator_update
 from emgail_jax.method.rollout import batch_reset, intention_major
 from emgail_jax.method.training import (
     RunData,
-    make_collector,
     make_optimizers,
+    make_policy_stages,
     seed_state,
+    training_env,
 )
 
 
@@ -33,16 +33,16 @@ def snapshot_policy_samples(run, seed: int, key: jax.Array, iterations=None):
     holds), concatenated."""
     config, env = run.config, run.problem.env
     k, b = env.num_intentions, config.method.rollout.num_envs
-    collector = make_collector(config.method, env, run.networks)
+    stages = make_policy_stages(config.method, env, run.networks)
     data = RunData.create(run.demonstration_pairs, env, config.info_weight)
-    train_env = envs.wrap_for_training(env.bind(data.env))
+    train_env = training_env(env, data)
 
     @jax.jit
     def collect(state, key):
         key_reset, key_rollout = jax.random.split(key)
         start = batch_reset(train_env, key_reset, (k, b))
-        policy = collector.acting(state, data)
-        _, transitions = collector.collect(start, policy, key_rollout, True, data)
+        policy = stages.acting(state.policy, state.normalizer, explore=True)
+        _, transitions = stages.collect(train_env, policy, start, key_rollout)
         return intention_major(transitions.obs), env.clip_action(
             intention_major(transitions.action)
         )

@@ -79,7 +79,7 @@ class SavedRun:
         # Only `init`'s shapes are needed; ERD's references do not enter them.
         k_true = problem.true_intentions
         pairs = DemonstrationPairs.create(problem.demos, np.full(k_true, np.nan), k_true)
-        init, update, _ = make_train(config.method, env)
+        init, update = make_train(config.method, env)
         runner = Runner(init, update, spec.seeds, RunData.create(pairs, env, config.info_weight))
         target = runner.abstract_state(jax.random.PRNGKey(spec.first_seed))
         state, history, iteration = checkpoints.restore(run_dir, target)

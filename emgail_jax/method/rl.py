@@ -24,17 +24,15 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import optax
 from flax import struct
 
 import envs
 from emgail_jax.method import normalizer as obs_norm
-from emgail_jax.method.b_step import PolicySamples, make_b_step
-from emgail_jax.method.batches import LearningBatch
 from emgail_jax.method.config import MethodConfig
-from emgail_jax.method.networks import GaussianPolicy, ValueNet, policy_action
+from emgail_jax.method.networks import GaussianPolicy, ValueNet
 from emgail_jax.method.optim import Learner
-from emgail_jax.method.rollout import batch_reset, episode_returns, rollout
+from emgail_jax.method.rollout import batch_reset, episode_returns
+from emgail_jax.method.skeleton import PolicyStages, Rewarded, make_update, unconditioned
 
 # (obs [T, 1, B, D] raw, action [T, 1, B, A], true_reward [T, 1, B, K], intention [],
 #  reward_data: the reward's parameters, any pytree or None) -> [T, 1, B]
@@ -57,86 +55,58 @@ class RLState:
 
 
 def make_rl_train(
-    config: MethodConfig,
-    env: envs.Env,
-    reward_fn: RewardFn = true_reward,
-    eval_episodes: int = 5,
+    config: MethodConfig, env: envs.Env, reward_fn: RewardFn = true_reward, eval_episodes: int = 5
 ):
     """Builds ``init(key) -> RLState``, ``update(state, intention, reward_data=None) -> (state,
-    metrics)`` and ``policy(state, deterministic) -> (obs, key) -> action``; every update scores
-    the new policy on ``eval_episodes`` deterministic episodes."""
+    metrics)`` and ``policy(state, deterministic) -> (obs, key) -> action``: the trainer
+    skeleton (:mod:`~emgail_jax.method.skeleton`) with ``reward_fn`` as its reward stage; every
+    update scores the new policy on ``eval_episodes`` deterministic episodes."""
     config = config.resolved(env)
-    b, t = config.rollout.num_envs, config.rollout.rollout_length
-    nets, obs_clip = config.networks, config.networks.obs_clip
     train_env = envs.wrap_for_training(env)
     eval_env = envs.EpisodeWrapper(env)
-    policy_net = GaussianPolicy(env.action_size, nets.hidden, nets.init_log_std)
-    value_net = ValueNet(nets.hidden)
-    value_opt = optax.adam(config.b_step.value_learning_rate)
-    no_condition = lambda *shape: jnp.zeros((*shape, 0))
-    b_step = make_b_step(policy_net.apply, value_net.apply, value_opt, config.b_step)
-
-    def act(params, normalizer, deterministic):
-        def policy(obs, key):
-            condition = no_condition(*obs.shape[:-1])
-            key = None if deterministic else key
-            return policy_action(
-                policy_net,
-                params,
-                normalizer,
-                obs,
-                condition,
-                obs_clip=obs_clip,
-                key=key,
-                explore=True,
-            )
-
-        return policy
+    policy_net = GaussianPolicy(
+        env.action_size, config.networks.hidden, config.networks.init_log_std
+    )
+    stages = PolicyStages.create(
+        policy_net, ValueNet(config.networks.hidden), unconditioned, config, env
+    )
 
     def init(key: jax.Array) -> RLState:
         key_policy, key_value, key_env, key_next = jax.random.split(key, 4)
-        obs = jnp.zeros((1, env.observation_size))
-        value = value_net.init(key_value, obs, no_condition(1), jnp.zeros(1))
+        policy, value = stages.init(key_policy, key_value)
         return RLState(
-            policy=policy_net.init(key_policy, obs, no_condition(1)),
-            value=Learner.create(value, value_opt),
+            policy=policy,
+            value=value,
             normalizer=obs_norm.RunningStats.create(env.observation_size),
-            env_state=batch_reset(train_env, key_env, (1, b)),
+            env_state=batch_reset(train_env, key_env, (1, config.rollout.num_envs)),
             key=key_next,
             iteration=jnp.zeros((), jnp.int32),
         )
 
+    def collect(state: RLState, key, intention, reward_data):
+        behaviour = stages.acting(state.policy, state.normalizer, explore=True)
+        return (*stages.collect(train_env, behaviour, state.env_state, key), {})
+
+    def reward(state: RLState, batch, normalizer, intention, reward_data) -> Rewarded:
+        rewards = reward_fn(batch.obs, batch.action, batch.true_reward, intention, reward_data)
+        return Rewarded(rewards, {}, {"train/reward": rewards.mean()})
+
+    # Fresh episodes of the improved policy, not the IRL loop's evaluation phases: the experts
+    # and the baselines' cached numbers were made with these keys.
+    def evaluate(state: RLState, key, intention, reward_data) -> dict:
+        greedy = stages.acting(state.policy, state.normalizer, explore=False)
+        returns = episode_returns(eval_env, greedy, key, 1, eval_episodes)[0]
+        # [K] under every true intention
+        return {"eval/returns": returns, "eval/own_return": jnp.take(returns, intention)}
+
+    iteration = make_update(stages, collect, reward, evaluate)
+
     def update(state: RLState, intention: jax.Array, reward_data=None) -> tuple[RLState, dict]:
-        key_next, key_rollout, key_value, key_eval = jax.random.split(state.key, 4)
-        behaviour = act(state.policy, state.normalizer, deterministic=False)
-        env_state, batch = rollout(train_env, behaviour, state.env_state, key_rollout, t)
-        reward = reward_fn(batch.obs, batch.action, batch.true_reward, intention, reward_data)
-        normalizer = obs_norm.update(state.normalizer, batch.obs)
-        normalize = lambda x: obs_norm.normalize(normalizer, x, obs_clip)
-        learning = LearningBatch.of(batch, env_state, env.episode_length)
-        samples = PolicySamples.of(learning, normalize, no_condition(t, 1, b), no_condition(1, b))
-        improved = b_step(state.policy, state.value, samples, reward, key_value)
-        greedy = act(improved.policy, normalizer, deterministic=True)
-        returns = episode_returns(eval_env, greedy, key_eval, 1, eval_episodes)[0]
-        metrics = {
-            **improved.metrics,
-            "eval/returns": returns,  # [K] under every true intention
-            "eval/own_return": jnp.take(returns, intention),
-            "train/reward": reward.mean(),
-        }
-        new_state = RLState(
-            policy=improved.policy,
-            value=improved.value,
-            normalizer=normalizer,
-            env_state=env_state,
-            key=key_next,
-            iteration=state.iteration + 1,
-        )
-        return new_state, metrics
+        return iteration(state, intention, reward_data)
 
     def policy(state: RLState, deterministic: bool = True):
         """The trained policy as ``(obs [..., D], key) -> action``."""
-        return act(state.policy, state.normalizer, deterministic)
+        return stages.acting(state.policy, state.normalizer, explore=not deterministic)
 
     return RLTrainer(init, update, policy)
 

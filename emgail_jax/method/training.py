@@ -6,7 +6,9 @@ demonstrations, ERD's references, the env's data such as the driver's path curva
 Info/IntentionGAIL's lambda) is an argument of the compiled program rather than constants in it,
 so runs that differ only in their data share one program (and the persistent compilation cache).
 
-One update is Algorithm 1 of the paper, for all K intentions at once (``update`` reads as it):
+One update is Algorithm 1 of the paper, for all K intentions at once: the trainer skeleton of
+:mod:`emgail_jax.method.skeleton` (the rollout, the normalisation, the B-step), whose reward
+stage is steps 2-3 and the learned reward (:class:`LearnedRewardStage`, which reads as them):
 
 1. rollout: B envs per intention, T steps, with the current policy;
 2. E-step (:mod:`emgail_jax.method.posterior`): the posterior learns P(i | s, a) on those samples;
@@ -43,8 +45,7 @@ from flax import struct
 import envs
 from emgail_jax.method import normalizer as obs_norm
 from emgail_jax.method.algorithms import Algorithm, make_algorithm
-from emgail_jax.method.b_step import BStep, PolicySamples, make_b_step
-from emgail_jax.method.batches import DemonstrationPairs, LearningBatch, NormalizedBatch
+from emgail_jax.method.batches import DemonstrationPairs, NormalizedBatch
 from emgail_jax.method.choosing import holds_demonstrations
 from emgail_jax.method.config import MethodConfig, ResponsibilityMode
 from emgail_jax.method.discriminator import expert_logits, learned_reward, make_m_step
@@ -54,7 +55,6 @@ from emgail_jax.method.networks import (
     GaussianPolicy,
     Posterior,
     ValueNet,
-    policy_action,
 )
 from emgail_jax.method.optim import Learner
 from emgail_jax.method.posterior import (
@@ -80,10 +80,10 @@ from emgail_jax.method.rollout import (
     episode_totals,
     fresh_starts,
     intention_major,
-    rollout,
     time_major,
     tree_where,
 )
+from emgail_jax.method.skeleton import PolicyStages, Rewarded, intention_rows, make_update
 
 
 @struct.dataclass
@@ -148,30 +148,18 @@ def make_networks(config: MethodConfig, env: envs.Env) -> Networks:
     )
 
 
-def policy_function(networks: Networks, algorithm: Algorithm, config: MethodConfig, k: int):
-    """``(params, normalizer) -> policy(obs [K, B, D], key, explore)``: row k acts as intention
-    k (GAIL's single policy ignores the row). ``explore`` (a possibly traced bool) adds the
-    Gaussian noise; without it the policy takes its mean."""
+def make_policy_stages(config: MethodConfig, env: envs.Env, networks: Networks) -> PolicyStages:
+    """The skeleton's policy side for ``networks``: row k of the ``[K, B]`` layout acts as
+    intention k (GAIL's single policy ignores the row)."""
+    # Only the policy's conditioning is read, which no algorithm's data changes.
+    algorithm = make_algorithm(config.algo, reward_form=config.reward.form)
+    condition = lambda intentions: algorithm.policy_condition(intentions, env.num_intentions)
+    return PolicyStages.create(networks.policy, networks.value, condition, config, env)
 
-    def make(params, normalizer):
-        def policy(obs, key, explore):
-            rows = jnp.broadcast_to(jnp.arange(k)[:, None], obs.shape[:2])
-            condition = algorithm.policy_condition(rows, k)
-            return policy_action(
-                networks.policy,
-                params,
-                normalizer,
-                obs,
-                condition,
-                obs_clip=config.networks.obs_clip,
-                key=key,
-                explore=explore,
-                intention_major=True,
-            )
 
-        return policy
-
-    return make
+def training_env(env: envs.Env, data: RunData) -> envs.Env:
+    """The auto-resetting training env of the run's ``data`` (e.g. the driver's paths)."""
+    return envs.wrap_for_training(env.bind(data.env))
 
 
 def clustering_metrics(
@@ -270,20 +258,13 @@ def algorithm_of(config: MethodConfig, data: RunData) -> Algorithm:
     return make_algorithm(config.algo, data.info_weight, config.reward.form)
 
 
-def own_intentions(k: int, m: int) -> np.ndarray:
-    """``[K, M]``: the intention of every sample in the intention-major layout (row i is i)."""
-    return np.broadcast_to(np.arange(k)[:, None], (k, m))
-
-
 class Optimizers(NamedTuple):
-    value: optax.GradientTransformation
     discriminator: optax.GradientTransformation
     posterior: optax.GradientTransformation
 
 
 def make_optimizers(config: MethodConfig) -> Optimizers:
     return Optimizers(
-        value=optax.adam(config.b_step.value_learning_rate),
         discriminator=optax.adam(config.m_step.learning_rate),
         posterior=optax.adam(config.e_step.learning_rate),
     )
@@ -292,13 +273,11 @@ def make_optimizers(config: MethodConfig) -> Optimizers:
 def make_init(config: MethodConfig, env: envs.Env, networks: Networks, optimizers: Optimizers):
     """``init(key, data) -> TrainState``: fresh networks and ``[K, B]`` reset training envs."""
     k, b = env.num_intentions, config.rollout.num_envs
+    stages = make_policy_stages(config, env, networks)
 
     def init(key: jax.Array, data: RunData) -> TrainState:
         algorithm = algorithm_of(config, data)
-        train_env = envs.wrap_for_training(env.bind(data.env))
-        first = own_intentions(k, 1)[:1, 0]
-        policy_condition = algorithm.policy_condition(first, k)
-        discriminator_condition = algorithm.discriminator_condition(first, k)
+        discriminator_condition = algorithm.discriminator_condition(intention_rows((1,)), k)
         keys = dict(
             zip(
                 ("policy", "value", "disc", "post", "env", "next"),
@@ -308,7 +287,7 @@ def make_init(config: MethodConfig, env: envs.Env, networks: Networks, optimizer
         )
         obs = jnp.zeros((1, env.observation_size))
         action = jnp.zeros((1, env.action_size))
-        value = networks.value.init(keys["value"], obs, policy_condition, jnp.zeros(1))
+        policy, value = stages.init(keys["policy"], keys["value"])
         discriminator = networks.discriminator.init(
             keys["disc"], obs, action, discriminator_condition
         )
@@ -318,16 +297,16 @@ def make_init(config: MethodConfig, env: envs.Env, networks: Networks, optimizer
             else None
         )
         return TrainState(
-            policy=networks.policy.init(keys["policy"], obs, policy_condition),
-            value=Learner.create(value, optimizers.value),
+            policy=policy,
+            value=value,
             discriminator=Learner.create(discriminator, optimizers.discriminator),
             posterior=posterior,
             normalizer=obs_norm.RunningStats.create(env.observation_size),
             intention_weights=jnp.full(k, 1.0 / k),
-            env_state=batch_reset(train_env, keys["env"], (k, b)),
+            env_state=batch_reset(training_env(env, data), keys["env"], (k, b)),
             key=keys["next"],
             iteration=jnp.zeros((), jnp.int32),
-            reseeding=Reseeding.create(k, data.demos.episodes) if config.reseeds else None,
+            reseeding=(Reseeding.create(k, data.demos.episodes) if config.reseeds else None),
         )
 
     return init
@@ -342,37 +321,17 @@ def lesson_of(memory: Reseeding, demos: DemonstrationPairs) -> Lesson:
     )
 
 
-class Collector(NamedTuple):
-    """Step 1 of an update (and the evaluation episodes), and its pieces for the benchmark."""
-
-    collect: Callable  # (env_state, policy, key, explore, data) -> (end, transitions)
-    acting: Callable  # (state, data) -> policy(obs, key, explore)
-    collect_and_evaluate: Callable  # (state, evaluating, data, key) -> (end, batch, metrics)
-
-
-def make_collector(config: MethodConfig, env: envs.Env, networks: Networks) -> Collector:
+def make_collect(config: MethodConfig, env: envs.Env, stages: PolicyStages):
+    """``collect(state, key, evaluating, data) -> (end_state, transitions, evaluation
+    metrics)``: the skeleton's step 1 and, when ``evaluating`` (5.), the deterministic
+    evaluation episodes, phases of one loop whose body steps the env once. ``evaluating`` is a
+    bool scalar, not batched over seeds, so that the evaluation phases are really skipped; the
+    ERD is matched to the learned intentions in use (:func:`kept_intentions`)."""
     k, b, t = env.num_intentions, config.rollout.num_envs, config.rollout.rollout_length
     eval_phases = evaluation_phases(config, env)
 
-    def collect(env_state: envs.State, policy, key, explore, data: RunData):
-        """T steps of the [K, B] auto-resetting envs from ``env_state`` with ``policy``
-        (see rollout.rollout). Returns ``(end_state, transitions [T, K, B, ...])``."""
-        train_env = envs.wrap_for_training(env.bind(data.env))
-        act = lambda obs, step_key: policy(obs, step_key, explore)
-        return rollout(train_env, act, env_state, key, t)
-
-    def acting(state: TrainState, data: RunData):
-        """The policy of ``state`` as ``collect`` drives it."""
-        return policy_function(networks, algorithm_of(config, data), config, k)(
-            state.policy, state.normalizer
-        )
-
-    def collect_and_evaluate(state: TrainState, evaluating, data: RunData, key, in_use=None):
-        """1. The rollout for learning and, when ``evaluating`` (5.), the deterministic
-        evaluation episodes: phases of one loop whose body steps the env once. Returns
-        ``(end_state, rollout, evaluation metrics)``, the ERD matched to the learned intentions
-        ``in_use`` (None: all)."""
-        policy = acting(state, data)
+    def collect(state: TrainState, key, evaluating, data: RunData):
+        train_env = training_env(env, data)
 
         def phase(index, carry):
             """Phase 0 rolls out for learning; phases 1.. continue deterministic episodes from
@@ -380,8 +339,10 @@ def make_collector(config: MethodConfig, env: envs.Env, networks: Networks) -> C
             train_state, batch, eval_state, totals, alive = carry
             training = index == 0
             start = tree_where(training, train_state, eval_state)
-            key_phase = jax.random.fold_in(key, index)
-            end, transitions = collect(start, policy, key_phase, training, data)
+            policy = stages.acting(state.policy, state.normalizer, explore=training)
+            end, transitions = stages.collect(
+                train_env, policy, start, jax.random.fold_in(key, index)
+            )
             more, still_alive = episode_totals(transitions, alive)
             return (
                 tree_where(training, end, train_state),
@@ -400,6 +361,7 @@ def make_collector(config: MethodConfig, env: envs.Env, networks: Networks) -> C
         )
         phases = 1 + eval_phases * evaluating.astype(jnp.int32)
         end, batch, _, totals, _ = jax.lax.fori_loop(0, phases, phase, carry)
+        in_use = kept_intentions(config, state, data)
         evaluation = jax.lax.cond(
             evaluating,
             lambda: evaluation_metrics(totals.mean(1), data.demos, in_use),
@@ -407,98 +369,48 @@ def make_collector(config: MethodConfig, env: envs.Env, networks: Networks) -> C
                 data.demos.true_intentions, None if in_use is None else in_use.shape[0]
             ),
         )
-        return end, LearningBatch.of(batch, end, env.episode_length), evaluation
+        return end, batch, evaluation
 
-    return Collector(collect, acting, collect_and_evaluate)
-
-
-def make_improve(config: MethodConfig, env: envs.Env, networks: Networks, b_step: Callable):
-    """``improve(state, batch, seen, *, discriminator, own_log_posterior, algorithm, key) ->
-    BStep``: step 4, TRPO on the learned reward of every sample under its own intention."""
-    k, b, t = env.num_intentions, config.rollout.num_envs, config.rollout.rollout_length
-    own_intention = own_intentions(k, t * b)
-
-    def improve(state, batch, seen, *, discriminator, own_log_posterior, algorithm, key) -> BStep:
-        reward = learned_reward(
-            networks.discriminator.apply,
-            discriminator.params,
-            algorithm,
-            k,
-            obs=seen.obs,
-            executed=seen.executed,
-            intention=own_intention,
-            own_log_posterior=own_log_posterior,
-            intention_major=True,
-        )  # [K, T * B]
-        samples = PolicySamples.of(
-            batch,
-            lambda x: obs_norm.normalize(seen.normalizer, x, config.networks.obs_clip),
-            time_major(algorithm.policy_condition(own_intention, k), t),
-            algorithm.policy_condition(own_intentions(k, b), k),
-        )
-        improved = b_step(state.policy, state.value, samples, time_major(reward, t), key)
-        return improved.replace(metrics={"train/pseudo_reward": reward.mean(), **improved.metrics})
-
-    return improve
+    return collect
 
 
-def make_train(config: MethodConfig, env: envs.Env) -> Trainer:
-    """Builds ``init(key, data) -> TrainState`` and
-    ``update(state, evaluating, data) -> (state, metrics)`` (see the module docstring)."""
-    config = config.resolved(env)
-    k = env.num_intentions
-    networks = make_networks(config, env)
-    optimizers = make_optimizers(config)
-    init = make_init(config, env, networks, optimizers)
-    collector = make_collector(config, env, networks)
-    e_step = make_e_step(
-        networks.posterior.apply,
-        optimizers.posterior,
-        config.e_step,
-        reward_from=config.reward.source,
-    )
-    m_step = make_m_step(networks.discriminator.apply, optimizers.discriminator, config.m_step)
-    b_step = make_b_step(
-        networks.policy.apply, networks.value.apply, optimizers.value, config.b_step
-    )
-    improve = make_improve(config, env, networks, b_step)
+def kept_intentions(config: MethodConfig, state: TrainState, data: RunData) -> jax.Array | None:
+    """``[K]`` the learned intentions holding demonstrations when K is chosen from the data,
+    from the weights the iteration starts with (the policies evaluated are the state's); None
+    when K is given. The seeds' consensus decides the run's K at the end."""
+    if not config.choose_intentions:
+        return None
+    return holds_demonstrations(state.intention_weights, data.demos.episodes)
 
-    def normalized(state: TrainState, batch: LearningBatch, data: RunData) -> NormalizedBatch:
-        """The rollout and the demonstrations as the posterior and the discriminator see them;
-        TRPO keeps the raw samples."""
-        normalizer = obs_norm.update(state.normalizer, batch.obs)
-        normalize = lambda x: obs_norm.normalize(normalizer, x, config.networks.obs_clip)
-        return NormalizedBatch(
-            normalizer=normalizer,
-            obs=normalize(intention_major(batch.obs)),
-            executed=env.clip_action(intention_major(batch.action)),
-            expert_obs=normalize(data.demos.observations),
-            expert_actions=data.demos.actions,
-        ).check()
 
-    def kept_intentions(state: TrainState, data: RunData) -> jax.Array | None:
-        """``[K]`` the learned intentions holding demonstrations when K is chosen from the data,
-        from the weights the iteration starts with (the policies evaluated are the state's);
-        None when K is given. The seeds' consensus decides the run's K at the end."""
-        if not config.choose_intentions:
-            return None
-        return holds_demonstrations(state.intention_weights, data.demos.episodes)
+def normalized_batch(
+    normalizer: obs_norm.RunningStats,
+    transitions: Transitions,
+    demos: DemonstrationPairs,
+    env: envs.Env,
+    obs_clip: float,
+) -> NormalizedBatch:
+    """The rollout and the demonstrations as the posterior and the discriminator see them, with
+    ``normalizer`` (the rollout's statistics included); TRPO keeps the raw samples."""
+    normalize = lambda x: obs_norm.normalize(normalizer, x, obs_clip)
+    return NormalizedBatch(
+        normalizer=normalizer,
+        obs=normalize(intention_major(transitions.obs)),
+        executed=env.clip_action(intention_major(transitions.action)),
+        expert_obs=normalize(demos.observations),
+        expert_actions=demos.actions,
+    ).check()
 
+
+def make_reseed(config: MethodConfig, networks: Networks, k: int):
+    """``reseed(memory, e, discriminator, seen, demos, algorithm) -> (memory, e)``: the
+    E-step's gamma (and mixture weights) with an emptied intention re-seeded
+    (:mod:`emgail_jax.method.reseeding`); the demonstrations it takes are those the
+    discriminator of their intention (before this M-step) tells best from its policy."""
     e_config = config.e_step
     rule = ReseedingRule(e_config.reseed_patience, e_config.reseed_window, e_config.reseed_attempts)
 
-    def reseed(
-        memory: Reseeding,
-        e: EStep,
-        discriminator: Learner,
-        seen: NormalizedBatch,
-        demos: DemonstrationPairs,
-        algorithm: Algorithm,
-    ) -> tuple[Reseeding, EStep]:
-        """The E-step's gamma (and mixture weights) with an emptied intention re-seeded
-        (:mod:`emgail_jax.method.reseeding`); the demonstrations it takes are those the
-        discriminator of their intention (before this M-step) tells best from its policy."""
-
+    def reseed(memory: Reseeding, e: EStep, discriminator: Learner, seen, demos, algorithm):
         def scores(holder: jax.Array) -> jax.Array:
             logits = expert_logits(
                 networks.discriminator.apply,
@@ -530,76 +442,104 @@ def make_train(config: MethodConfig, env: envs.Env) -> Trainer:
             metrics["posterior/intention_weights"] = weights
         return count_down(memory), e.replace(gamma=gamma, weights=weights, metrics=metrics)
 
-    def update(state: TrainState, evaluating: jax.Array, data: RunData) -> tuple[TrainState, dict]:
-        """One iteration of Algorithm 1; ``evaluating`` (a bool scalar, not batched over seeds,
-        so that the evaluation phases are really skipped) says whether to run the evaluation
-        episodes."""
-        key_next, key_phases, key_value = jax.random.split(state.key, 3)
-        algorithm = algorithm_of(config, data)
-        in_use = kept_intentions(state, data)
-        end, batch, evaluation = collector.collect_and_evaluate(
-            state, evaluating, data, key_phases, in_use
+    return reseed
+
+
+@dataclass(frozen=True)
+class LearnedRewardStage:
+    """The IRL loop's reward stage of the skeleton: steps 2-3 of Algorithm 1 (the E-step, the
+    re-seeding of emptied intentions, the M-step) and the learned reward of every sample under
+    its own intention, on which step 4 improves the policy."""
+
+    config: MethodConfig
+    env: envs.Env
+    networks: Networks
+    e_step: Callable  # (posterior, seen, demos, weights, lesson=None) -> EStep
+    m_step: Callable  # (discriminator, seen, gamma, algorithm) -> MStep
+    reseed: Callable  # see make_reseed
+
+    @classmethod
+    def create(
+        cls, config: MethodConfig, env: envs.Env, networks: Networks, optimizers: Optimizers
+    ):
+        m_step = make_m_step(networks.discriminator.apply, optimizers.discriminator, config.m_step)
+        e_step = make_e_step(
+            networks.posterior.apply,
+            optimizers.posterior,
+            config.e_step,
+            reward_from=config.reward.source,
         )
-        seen = normalized(state, batch, data)
+        reseed = make_reseed(config, networks, env.num_intentions)
+        return cls(config, env, networks, e_step, m_step, reseed)
+
+    def pseudo_reward(self, discriminator, algorithm, seen, own_log_posterior) -> jax.Array:
+        """``[K, M]`` the B-step's reward of every sample of ``seen`` under its own intention
+        (eq. 20 / 23), from the ``discriminator`` (a :class:`Learner`)."""
+        k, m = seen.obs.shape[:2]
+        return learned_reward(
+            self.networks.discriminator.apply,
+            discriminator.params,
+            algorithm,
+            k,
+            obs=seen.obs,
+            executed=seen.executed,
+            intention=intention_rows((k, m)),
+            own_log_posterior=own_log_posterior,
+            intention_major=True,
+        )
+
+    def __call__(self, state: TrainState, transitions, normalizer, evaluating, data) -> Rewarded:
+        config, demos = self.config, data.demos
+        algorithm = algorithm_of(config, data)
+        seen = normalized_batch(normalizer, transitions, demos, self.env, config.networks.obs_clip)
         reseeding = state.reseeding
         # EM-GAIL's M-step sees a re-seeding in gamma; Info/IntentionGAIL's D(s, a) ignores
         # gamma, so its posterior learns the held demonstrations instead.
         teaches = reseeding is not None and not algorithm.conditional_discriminator
-        lesson = lesson_of(reseeding, data.demos) if teaches else None
-        e = e_step(state.posterior, seen, data.demos, state.intention_weights, lesson)
+        lesson = lesson_of(reseeding, demos) if teaches else None
+        e = self.e_step(state.posterior, seen, demos, state.intention_weights, lesson)
         if reseeding is not None:
-            reseeding, e = reseed(reseeding, e, state.discriminator, seen, data.demos, algorithm)
-        m = m_step(state.discriminator, seen, e.gamma, algorithm)
+            reseeding, e = self.reseed(reseeding, e, state.discriminator, seen, demos, algorithm)
+        m = self.m_step(state.discriminator, seen, e.gamma, algorithm)
         rewarding = config.reward.source.choose(
             updated=m.discriminator, previous=state.discriminator
         )
-        b = improve(
-            state,
-            batch,
-            seen,
-            discriminator=rewarding,
-            own_log_posterior=e.own_log_posterior,
-            algorithm=algorithm,
-            key=key_value,
-        )
-        new_state = TrainState(
-            policy=b.policy,
-            value=b.value,
-            discriminator=m.discriminator,
-            posterior=e.posterior,
-            normalizer=seen.normalizer,
-            intention_weights=e.weights,
-            env_state=end,
-            key=key_next,
-            iteration=state.iteration + 1,
-            reseeding=reseeding,
-        )
+        reward = self.pseudo_reward(rewarding, algorithm, seen, e.own_log_posterior)
+        in_use = kept_intentions(config, state, data)
+        k = self.env.num_intentions
         clustering = clustering_metrics(
-            e.responsibilities, data.demos, k, config.e_step.responsibilities, in_use
+            e.responsibilities, demos, k, config.e_step.responsibilities, in_use
         )
-        metrics = {**evaluation, **clustering, **e.metrics, **m.metrics, **b.metrics}
+        metrics = {**clustering, **e.metrics, **m.metrics, "train/pseudo_reward": reward.mean()}
         if in_use is not None:
             metrics["posterior/intentions_in_use"] = in_use.sum()
-        return new_state, metrics
+        learned = dict(
+            discriminator=m.discriminator,
+            posterior=e.posterior,
+            intention_weights=e.weights,
+            reseeding=reseeding,
+        )
+        return Rewarded(time_major(reward, transitions.obs.shape[0]), learned, metrics)
 
-    steps = Steps(collector, normalized, e_step, m_step, improve)
-    return Trainer(init, update, steps)
 
-
-class Steps(NamedTuple):
-    """The pieces of one update, for callers that run them alone (the benchmark)."""
-
-    collector: Collector
-    normalized: Callable
-    e_step: Callable
-    m_step: Callable
-    improve: Callable
+def make_train(config: MethodConfig, env: envs.Env) -> Trainer:
+    """Builds ``init(key, data) -> TrainState`` and
+    ``update(state, evaluating, data) -> (state, metrics)`` (see the module docstring): the
+    trainer skeleton (:mod:`~emgail_jax.method.skeleton`) with the E-step, the M-step and the
+    learned reward as its reward stage."""
+    config = config.resolved(env)
+    networks = make_networks(config, env)
+    optimizers = make_optimizers(config)
+    stages = make_policy_stages(config, env, networks)
+    collect = make_collect(config, env, stages)
+    reward = LearnedRewardStage.create(config, env, networks, optimizers)
+    update = make_update(stages, collect, reward)
+    return Trainer(make_init(config, env, networks, optimizers), update)
 
 
 class Trainer(NamedTuple):
-    """``init(key, data) -> TrainState``, ``update(state, evaluating, data) -> (state,
-    metrics)``, and the update's pieces."""
+    """``init(key, data) -> TrainState`` and ``update(state, evaluating, data) -> (state,
+    metrics)``."""
 
     init: Callable
     update: Callable
-    steps: Steps
