@@ -139,7 +139,7 @@ def plot_intention_weights(run, path: str) -> None:
     retired at the end (too light, or a duplicate the seeds' consensus merged) is dashed."""
     import matplotlib.pyplot as plt
 
-    from emgail_jax.host.seed_runner import FINAL_WINDOW
+    from emgail_jax.host.schedule import FINAL_WINDOW
     from emgail_jax.method.choosing import kept_share
 
     weights = np.asarray(run.history["posterior/intention_weights"])  # [S, L, K]

@@ -50,7 +50,8 @@ def child(env_name: str, k: int, seed_counts: list[int], chunks: int, cache: str
     import jax.numpy as jnp
 
     from emgail_jax.host.problem import make_problem
-    from emgail_jax.host.seed_runner import Runner, evaluation_plan
+    from emgail_jax.host.schedule import evaluation_plan
+    from emgail_jax.host.seed_runner import Runner
     from emgail_jax.method.batches import DemonstrationPairs, LearningBatch
     from emgail_jax.method.config import Config
     from emgail_jax.method.rollout import episode_totals, fresh_starts

@@ -80,17 +80,17 @@ def test_summary_follows_the_run_contract(runs, algo):
         assert len(final["reseedings"]) == SEEDS and all(n >= 0 for n in final["reseedings"])
 
 
-def test_runs_differing_only_in_data_share_one_program(runs, tmp_path, monkeypatch):
+def test_runs_differing_only_in_data_share_one_program(runs, tmp_path):
     """After the fixture's radius-20 EM-GAIL run, a radius-10 run of this process reuses its
     compiled programs (no program is added) and gives what a run compiling afresh gives."""
-    from emgail_jax.host import seed_runner
+    from emgail_jax.host.program_cache import SHARED
 
-    programs = dict(seed_runner._shared_programs)
+    programs = SHARED.keys()
     code, shared = _run(tmp_path, "shared", "--radius", "10", "--info-weight", "0.5")
-    assert code == 0 and dict(seed_runner._shared_programs).keys() == programs.keys()
-    monkeypatch.setattr(seed_runner, "_shared_programs", type(seed_runner._shared_programs)())
+    assert code == 0 and set(SHARED.keys()) == set(programs)
+    SHARED.clear()
     code, fresh = _run(tmp_path, "fresh", "--radius", "10", "--info-weight", "0.5")
-    assert code == 0 and len(seed_runner._shared_programs) == 1
+    assert code == 0 and len(SHARED) == 1
     assert (shared / "metrics.csv").read_text() == (fresh / "metrics.csv").read_text()
     radius20 = (runs["emgail"] / "metrics.csv").read_text()
     assert (shared / "metrics.csv").read_text() != radius20
