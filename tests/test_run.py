@@ -238,14 +238,6 @@ def test_demonstrations_without_labels_or_returns(tmp_path, capsys):
     assert np.asarray(final["returns"]).shape == (SEEDS, 2)
 
 
-def test_without_out_a_run_takes_the_first_free_directory(tmp_path):
-    root = str(tmp_path)
-    assert run.default_output("halfcheetah", "emgail", root) == f"{root}/halfcheetah-emgail"
-    (tmp_path / "halfcheetah-emgail").mkdir()
-    (tmp_path / "halfcheetah-emgail-2").mkdir()
-    assert run.default_output("halfcheetah", "emgail", root) == f"{root}/halfcheetah-emgail-3"
-
-
 def test_intentions_auto_starts_from_the_env_maximum_with_the_mixture_prior():
     spec = run.spec_from_args(run.parse_args(["--env", "hopper", "--intentions", "auto"]))
     assert spec.intentions == 3

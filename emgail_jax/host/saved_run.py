@@ -20,12 +20,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from emgail_jax.host import checkpoints
-from emgail_jax.host.final_results import (
-    FinalResults,
-    final_responsibilities,
-    kept_intentions,
-)
+from emgail_jax.host.final_results import FinalResults
 from emgail_jax.host.problem import Problem, problem_of
+from emgail_jax.host.results_pipeline import final_responsibilities, kept_intentions
 from emgail_jax.host.run_spec import RunError, RunSpec, read_summary
 from emgail_jax.host.seed_runner import Runner
 from emgail_jax.method import normalizer as obs_norm

@@ -15,6 +15,7 @@ from collections.abc import Callable, Hashable
 
 import jax
 import numpy as np
+from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from emgail_jax.host import jax_setup, program_cache
@@ -108,6 +109,7 @@ class Runner:
         update: Callable,
         seeds: int,
         data=None,
+        *,
         seed_batch: int | None = None,
         program_key: Hashable | None = None,
     ):
@@ -278,8 +280,6 @@ def gather(tree):
     multi-process run gathers the other processes' shares)."""
     if jax.process_count() == 1:
         return jax.device_get(tree)
-    from jax.experimental import multihost_utils
-
     return jax.tree.map(np.asarray, multihost_utils.process_allgather(tree, tiled=True))
 
 

@@ -7,7 +7,6 @@ seeds and takes part in every gather; process 0 alone writes.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import os
 import signal
@@ -17,9 +16,9 @@ import numpy as np
 from jax.experimental import multihost_utils
 
 from emgail_jax.host import checkpoints, records, stopping
-from emgail_jax.host.final_results import final_results
 from emgail_jax.host.history import concat_history
 from emgail_jax.host.progress import ProgressBar
+from emgail_jax.host.results_pipeline import final_results
 from emgail_jax.host.run_spec import RunSpec, read_summary, stored_sources
 from emgail_jax.host.schedule import evaluation_plan
 from emgail_jax.host.seed_runner import Runner, chunks, gather
@@ -57,51 +56,37 @@ def train(
         "machine": records.machine_facts(),
         "parameters": parameters,
     }
-    earlier = {"compile_time_s": 0.0, "train_time_s": 0.0, "iterations": 0}
-    if resume:
-        earlier = read_summary(out).get("timings", earlier)
+    earlier = read_summary(out).get("timings", NO_TIMINGS) if resume else NO_TIMINGS
     write = _SummaryWriter(os.path.join(out, SUMMARY), writes)
     if not resume:  # before the first compile: from then on a killed run can be resumed
         write.running(summary, earlier)
     state, history, done = _first_state(runner, out, resume, jax.random.PRNGKey(spec.first_seed))
     if resume:  # once the checkpoint is read: a failed restore leaves the summary as it was
         write.running(summary, earlier)
-
-    # Chunks only group iterations into compiled calls; they do not change the results.
-    plan = chunks(done, config.iterations, config.chunk_size)
-    signals = signals or stopping.Signals()
     saver = Saver(out, checkpoint_every, snapshot_every, writes, last_saved=done)
-    recorder = ChunkRecorder(config.iterations, history, done, saver, signals)
+    recorder = ChunkRecorder(config.iterations, history, done, saver, signals or stopping.Signals())
     timings = earlier
-    if plan:
-        evaluating = lambda first, length: evaluation_plan(
-            first, length, config.iterations, config.eval_every
+    if done < config.iterations:
+        log = records.MetricsLog(
+            out, keep_until=done if resume else None, enabled=writes, wandb_run=wandb_run
         )
-        # A resumed run's log first drops the rows written after its checkpoint.
-        keep_until = done if resume else None
-        log = records.MetricsLog(out, keep_until=keep_until, enabled=writes, wandb_run=wandb_run)
-        fields = {"ERD": "-", "acc": "-"}
-        bar = ProgressBar("training", config.iterations, fields, done, enabled=progress and writes)
-        with signals.stoppable(), recorder.writing(log, bar):
-            state = runner.run(state, plan, evaluating, recorder.after_chunk)
+        state = recorder.run(runner, state, config, log, progress and writes)
         timings = _added(earlier, runner.timings)
-    final_state = saver.host_state if saver.host_state is not None else gather(state)
-    summary.update(timings=timings, iterations_done=recorder.iteration)
-    if recorder.iteration < config.iterations:
-        summary.update(status="interrupted", stopped_by=signal.Signals(recorder.stopped_by).name)
-    else:
-        summary["status"] = "completed"
+    summary.update(timings=timings, iterations_done=recorder.iteration, **recorder.status())
     final = final_results(
         recorder.history,
         problem=problem,
         config=config,
-        states=final_state,
+        states=saver.host_state if saver.host_state is not None else gather(state),
         demos=jax.device_get(runner.data.demos),
         timings=timings,
     )
     summary["final"] = final.to_summary()
     write.final(summary)
     return records.to_json_value(summary)
+
+
+NO_TIMINGS = {"compile_time_s": 0.0, "train_time_s": 0.0, "iterations": 0}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -169,14 +154,31 @@ class ChunkRecorder:
     _log: records.MetricsLog | None = None
     _bar: ProgressBar | None = None
 
-    @contextlib.contextmanager
-    def writing(self, log: records.MetricsLog, bar: ProgressBar):
-        self._log, self._bar = log, bar
+    def run(self, runner: Runner, state, config, log: records.MetricsLog, progress: bool):
+        """Steps ``state`` from the iterations done to the run's total (unless stopped), each
+        chunk's metrics to ``log``, a progress bar shown when ``progress``; returns the last
+        state. Chunks only group iterations into compiled calls: they change no result."""
+        plan = chunks(self.iteration, self.iterations, config.chunk_size)
+        evaluating = lambda first, length: evaluation_plan(
+            first, length, self.iterations, config.eval_every
+        )
+        fields = {"ERD": "-", "acc": "-"}
+        self._log = log
+        self._bar = ProgressBar(
+            "training", self.iterations, fields, self.iteration, enabled=progress
+        )
         try:
-            yield self
+            with self.signals.stoppable():
+                return runner.run(state, plan, evaluating, self.after_chunk)
         finally:
-            bar.close()
+            self._bar.close()
             log.close()
+
+    def status(self) -> dict:
+        """``summary.json``'s ``status`` (and ``stopped_by`` for an interrupted run)."""
+        if self.iteration >= self.iterations:
+            return {"status": "completed"}
+        return {"status": "interrupted", "stopped_by": signal.Signals(self.stopped_by).name}
 
     def after_chunk(self, first: int, length: int, state, metrics: dict) -> bool:
         self._log.write(first, metrics)
@@ -220,7 +222,9 @@ def _runner(spec: RunSpec, problem, config) -> tuple[Runner, dict[str, int]]:
     init, update, _ = make_train(config, env)
     # Runs of one process that differ only in data (the sweep's driver radii) share programs.
     program_key = (config.program_key(), env.program_key())
-    runner = Runner(init, update, spec.seeds, data, config.seed_batch, program_key)
+    runner = Runner(
+        init, update, spec.seeds, data, seed_batch=config.seed_batch, program_key=program_key
+    )
     return runner, parameter_counts(init, data)
 
 
