@@ -20,7 +20,7 @@ import os
 import sys
 import traceback
 
-from emgail_jax.host import jax_setup, stopping
+from emgail_jax.host import jax_setup, records, stopping
 from emgail_jax.host.run_directory import default_output, prepare_output, writing
 from emgail_jax.host.run_spec import DEFAULT_RANDOM_EPISODES, RunError, RunSpec, read_summary
 from emgail_jax.host.summary_table import print_summary
@@ -299,7 +299,6 @@ def _command(
     # command ends before JAX starts).
     import jax
 
-    from emgail_jax.host import records
     from emgail_jax.host.training_run import summary_header, train
 
     primary = jax.process_index() == 0
@@ -333,7 +332,6 @@ def _command(
 def _open_run(args: argparse.Namespace, held: contextlib.ExitStack, locked: bool, primary: bool):
     """``(run directory, spec, problem)`` of the run asked for, its directory locked and ready
     to write (a new run's emptied, a resumed one's checked for a checkpoint); W&B checked."""
-    from emgail_jax.host import records
     from emgail_jax.host.checkpoints import CheckpointError, latest_iteration
     from emgail_jax.host.problem import problem_of
     from emgail_jax.host.seed_runner import seed_sharding
@@ -426,16 +424,16 @@ def _main(
 ) -> int:
     """The command, its errors as one line and exit code 2; in a run of several processes,
     a failure is posted for the others (:func:`jax_setup.report_failure`), which end too."""
-    import jax
+    import jax  # here, not above: the command has the lock by now (issue 30)
 
     import envs
     from emgail_jax.host.checkpoints import CheckpointError
     from emgail_jax.host.demonstration_files import DemonstrationError
-    from emgail_jax.host.records import WandbError
 
+    refusals = (envs.EnvError, DemonstrationError, RunError, CheckpointError, records.WandbError)
     try:
         out, summary = _command(args, signals, held, locked)
-    except (envs.EnvError, DemonstrationError, RunError, CheckpointError, WandbError) as error:
+    except refusals as error:
         return _failed(f"error: {error}", 2)
     except OSError as error:  # the output cannot be created or written (permissions, full disk)
         return _failed(_write_error(error), 2)

@@ -238,6 +238,20 @@ def test_demonstrations_without_labels_or_returns(tmp_path, capsys):
     assert np.asarray(final["returns"]).shape == (SEEDS, 2)
 
 
+def test_the_run_defining_options_are_those_the_parser_marks():
+    """One list: the options a resumed run refuses are the parser's run-defining group, every
+    one refused by its own name."""
+    options = run.run_options()
+    assert {"env", "algo", "seeds", "set", "seed_batch", "eval_every"} <= set(options)
+    assert not {"iterations", "out", "resume", "overwrite", "quiet"} & set(options)
+    defaults = vars(run.parse_args([]))
+    assert set(options) <= set(defaults)
+    for name in ("num_envs", "radius", "seed_batch"):
+        args = run.parse_args(["--resume", "somewhere", f"--{name.replace('_', '-')}", "2"])
+        with pytest.raises(run.RunError, match=f"drop --{name.replace('_', '-')} "):
+            run.spec_from_args(args)
+
+
 def test_intentions_auto_starts_from_the_env_maximum_with_the_mixture_prior():
     spec = run.spec_from_args(run.parse_args(["--env", "hopper", "--intentions", "auto"]))
     assert spec.intentions == 3
