@@ -88,7 +88,8 @@ def time_runs(trainer, data, seed_counts: list[int], chunks: int) -> dict:
     compile times (cold, its ``init`` alone, and warm)."""
     import jax
 
-    from emgail_jax.host.seed_runner import Runner, evaluation_plan
+    from emgail_jax.host.schedule import evaluation_plan
+    from emgail_jax.host.seed_runner import Runner
 
     # A chunk in the middle of a 400-iteration run: one evaluation in ten iterations.
     steady = evaluation_plan(100, CHUNK, 400, EVAL_EVERY)

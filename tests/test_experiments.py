@@ -152,14 +152,14 @@ def test_sweep_cell_status_reads_the_run_directory(tmp_path):
         sweep.cell_status(str(tmp_path), 2, 400)
 
 
-def test_sweep_runs_skips_and_reports_driver_cells(tmp_path, monkeypatch, capsys):
+def test_sweep_runs_skips_and_reports_driver_cells(tmp_path, capsys):
     """End to end on two tiny driver cells (the sizes of the other tiny driver runs): trained in
     this process, the second radius on the first one's compiled programs, reported, then
     skipped."""
-    from emgail_jax.host import seed_runner
+    from emgail_jax.host.program_cache import SHARED
 
     sweep = _load("sweep")
-    monkeypatch.setattr(seed_runner, "_shared_programs", type(seed_runner._shared_programs)())
+    SHARED.clear()
     out = tmp_path / "results"
     args = [
         *("--only", "driver-r4-emgail,driver-r20-emgail", "--seeds", "2", "--iterations", "4"),
@@ -167,7 +167,7 @@ def test_sweep_runs_skips_and_reports_driver_cells(tmp_path, monkeypatch, capsys
         *("--out", str(out)),
     ]
     assert sweep.main(args) == 0
-    assert len(seed_runner._shared_programs) == 1  # both radii ran one set of programs
+    assert len(SHARED) == 1  # both radii ran one set of programs
     for name in ("table2.md", "table3.md", "table3.csv", "fig6.csv", "fig4b.png", "fig5a.png"):
         assert (out / name).exists(), name
     rows = {float(row["radius"]): row for row in csv.DictReader((out / "fig5a.csv").open())}

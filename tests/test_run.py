@@ -82,17 +82,17 @@ def test_summary_follows_the_run_contract(runs, algo):
         assert len(final["reseedings"]) == SEEDS and all(n >= 0 for n in final["reseedings"])
 
 
-def test_runs_differing_only_in_data_share_one_program(runs, tmp_path, monkeypatch):
+def test_runs_differing_only_in_data_share_one_program(runs, tmp_path):
     """After the fixture's radius-20 EM-GAIL run, a radius-10 run of this process reuses its
     compiled programs (no program is added) and gives what a run compiling afresh gives."""
-    from emgail_jax.host import seed_runner
+    from emgail_jax.host.program_cache import SHARED
 
-    programs = dict(seed_runner._shared_programs)
+    programs = SHARED.keys()
     code, shared = _run(tmp_path, "shared", "--radius", "10", "--info-weight", "0.5")
-    assert code == 0 and dict(seed_runner._shared_programs).keys() == programs.keys()
-    monkeypatch.setattr(seed_runner, "_shared_programs", type(seed_runner._shared_programs)())
+    assert code == 0 and set(SHARED.keys()) == set(programs)
+    SHARED.clear()
     code, fresh = _run(tmp_path, "fresh", "--radius", "10", "--info-weight", "0.5")
-    assert code == 0 and len(seed_runner._shared_programs) == 1
+    assert code == 0 and len(SHARED) == 1
     assert (shared / "metrics.csv").read_text() == (fresh / "metrics.csv").read_text()
     radius20 = (runs["emgail"] / "metrics.csv").read_text()
     assert (shared / "metrics.csv").read_text() != radius20
@@ -240,12 +240,18 @@ def test_demonstrations_without_labels_or_returns(tmp_path, capsys):
     assert np.asarray(final["returns"]).shape == (SEEDS, 2)
 
 
-def test_without_out_a_run_takes_the_first_free_directory(tmp_path):
-    root = str(tmp_path)
-    assert run.default_output("halfcheetah", "emgail", root) == f"{root}/halfcheetah-emgail"
-    (tmp_path / "halfcheetah-emgail").mkdir()
-    (tmp_path / "halfcheetah-emgail-2").mkdir()
-    assert run.default_output("halfcheetah", "emgail", root) == f"{root}/halfcheetah-emgail-3"
+def test_the_run_defining_options_are_those_the_parser_marks():
+    """One list: the options a resumed run refuses are the parser's run-defining group, every
+    one refused by its own name."""
+    options = run.run_options()
+    assert {"env", "algo", "seeds", "set", "seed_batch", "eval_every"} <= set(options)
+    assert not {"iterations", "out", "resume", "overwrite", "quiet"} & set(options)
+    defaults = vars(run.parse_args([]))
+    assert set(options) <= set(defaults)
+    for name in ("num_envs", "radius", "seed_batch"):
+        args = run.parse_args(["--resume", "somewhere", f"--{name.replace('_', '-')}", "2"])
+        with pytest.raises(run.RunError, match=f"drop --{name.replace('_', '-')} "):
+            run.spec_from_args(args)
 
 
 def test_intentions_auto_starts_from_the_env_maximum_with_the_mixture_prior():

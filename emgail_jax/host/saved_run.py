@@ -20,13 +20,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from emgail_jax.host import checkpoints
+from emgail_jax.host.final_results import FinalResults
 from emgail_jax.host.problem import Problem, problem_of
+from emgail_jax.host.results_pipeline import final_responsibilities, kept_intentions
 from emgail_jax.host.run_spec import RunError, RunSpec, read_summary
 from emgail_jax.host.seed_runner import Runner
 from emgail_jax.method import normalizer as obs_norm
 from emgail_jax.method.algorithms import Algorithm, make_algorithm
 from emgail_jax.method.batches import DemonstrationPairs
-from emgail_jax.method.choosing import chosen_intentions, demonstrations_held
+from emgail_jax.method.choosing import demonstrations_held
 from emgail_jax.method.config import RunConfig
 from emgail_jax.method.discriminator import learned_reward
 from emgail_jax.method.networks import policy_action
@@ -109,17 +111,30 @@ class SavedRun:
     def intentions_in_use(self, seed: int = 0) -> np.ndarray | None:
         """``[K]`` bool, the learned intentions ``seed`` keeps when K is chosen from the data
         (``--intentions auto``), decided by all the run's seeds together as training decided
-        at its end (:func:`~emgail_jax.method.choosing.chosen_intentions`); None when K was
-        given."""
+        at its end (:func:`~emgail_jax.host.final_results.kept_intentions`): the run's final
+        results say, and for a snapshot (or a summary without them) they are decided anew
+        from its state; None when K was given."""
         if not self.config.method.choose_intentions:
             return None
         self.seed_state(seed)  # checks the seed
         if self._kept is None:
+            self._kept = self._stored_kept()
+        if self._kept is None:
             pairs = self.demonstration_pairs
-            gamma = np.stack([self.responsibilities(s).gamma for s in range(self.spec.seeds)])
-            weights = np.asarray(self.state.intention_weights)
-            self._kept = chosen_intentions(gamma, weights, pairs.episode, pairs.episodes)
+            responsibilities = final_responsibilities(
+                self.networks, self.config.method, self.state, pairs
+            )
+            self._kept = kept_intentions(responsibilities, self.state.intention_weights, pairs)
         return self._kept[seed]
+
+    def _stored_kept(self) -> np.ndarray | None:
+        """``[S, K]`` the intentions kept as the run's final results hold them, when ``state``
+        is the final state they were decided on."""
+        final = FinalResults.from_summary(self.summary)
+        at_end = self.snapshot is None and self.summary.get("iterations_done") == self.iteration
+        if final is None or final.intentions_kept is None or not at_end:
+            return None
+        return np.asarray(final.intentions_kept, bool)
 
     def seed_state(self, seed: int = 0) -> TrainState:
         """The train state of the run's ``seed``-th seed (0 .. seeds-1)."""
