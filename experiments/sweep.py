@@ -612,10 +612,20 @@ def code_fingerprint() -> str:
 SEPARABILITY_COLUMNS = ("separability", "separability_std", "gmm_accuracy", "gmm_accuracy_std")
 
 
-def separability_table(out: str, cells: list[Cell]) -> dict:
-    """``{DemoSet.name ("hopper-3" | "driver-r10"): {"separability", "separability_std",
-    "gmm_accuracy", "gmm_accuracy_std"}}`` of the demonstrations the cells train on, computed
-    once and kept in ``OUT/separability.csv``."""
+@dataclasses.dataclass(frozen=True)
+class SeparabilityTable:
+    """``separability.csv``: the separability and the Gaussian mixture's accuracy of each set
+    of demonstrations (SEPARABILITY_COLUMNS), as :func:`measure_separability` makes them."""
+
+    rows: dict[str, dict[str, float]]  # by DemoSet.name, the file's key
+
+    def of(self, data: DemoSet) -> dict[str, float] | None:
+        return self.rows.get(data.name)
+
+
+def separability_table(out: str, cells: list[Cell]) -> SeparabilityTable:
+    """The separability of the demonstrations the cells train on, computed once and kept in
+    ``OUT/separability.csv`` (with what it held before)."""
     path = os.path.join(out, "separability.csv")
     table = {}
     if os.path.exists(path):
@@ -633,7 +643,7 @@ def separability_table(out: str, cells: list[Cell]) -> dict:
             for name in sorted(table):
                 row = [f"{table[name][c]:.4f}" for c in SEPARABILITY_COLUMNS]
                 f.write(",".join([name, *row]) + "\n")
-    return table
+    return SeparabilityTable(table)
 
 
 def measure_separability(data: DemoSet) -> dict[str, float]:
@@ -762,14 +772,14 @@ def _mean_std(values) -> str:
 
 
 def table3_rows(
-    results: Results, separability: dict
+    results: Results, separability: SeparabilityTable
 ) -> list[tuple[str, DemoSet, float, float, int]]:
     """Table 3's accuracies: (method, demonstrations, mean %, std %, seeds) of the GMM and of
     every finished cell of TABLE3_METHODS."""
     rows = []
     for data in robotics_sets():
-        if data.name in separability:
-            gmm = separability[data.name]
+        gmm = separability.of(data)
+        if gmm is not None:
             rows.append(("gmm", data, 100 * gmm["gmm_accuracy"], 100 * gmm["gmm_accuracy_std"], 5))
         for algo, variant in TABLE3_METHODS:
             result = results.get(data.env, data.intentions, algo, variant=variant)
@@ -779,7 +789,7 @@ def table3_rows(
     return rows
 
 
-def write_table3(out: str, results: Results, separability: dict) -> None:
+def write_table3(out: str, results: Results, separability: SeparabilityTable) -> None:
     rows = table3_rows(results, separability)
     with open(os.path.join(out, "table3.csv"), "w") as f:
         f.write("env,intentions,method,accuracy_mean,accuracy_std,seeds\n")
@@ -881,19 +891,19 @@ def write_table2(out: str, results: Results, seeds: int) -> None:
     _write_text(os.path.join(out, "table2.md"), lines)
 
 
-def write_erd_csvs(out: str, results: Results, separability: dict) -> None:
+def write_erd_csvs(out: str, results: Results, separability: SeparabilityTable) -> None:
     with open(os.path.join(out, "fig5a.csv"), "w") as f:
         f.write("algo,radius,separability,erd_mean,erd_std,seeds\n")
         for result in results.where(on_driver_radius):
             cell = result.cell
-            sep = separability.get(cell.data.name, {}).get("separability", math.nan)
+            sep = (separability.of(cell.data) or {}).get("separability", math.nan)
             f.write(f"{cell.algo},{cell.radius:g},{sep:.4f},{result.erd.mean():.4f},"
                     f"{result.erd.std():.4f},{len(result.erd)}\n")  # fmt: skip
     with open(os.path.join(out, "fig6.csv"), "w") as f:
         f.write("env,intentions,algo,separability,erd_mean,erd_std,reoptimized_erd,seeds\n")
         for result in results.where(robotics_default):
             cell = result.cell
-            sep = separability.get(cell.data.name, {}).get("separability")
+            sep = (separability.of(cell.data) or {}).get("separability")
             reopt = result.reoptimized_erd
             f.write(
                 f"{cell.env},{cell.intentions},{cell.algo},{'' if sep is None else f'{sep:.4f}'},"
@@ -958,11 +968,11 @@ def _erd_band(ax, points: list[tuple[float, np.ndarray]], algo: str) -> None:
     _band(ax, x, mean, std, color=COLORS[algo], label=ALGO_LABELS[algo])
 
 
-def draw_fig4a(out: str, separability: dict) -> str | None:
+def draw_fig4a(out: str, separability: SeparabilityTable) -> str | None:
     """The separability of the shipped demonstrations against K, per env."""
     fig, ax = _pyplot().subplots(figsize=(5, 3.5))
     for env, ks in ROBOTICS_INTENTIONS.items():
-        points = [(k, separability.get(DemoSet(env, k).name)) for k in ks]
+        points = [(k, separability.of(DemoSet(env, k))) for k in ks]
         points = [(k, row) for k, row in points if row is not None]
         if points:
             ks_, rows = zip(*points, strict=True)
@@ -976,13 +986,10 @@ def draw_fig4a(out: str, separability: dict) -> str | None:
     return _save(fig, out, "fig4a.png")
 
 
-def draw_fig4b(out: str, separability: dict) -> str | None:
+def draw_fig4b(out: str, separability: SeparabilityTable) -> str | None:
     """The driver's separability against the radius of path 2."""
-    driver = sorted(
-        (data.radius, separability[data.name])
-        for data in driver_sets()
-        if data.name in separability
-    )
+    found = [(data.radius, separability.of(data)) for data in driver_sets()]
+    driver = sorted((radius, row) for radius, row in found if row is not None)
     if not driver:
         return None
     fig, ax = _pyplot().subplots(figsize=(5, 3.5))
@@ -993,16 +1000,18 @@ def draw_fig4b(out: str, separability: dict) -> str | None:
 
 
 def draw_erd_against_separability(
-    out: str, results: list[CellResult], separability: dict, *, name: str, title: str
+    out: str,
+    results: list[CellResult],
+    separability: SeparabilityTable,
+    *,
+    name: str,
+    title: str,
 ) -> str | None:
     """Figures 5a and 5b: each algorithm's ERD against the separability of its cells' data."""
     fig, ax = _pyplot().subplots(figsize=(6.5, 3.5))
     for algo in ALGOS:
-        points = [
-            (separability[r.cell.data.name]["separability"], r.erd)
-            for r in results
-            if r.cell.algo == algo and r.cell.data.name in separability
-        ]
+        found = [(separability.of(r.cell.data), r.erd) for r in results if r.cell.algo == algo]
+        points = [(row["separability"], erd) for row, erd in found if row is not None]
         if points:
             _erd_band(ax, points, algo)
     if not ax.lines:
@@ -1034,7 +1043,7 @@ def draw_fig6(out: str, results: Results) -> str | None:
     return _save(fig, out, "fig6.png")
 
 
-def draw_figures(out: str, results: Results, separability: dict) -> list[str]:
+def draw_figures(out: str, results: Results, separability: SeparabilityTable) -> list[str]:
     """The figures that what is finished can draw; returns their file names."""
     drawn = [
         draw_fig4a(out, separability),
@@ -1119,12 +1128,12 @@ class Plan:
     """The cells a sweep covers, where each stands, and the seconds each still needs."""
 
     cells: list[Cell]
-    statuses: dict[str, str]  # by cell name
-    estimates: dict[str, float]  # by cell name, the cells to run alone
+    statuses: dict[Cell, str]  # cell_status
+    estimates: dict[Cell, float]  # of the cells to run alone
 
     @property
     def todo(self) -> list[Cell]:
-        return [cell for cell in self.cells if self.statuses[cell.name] != "done"]
+        return [cell for cell in self.cells if self.statuses[cell] != "done"]
 
 
 def plan_sweep(args: argparse.Namespace) -> Plan:
@@ -1138,14 +1147,13 @@ def plan_sweep(args: argparse.Namespace) -> Plan:
     cells = select(all_cells(), args.only)
     runs_dir = os.path.join(args.out, "runs")
     statuses = {
-        c.name: cell_status(os.path.join(runs_dir, c.name), args.seeds, args.iterations)
-        for c in cells
+        c: cell_status(os.path.join(runs_dir, c.name), args.seeds, args.iterations) for c in cells
     }
     measured = measured_seconds(runs_dir)
     estimates = {
-        c.name: estimate_seconds(c, args.seeds, args.iterations, measured)
+        c: estimate_seconds(c, args.seeds, args.iterations, measured)
         for c in cells
-        if statuses[c.name] != "done"
+        if statuses[c] != "done"
     }
     return Plan(cells, statuses, estimates)
 
@@ -1161,19 +1169,19 @@ def print_plan(console, plan: Plan, args: argparse.Namespace) -> None:
     for column in ("cell", "feeds", "status", "estimate"):
         table.add_column(column)
     for cell in plan.cells:
-        estimate = plan.estimates.get(cell.name)
+        estimate = plan.estimates.get(cell)
         estimate = "" if estimate is None else _format_duration(estimate)
-        table.add_row(cell.name, ", ".join(cell.groups), plan.statuses[cell.name], estimate)
+        table.add_row(cell.name, ", ".join(cell.groups), plan.statuses[cell], estimate)
     console.print(table)
     total = _format_duration(sum(plan.estimates.values()))
     console.print(f"{len(plan.todo)} cells to run, estimated {total} on this machine")
 
 
-def _describe(on_ray: bool, statuses: dict[str, str], remaining: list[Cell]) -> str:
+def _describe(on_ray: bool, statuses: dict[Cell, str], remaining: list[Cell]) -> str:
     """The progress bar's text: the cell in progress, or how many run on Ray."""
     if on_ray:  # the cells run at once, as the cluster has room
         return f"{len(remaining)} cells on Ray"
-    return f"{remaining[0].name} ({statuses[remaining[0].name]})" if remaining else ""
+    return f"{remaining[0].name} ({statuses[remaining[0]]})" if remaining else ""
 
 
 def run_cells(console, plan: Plan, args: argparse.Namespace) -> int | None:

@@ -193,7 +193,9 @@ def test_sweep_table3_takes_each_column_from_its_cells(tmp_path):
         sweep.CellResult(Cell("reacher", 2, "emgail", variant=Variant.PAIR), np.zeros(1),
                          np.asarray([0.5]), 0, 1.0, None),
     ]  # fmt: skip
-    separability = {"hopper-3": {"gmm_accuracy": 0.7, "gmm_accuracy_std": 0.1}}
+    separability = sweep.SeparabilityTable(
+        {"hopper-3": {"gmm_accuracy": 0.7, "gmm_accuracy_std": 0.1}}
+    )
     sweep.write_table3(str(tmp_path), sweep.Results({r.cell: r for r in found}), separability)
     rows = [line.split(",") for line in (tmp_path / "table3.csv").read_text().splitlines()]
     assert rows[1:] == [
@@ -295,11 +297,13 @@ def test_sweep_separability_of_the_driver_falls_with_the_radius(tmp_path):
     sweep = _load("sweep")
     cells = sweep.select(sweep.all_cells(), "driver-r4-gail,driver-r20-gail")
     table = sweep.separability_table(str(tmp_path), cells)
-    assert table["driver-r4"]["separability"] < 0.2 < 0.9 < table["driver-r20"]["separability"]
+    near, far = (sweep.DemoSet("driver", 2, radius) for radius in (4.0, 20.0))
+    assert table.of(near)["separability"] < 0.2 < 0.9 < table.of(far)["separability"]
+    assert sorted(table.rows) == ["driver-r20", "driver-r4"]
     # Kept in separability.csv and read back rather than recomputed.
     again = sweep.separability_table(str(tmp_path), cells)
-    for data in ("driver-r4", "driver-r20"):
-        assert again[data] == pytest.approx(table[data], abs=1e-4)
+    for data in (near, far):
+        assert again.of(data) == pytest.approx(table.of(data), abs=1e-4)
 
 
 @pytest.mark.slow  # its own compile of the RL update: 30-90 s
