@@ -277,27 +277,35 @@ def _summary_or_none(run_dir: str) -> dict | None:
         return None
 
 
-def cell_status(run_dir: str, seeds: int, iterations: int) -> str:
-    """ "done", "resume" (a checkpointed run short of ``iterations``), "damaged" (a
-    ``summary.json`` that is not a run's, e.g. cut short) or "new"."""
+class Status(enum.StrEnum):
+    """Where a cell's run directory stands (the status column of the sweep's table)."""
+
+    DONE = "done"
+    RESUME = "resume"  # a checkpointed run short of the sweep's iterations
+    DAMAGED = "damaged"  # a summary.json that is not a run's, e.g. cut short
+    NEW = "new"
+
+
+def cell_status(run_dir: str, seeds: int, iterations: int) -> Status:
+    """What the sweep does with the run in ``run_dir``: skip, resume, repair it or start it."""
     summary = _summary_or_none(run_dir)
     if summary is None:
         path = os.path.join(run_dir, "summary.json")
-        return "damaged" if os.path.exists(path) else "new"
+        return Status.DAMAGED if os.path.exists(path) else Status.NEW
     if not isinstance(summary, dict) or "seeds" not in summary:
-        return "damaged"
+        return Status.DAMAGED
     if summary.get("seeds") != seeds:
         raise SweepError(
             f"{run_dir} was run with {summary.get('seeds')} seeds, not {seeds}: pass the same "
             f"SEEDS, or another OUT for a new sweep"
         )
     if summary.get("status") == "completed" and summary.get("iterations_done", 0) >= iterations:
-        return "done"
+        return Status.DONE
     # A killed run never wrote its iterations to summary.json ("running"): its checkpoints
     # are what it has done.
     from emgail_jax.host.checkpoints import latest_iteration
 
-    return "resume" if latest_iteration(run_dir) else "new"
+    return Status.RESUME if latest_iteration(run_dir) else Status.NEW
 
 
 def estimate_seconds(cell: Cell, seeds: int, iterations: int, measured: dict) -> float:
@@ -379,15 +387,15 @@ def train_cell(
     status = cell_status(run_dir, seeds, iterations)
     new_args = [*cell.run_args(settings, out), "--seeds", str(seeds)]
     new_args += ["--iterations", str(iterations)]
-    if status == "damaged":
+    if status == Status.DAMAGED:
         status = repair_cell(cell.name, run_dir, new_args, log_path)
-    if status == "resume":
+    if status == Status.RESUME:
         args = ["--resume", run_dir, "--iterations", str(iterations)]
-    elif status == "new":
+    elif status == Status.NEW:
         args = list(new_args)
         write_demonstrations(cell, out)
         args += ["--out", run_dir, "--overwrite"]
-    if status != "done":
+    if status != Status.DONE:
         if cell.shares_programs:
             code = run_in_process([*args, "--quiet"], log_path)
         else:
@@ -401,7 +409,7 @@ def train_cell(
             raise SweepError(f"re-optimising {cell.name} failed (exit {code}): see {log_path}")
 
 
-def repair_cell(name: str, run_dir: str, run_args: list[str], log_path: str) -> str:
+def repair_cell(name: str, run_dir: str, run_args: list[str], log_path: str) -> Status:
     """A cell whose ``summary.json`` is damaged: the file is kept beside as
     ``summary.json.damaged``, said so on stderr and in the cell's log, and the cell continues
     from its last good checkpoint under a summary rebuilt from its own options (``run_args``);
@@ -424,7 +432,7 @@ def repair_cell(name: str, run_dir: str, run_args: list[str], log_path: str) -> 
     print(message, file=sys.stderr)
     with open(log_path, "a") as log:
         log.write(f"\n{message}\n")
-    return "new" if done is None else "resume"
+    return Status.NEW if done is None else Status.RESUME
 
 
 def write_demonstrations(cell: Cell, out: str) -> None:
@@ -734,7 +742,7 @@ def collect(out: str, cells: list[Cell], seeds: int, iterations: int) -> Results
     results = {}
     for cell in cells:
         run_dir = os.path.join(out, "runs", cell.name)
-        if cell_status(run_dir, seeds, iterations) == "done":
+        if cell_status(run_dir, seeds, iterations) == Status.DONE:
             results[cell] = read_cell_result(cell, run_dir)
     return Results(results)
 
@@ -1128,12 +1136,12 @@ class Plan:
     """The cells a sweep covers, where each stands, and the seconds each still needs."""
 
     cells: list[Cell]
-    statuses: dict[Cell, str]  # cell_status
+    statuses: dict[Cell, Status]
     estimates: dict[Cell, float]  # of the cells to run alone
 
     @property
     def todo(self) -> list[Cell]:
-        return [cell for cell in self.cells if self.statuses[cell] != "done"]
+        return [cell for cell in self.cells if self.statuses[cell] != Status.DONE]
 
 
 def plan_sweep(args: argparse.Namespace) -> Plan:
@@ -1153,7 +1161,7 @@ def plan_sweep(args: argparse.Namespace) -> Plan:
     estimates = {
         c: estimate_seconds(c, args.seeds, args.iterations, measured)
         for c in cells
-        if statuses[c] != "done"
+        if statuses[c] != Status.DONE
     }
     return Plan(cells, statuses, estimates)
 
@@ -1177,7 +1185,7 @@ def print_plan(console, plan: Plan, args: argparse.Namespace) -> None:
     console.print(f"{len(plan.todo)} cells to run, estimated {total} on this machine")
 
 
-def _describe(on_ray: bool, statuses: dict[Cell, str], remaining: list[Cell]) -> str:
+def _describe(on_ray: bool, statuses: dict[Cell, Status], remaining: list[Cell]) -> str:
     """The progress bar's text: the cell in progress, or how many run on Ray."""
     if on_ray:  # the cells run at once, as the cluster has room
         return f"{len(remaining)} cells on Ray"
