@@ -947,6 +947,16 @@ def _save(fig, out: str, name: str) -> str:
     return name
 
 
+def _save_drawn(fig, out: str, name: str, legend_on, **legend) -> str | None:
+    """``fig`` saved as ``name`` with a legend on the axes ``legend_on``, if any of its axes
+    has a line (a point finished); otherwise dropped."""
+    if not any(ax.lines for ax in fig.axes):
+        _pyplot().close(fig)
+        return None
+    legend_on.legend(**legend)
+    return _save(fig, out, name)
+
+
 def _band(ax, x, mean, std, **style) -> None:
     order = np.argsort(x)
     x, mean, std = (np.asarray(v)[order] for v in (x, mean, std))
@@ -987,11 +997,7 @@ def draw_fig4a(out: str, separability: SeparabilityTable) -> str | None:
             mean = [r["separability"] for r in rows]
             _band(ax, ks_, mean, [r["separability_std"] for r in rows], label=env)
     ax.set(xlabel="number of intentions", ylabel="separability", ylim=(0, 1.05), xticks=(2, 3, 4))
-    if not ax.lines:
-        _pyplot().close(fig)
-        return None
-    ax.legend()
-    return _save(fig, out, "fig4a.png")
+    return _save_drawn(fig, out, "fig4a.png", ax)
 
 
 def draw_fig4b(out: str, separability: SeparabilityTable) -> str | None:
@@ -1022,13 +1028,10 @@ def draw_erd_against_separability(
         points = [(row["separability"], erd) for row, erd in found if row is not None]
         if points:
             _erd_band(ax, points, algo)
-    if not ax.lines:
-        _pyplot().close(fig)
-        return None
     ax.set(xlabel="separability", title=title)
     _erd_axis(ax)
-    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1))  # clear of the lines
-    return _save(fig, out, name)
+    # The legend beside the axes, clear of the lines.
+    return _save_drawn(fig, out, name, ax, loc="upper left", bbox_to_anchor=(1.02, 1))
 
 
 def draw_fig6(out: str, results: Results) -> str | None:
@@ -1044,11 +1047,7 @@ def draw_fig6(out: str, results: Results) -> str | None:
                 _erd_band(ax, points, algo)
         ax.set(title=env, xlabel="number of intentions", xticks=(1, *ks))
         _erd_axis(ax)
-    if not any(ax.lines for ax in axes):
-        _pyplot().close(fig)
-        return None
-    axes[0].legend()
-    return _save(fig, out, "fig6.png")
+    return _save_drawn(fig, out, "fig6.png", axes[0])
 
 
 def draw_figures(out: str, results: Results, separability: SeparabilityTable) -> list[str]:
