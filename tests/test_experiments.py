@@ -211,6 +211,27 @@ def test_sweep_table3_takes_each_column_from_its_cells(tmp_path):
     assert columns[names.index("hopper-3")] == "—"
 
 
+def test_sweep_draws_the_figures_whose_cells_have_finished(tmp_path):
+    """Each figure takes its cells by field: swimmer's default cells alone draw Figure 6, and
+    with the separability of their data Figures 4a and 5b; the driver's none."""
+    sweep = _load("sweep")
+    Cell = sweep.Cell
+    found = [
+        sweep.CellResult(Cell("swimmer", k, algo), np.asarray([0.2, 0.4]), None, 0, 1.0, None)
+        for k in (1, 2)
+        for algo in sweep.ALGOS
+        if k > 1 or algo == "gail"
+    ]
+    results = sweep.Results({r.cell: r for r in found})
+    empty = sweep.SeparabilityTable({})
+    assert sweep.draw_figures(str(tmp_path), results, empty) == ["fig6.png"]
+    row = {"separability": 0.5, "separability_std": 0.1}
+    known = sweep.SeparabilityTable({"swimmer-2": row})
+    written = sweep.draw_figures(str(tmp_path), results, known)
+    assert written == ["fig4a.png", "fig5b.png", "fig6.png"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == written
+
+
 def test_sweep_cell_status_reads_the_run_directory(tmp_path):
     sweep = _load("sweep")
 
