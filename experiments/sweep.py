@@ -40,6 +40,7 @@ from collections.abc import Callable, Iterator
 
 import numpy as np
 
+from emgail_jax.host.final_results import FinalResults
 from emgail_jax.host.run_spec import RunError, read_summary
 
 ROBOTICS_INTENTIONS = {
@@ -750,8 +751,8 @@ def collect(out: str, cells: list[Cell], seeds: int, iterations: int) -> Results
 def read_cell_result(cell: Cell, run_dir: str) -> CellResult:
     """A finished cell's final numbers, from its ``summary.json`` and ``reoptimize.json``."""
     summary = read_summary(run_dir)
-    final = summary["final"]
-    accuracy = final.get("cluster_accuracy")
+    final = FinalResults.from_summary(summary)
+    accuracy = final.cluster_accuracy
     reoptimized = None
     path = os.path.join(run_dir, "reoptimize.json")
     if os.path.exists(path):
@@ -762,13 +763,13 @@ def read_cell_result(cell: Cell, run_dir: str) -> CellResult:
     timings = summary["timings"]
     return CellResult(
         cell=cell,
-        erd=np.asarray(final["erd"], float),
+        erd=np.asarray(final.erd, float),
         accuracy=None if accuracy is None else np.asarray(accuracy, float),
         parameters=int(summary["parameters"]["total"]),
         seconds_per_iteration=timings["train_time_s"] / timings["iterations"],
         reoptimized_erd=reoptimized,
-        intentions_chosen=final.get("intentions_chosen"),
-        intentions_held=final.get("intentions_held"),
+        intentions_chosen=final.intentions_chosen,
+        intentions_held=final.intentions_held,
     )
 
 
