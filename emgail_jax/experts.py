@@ -387,7 +387,7 @@ def export_minari(env, out: str | None) -> int:
     return 0
 
 
-def main(argv=None) -> int:
+def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="python -m emgail_jax.experts", description=__doc__.split("\n")[0]
     )
@@ -416,7 +416,11 @@ def main(argv=None) -> int:
         help="write the shipped demonstrations as Minari datasets, one per intention",
     )
     parser.add_argument("--quiet", action="store_true")
-    args = parser.parse_args(argv)
+    return parser.parse_args(argv)
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
     if args.seeds < 1 or (args.iterations is not None and args.iterations < 1):
         print("error: --seeds and --iterations must be at least 1", file=sys.stderr)
         return 2
@@ -438,21 +442,11 @@ def main(argv=None) -> int:
     if os.path.exists(meta_path):
         with open(meta_path) as f:
             meta = json.load(f)
-
-    if args.evaluate or args.demos_only:
-        try:
-            experts = load(env, root)
-        except ExpertError as error:
-            print(f"error: {error}", file=sys.stderr)
-            return 2
-    else:
-        try:
-            only = _intention_indices(env, args.only)
-            kept = load(env, root) if only is not None else None
-        except (ExpertError, ValueError) as error:
-            print(f"error: {error}", file=sys.stderr)
-            return 2
-        experts, meta = _train_and_save(env, spec, args, root, meta, only=only, kept=kept)
+    try:
+        experts, meta = _experts(env, spec, args, root, meta)
+    except ExpertError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
     policy = make_policy(env, experts)
     results = quality(env, policy, key_quality)
     print_quality(env.name, results)
@@ -463,6 +457,19 @@ def main(argv=None) -> int:
         records.write_json(meta_path, meta)
         print(f"wrote {len(demos)} pairs to {path}; expert returns {demos.expert_returns}")
     return 0
+
+
+def _experts(env, spec: ExpertSpec, args: argparse.Namespace, root: str, meta: dict):
+    """``(experts, meta)``: the saved experts (``--evaluate``, ``--demos-only``) or new ones,
+    trained and saved (those of ``--only``, the others kept)."""
+    if args.evaluate or args.demos_only:
+        return load(env, root), meta
+    try:
+        only = _intention_indices(env, args.only)
+    except ValueError as error:  # an unknown intention name
+        raise ExpertError(str(error)) from None
+    kept = load(env, root) if only is not None else None
+    return _train_and_save(env, spec, args, root, meta, only=only, kept=kept)
 
 
 if __name__ == "__main__":

@@ -56,57 +56,47 @@ def _parser() -> tuple[argparse.ArgumentParser, tuple[str, ...]]:
     def run_option(*flags, **kwargs) -> None:
         defines_run.append(defining.add_argument(*flags, **kwargs).dest)
 
-    run_option("--env", default=None, help="env name (default: driver)")
+    run_option("--env", help="env name (default: driver)")
     run_option(
         "--intentions",
         type=_intention_count,
-        default=None,
         help="K: learn the env's first K intentions (default: all), or auto: choose K from the "
         "demonstrations (starting from --max-intentions, with the mixture prior)",
     )
     run_option(
         "--max-intentions",
         type=int,
-        default=None,
         help="with --intentions auto: the most intentions it may choose (default: the env's all)",
     )
-    run_option("--algo", default=None, choices=NAMES, help="default: emgail")
-    run_option(
-        "--seeds", type=int, default=None, help=f"seeds in parallel (default {DEFAULT_SEEDS})"
-    )
-    parser.add_argument("--iterations", type=int, default=None, help="total (default 400)")
-    parser.add_argument(
-        "--out", default=None, help="output directory (default: a new runs/ENV-ALGO[-N])"
-    )
-    parser.add_argument("--resume", default=None, metavar="DIR", help="continue the run in DIR")
+    run_option("--algo", choices=NAMES, help="default: emgail")
+    run_option("--seeds", type=int, help=f"seeds in parallel (default {DEFAULT_SEEDS})")
+    parser.add_argument("--iterations", type=int, help="total (default 400)")
+    parser.add_argument("--out", help="output directory (default: a new runs/ENV-ALGO[-N])")
+    parser.add_argument("--resume", metavar="DIR", help="continue the run in DIR")
     run_option(
         "--demos",
         nargs="+",
-        default=None,
         metavar="SOURCE",
         help="demonstrations: an .npz file, a Minari dataset (minari:ID or its directory), or "
         "several of them, one intention each (README, Demonstrations format)",
     )
-    run_option("--radius", type=float, default=None, help="driver: radius of path 2")
-    run_option("--seed", type=int, default=None, help="first training seed")
-    run_option("--demo-seed", type=int, default=None, help="driver: demonstration seed")
-    run_option("--info-weight", type=float, default=None, help="infogail: lambda")
+    run_option("--radius", type=float, help="driver: radius of path 2")
+    run_option("--seed", type=int, help="first training seed")
+    run_option("--demo-seed", type=int, help="driver: demonstration seed")
+    run_option("--info-weight", type=float, help="infogail: lambda")
     run_option(
         "--random-episodes",
         type=int,
-        default=None,
         help="episodes of random actions that set ERD's random reference "
         f"(default {DEFAULT_RANDOM_EPISODES})",
     )
     run_option(
         "--intention-input",
-        default=None,
         choices=INTENTION_INPUTS,
         help="one network head per intention (default) or the intention as a one-hot input",
     )
     run_option(
         "--responsibilities",
-        default=None,
         choices=RESPONSIBILITIES,
         help="E-step: the posterior of each pair's whole demonstration (default; centred over "
         "the demonstrations with trajectory-centered), or of each pair alone (the paper's "
@@ -114,14 +104,12 @@ def _parser() -> tuple[argparse.ArgumentParser, tuple[str, ...]]:
     )
     run_option(
         "--prior",
-        default=None,
         choices=PRIORS,
         help="E-step prior over the intentions: uniform (default, the paper's) or mixture "
         "weights estimated from the demonstrations (for intentions in unequal shares)",
     )
     run_option(
         "--reseed",
-        default=None,
         choices=("on", "off"),
         help="re-seed an intention that holds no demonstration (default on; "
         "docs/no-empty-intention.md)",
@@ -135,46 +123,40 @@ def _parser() -> tuple[argparse.ArgumentParser, tuple[str, ...]]:
         help="any other hyper-parameter of emgail_jax.method.config (its flat key), e.g. --set "
         "discriminator_steps=5 --set trpo.cg_damping=0 (repeatable)",
     )
-    run_option("--num-envs", type=int, default=None, help="envs per intention")
-    run_option("--rollout-length", type=int, default=None, help="steps per rollout")
+    run_option("--num-envs", type=int, help="envs per intention")
+    run_option("--rollout-length", type=int, help="steps per rollout")
     run_option(
         "--eval-every",
         type=int,
-        default=None,
         help="evaluation episodes every N iterations and in the last 10 (default 10)",
     )
-    run_option("--chunk-size", type=int, default=None, help="iterations per call")
+    run_option("--chunk-size", type=int, help="iterations per call")
     run_option(
         "--seed-batch",
         type=int,
-        default=None,
         help="seeds vmapped together on a device (default: 1 on CPU, all on GPU/TPU)",
     )
     parser.add_argument(
         "--checkpoint-every",
         type=int,
-        default=None,
         help=f"iterations between checkpoints (default {DEFAULT_CHECKPOINT_EVERY})",
     )
     parser.add_argument(
         "--snapshot-every",
         type=int,
-        default=None,
         help="iterations between snapshots of the learned networks, all kept (default "
         f"{DEFAULT_SNAPSHOT_EVERY}; 0: none)",
     )
     parser.add_argument("--overwrite", action="store_true", help="replace an earlier run")
     parser.add_argument(
         "--coordinator",
-        default=None,
         metavar="HOST:PORT",
         help="a run over several processes or hosts: process 0's address (jax.distributed)",
     )
-    parser.add_argument("--num-processes", type=int, default=None, help="with --coordinator")
-    parser.add_argument("--process-id", type=int, default=None, help="with --coordinator")
+    parser.add_argument("--num-processes", type=int, help="with --coordinator")
+    parser.add_argument("--process-id", type=int, help="with --coordinator")
     parser.add_argument(
         "--wandb",
-        default=None,
         metavar="PROJECT",
         help="also log the metrics, config and final summary to this Weights & Biases project "
         "(needs the extra: pip install 'emgail-jax[wandb]'; WANDB_MODE=offline keeps it local)",
@@ -203,16 +185,7 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         "snapshot_every": args.snapshot_every,
     }
     if args.resume is not None:
-        given = [f"--{name.replace('_', '-')}" for name in run_options() if getattr(args, name)]
-        if given or args.out or args.overwrite:
-            dropped = ", ".join(given) or "--out/--overwrite"
-            raise RunError(
-                f"--resume continues a run with its own settings; drop {dropped} "
-                "(only --iterations, the new total, may be given)"
-            )
-        spec = RunSpec.from_summary(read_summary(args.resume))
-        config = _with_options(spec.config, continued)
-        return dataclasses.replace(spec, config=config)
+        return _resumed_spec(args, continued)
 
     env = args.env or "driver"
     # The run's own counts; the config checks its hyper-parameters itself.
@@ -258,6 +231,20 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         config=config,
         random_episodes=args.random_episodes or DEFAULT_RANDOM_EPISODES,
     )
+
+
+def _resumed_spec(args: argparse.Namespace, continued: dict) -> RunSpec:
+    """The spec of the run ``--resume`` continues, with the ``continued`` options given."""
+    given = [f"--{name.replace('_', '-')}" for name in run_options() if getattr(args, name)]
+    if given or args.out or args.overwrite:
+        dropped = ", ".join(given) or "--out/--overwrite"
+        raise RunError(
+            f"--resume continues a run with its own settings; drop {dropped} "
+            "(only --iterations, the new total, and the --checkpoint-every and --snapshot-every "
+            "cadence may be given)"
+        )
+    spec = RunSpec.from_summary(read_summary(args.resume))
+    return dataclasses.replace(spec, config=_with_options(spec.config, continued))
 
 
 def _with_options(config, options: dict):
