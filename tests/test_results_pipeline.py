@@ -20,6 +20,7 @@ from emgail_jax.host.results_pipeline import (
 )
 from emgail_jax.host.saved_run import SavedRun
 from emgail_jax.method.batches import DemonstrationPairs
+from emgail_jax.method.config import ResponsibilityMode
 from emgail_jax.method.metrics import normalized_erd
 from emgail_jax.method.posterior import Responsibilities
 from emgail_jax.method.training import clustering_metrics, responsibilities_of, seed_state
@@ -48,7 +49,7 @@ def test_env_steps_count_rollouts_and_evaluations():
     returns = np.full((2, 5, 3), np.nan)
     returns[:, [1, 4]] = 1.0
     env = types.SimpleNamespace(num_intentions=3, episode_length=100)
-    config = types.SimpleNamespace(num_envs=4, rollout_length=25)
+    config = types.SimpleNamespace(rollout=types.SimpleNamespace(num_envs=4, rollout_length=25))
     steps = env_steps({"eval/returns": returns}, env, config)
     assert steps == 3 * (4 * 25 * 5 + 4 * 4 * 25 * 2) * 2
 
@@ -116,10 +117,10 @@ def test_kept_clustering_is_each_seeds_clustering():
         pair_scores=scores,
     )
     kept = np.array([[True, False, True], [True, True, True]])
-    got = kept_clustering(responsibilities, kept, demos, "trajectory")
+    got = kept_clustering(responsibilities, kept, demos, ResponsibilityMode.TRAJECTORY)
     for seed in range(seeds):
         one = jax.tree.map(lambda x, s=seed: x[s], responsibilities)
-        expected = clustering_metrics(one, demos, k, "trajectory", kept[seed])
+        expected = clustering_metrics(one, demos, k, ResponsibilityMode.TRAJECTORY, kept[seed])
         assert got["cluster_accuracy"][seed] == float(expected["eval/cluster_accuracy"])
         trajectory = float(expected["eval/trajectory_cluster_accuracy"])
         assert got["trajectory_cluster_accuracy"][seed] == trajectory
@@ -134,10 +135,10 @@ def test_final_responsibilities_are_each_seeds_e_step(saved):
     """One compiled call over the seeds: each seed's responsibilities as training computes
     them for one seed alone (the same labels; gamma to float rounding)."""
     pairs = saved.demonstration_pairs
-    every = final_responsibilities(saved.networks, saved.config, saved.state, pairs)
+    every = final_responsibilities(saved.networks, saved.config.method, saved.state, pairs)
     for seed in range(saved.spec.seeds):
         state = seed_state(saved.state, seed)
-        alone = responsibilities_of(saved.networks, saved.config, state, pairs)
+        alone = responsibilities_of(saved.networks, saved.config.method, state, pairs)
         np.testing.assert_allclose(every.gamma[seed], alone.gamma, rtol=1e-5, atol=1e-6)
         np.testing.assert_array_equal(every.pair_labels[seed], alone.pair_labels)
         np.testing.assert_array_equal(every.trajectory_labels[seed], alone.trajectory_labels)
