@@ -59,14 +59,12 @@ class HalfCheetahEnv(MjxEnv):
     def observation_size(self) -> int:
         return 17
 
-    def step(self, state: State, action: jax.Array) -> State:
-        action, data = self.advance(state, action)
-        x_velocity = self.forward_velocity(state.physics, data)
-        pitch_rate = (data.qpos[2] - state.physics.qpos[2]) / self.dt
+    def rewards(self, before, after, action: jax.Array) -> jax.Array:
+        x_velocity = self.forward_velocity(before, after)
+        pitch_rate = (after.qpos[2] - before.qpos[2]) / self.dt
         flip = -self.flip_move_weight * jnp.abs(x_velocity) + self.flip_weight * pitch_rate
         reward = jnp.stack([x_velocity, -x_velocity, flip])[: self.num_intentions]
-        reward = reward - self.ctrl_cost * jnp.sum(action**2)
-        return state.replace(physics=data, obs=self._obs(data), reward=reward, done=jnp.zeros(()))
+        return reward - self.ctrl_cost * jnp.sum(action**2)
 
     def trace(self, state: State) -> dict[str, jax.Array]:
         """The root's x position and the torso's unwrapped pitch (a flip turns it by 2π)."""

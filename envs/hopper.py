@@ -33,7 +33,6 @@ import jax
 import jax.numpy as jnp
 import mujoco
 
-from envs.core import State
 from envs.mjx_base import MjxEnv, Solver
 
 
@@ -61,14 +60,14 @@ class HopperEnv(MjxEnv):
     def observation_size(self) -> int:
         return 11
 
-    def step(self, state: State, action: jax.Array) -> State:
-        action, data = self.advance(state, action)
-        x_velocity = self.forward_velocity(state.physics, data)
+    def rewards(self, before, after, action: jax.Array) -> jax.Array:
+        x_velocity = self.forward_velocity(before, after)
         common = self.healthy_reward - self.ctrl_cost * jnp.sum(action**2)
         reward = jnp.stack([x_velocity, -x_velocity, -jnp.abs(x_velocity)])
-        reward = reward[: self.num_intentions] + common
-        done = 1.0 - self.is_healthy(data.qpos, data.qvel)
-        return state.replace(physics=data, obs=self._obs(data), reward=reward, done=done)
+        return reward[: self.num_intentions] + common
+
+    def terminated(self, data) -> jax.Array:
+        return 1.0 - self.is_healthy(data.qpos, data.qvel)
 
     def is_healthy(self, qpos: jax.Array, qvel: jax.Array) -> jax.Array:
         """``[]`` 1.0 while gym's Hopper would go on (see the module docstring), else 0.0."""

@@ -223,10 +223,32 @@ class MjxEnv(Env):
         )
         return self.initial_state(self.physics_reset(qpos, qvel))
 
+    def step(self, state: State, action: jax.Array) -> State:
+        """One env step: the physics advanced by the clipped ``action``, then the task's
+        :meth:`rewards` and :meth:`terminated` of the step."""
+        action, data = self.advance(state, action)
+        return state.replace(
+            physics=data,
+            obs=self._obs(data),
+            reward=self.rewards(state.physics, data, action),
+            done=self.terminated(data),
+        )
+
     def advance(self, state: State, action: jax.Array) -> tuple[jax.Array, mjx.Data]:
         """The executed (clipped) action and the physics one env step later."""
         action = self.clip_action(action)
         return action, self.physics_step(state.physics, action)
+
+    # ---- the task ------------------------------------------------------------------------
+
+    def rewards(self, before: mjx.Data, after: mjx.Data, action: jax.Array) -> jax.Array:
+        """``[K]`` the reward of every learned intention for the step from ``before`` to
+        ``after`` with the executed ``action``."""
+        raise NotImplementedError
+
+    def terminated(self, data: mjx.Data) -> jax.Array:
+        """``[]`` 1.0 where the episode ends in ``data`` (default: never)."""
+        return jnp.zeros(())
 
     # ---- physics -------------------------------------------------------------------------
 

@@ -104,13 +104,14 @@ class ReacherEnv(MjxEnv):
         # The observation holds the fingertip's position: the kinematics give it.
         return self.initial_state(self.physics_kinematics(data))
 
-    def step(self, state: State, action: jax.Array) -> State:
-        action, data = self.advance(state, action)
+    def advance(self, state: State, action: jax.Array):
+        action, data = super().advance(state, action)
         # mj_step leaves positions of the state before the last integration: recompute them.
-        data = self.physics_kinematics(data)
-        distance = jnp.linalg.norm(self._fingertip_to_balls(data), axis=-1)
-        reward = -distance[: self.num_intentions] - self.ctrl_cost * jnp.sum(action**2)
-        return state.replace(physics=data, obs=self._obs(data), reward=reward, done=jnp.zeros(()))
+        return action, self.physics_kinematics(data)
+
+    def rewards(self, before, after, action: jax.Array) -> jax.Array:
+        distance = jnp.linalg.norm(self._fingertip_to_balls(after), axis=-1)
+        return -distance[: self.num_intentions] - self.ctrl_cost * jnp.sum(action**2)
 
     def trace(self, state: State) -> dict[str, jax.Array]:
         distance = jnp.linalg.norm(self._fingertip_to_balls(state.physics), axis=-1)

@@ -25,7 +25,6 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from envs.core import State
 from envs.mjx_base import MjxEnv, Solver
 
 
@@ -46,12 +45,10 @@ class SwimmerEnv(MjxEnv):
     def observation_size(self) -> int:
         return 8
 
-    def step(self, state: State, action: jax.Array) -> State:
-        action, data = self.advance(state, action)
-        x_velocity = self.forward_velocity(state.physics, data)
+    def rewards(self, before, after, action: jax.Array) -> jax.Array:
+        x_velocity = self.forward_velocity(before, after)
         ctrl_cost = self.ctrl_cost * jnp.sum(action**2)
-        reward = jnp.stack([x_velocity, -x_velocity])[: self.num_intentions] - ctrl_cost
-        return state.replace(physics=data, obs=self._obs(data), reward=reward, done=jnp.zeros(()))
+        return jnp.stack([x_velocity, -x_velocity])[: self.num_intentions] - ctrl_cost
 
     def _obs(self, data) -> jax.Array:
         return jnp.concatenate([data.qpos[2:], data.qvel])

@@ -159,20 +159,16 @@ def gaussian_mixture_accuracies(
 
 
 def separability(
-    observations: np.ndarray,
-    actions: np.ndarray,
-    labels: np.ndarray,
-    k: int | None = None,
-    seeds: tuple[int, ...] = (0, 1, 2, 3, 4),
+    observations: np.ndarray, actions: np.ndarray, labels: np.ndarray, **mixture
 ) -> tuple[float, float]:
     """How well a Gaussian mixture separates the intentions of expert pairs: its clustering
-    accuracy (:func:`gaussian_mixture_accuracies`) normalised so that chance (1/K) is 0 and
-    perfect is 1. Returns ``(mean, std)`` over the mixture seeds.
+    accuracy (:func:`gaussian_mixture_accuracies`, which takes ``mixture``'s ``k`` and
+    ``seeds``) normalised so that chance (1/K) is 0 and perfect is 1. Returns ``(mean, std)``
+    over the mixture seeds.
     """
-    k = k or int(np.max(labels)) + 1
-    scores = separability_of(
-        gaussian_mixture_accuracies(observations, actions, labels, k, seeds), k
-    )
+    k = mixture.pop("k", None) or int(np.max(labels)) + 1
+    accuracies = gaussian_mixture_accuracies(observations, actions, labels, k, **mixture)
+    scores = separability_of(accuracies, k)
     return float(np.mean(scores)), float(np.std(scores))
 
 
