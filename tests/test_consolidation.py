@@ -1,5 +1,7 @@
 """The consolidated reward: the discriminator refitted against every snapshot's policy."""
 
+import shutil
+
 import jax
 import numpy as np
 import pytest
@@ -41,9 +43,11 @@ def test_the_refit_lowers_the_loss_and_changes_only_the_discriminator(saved):
     assert not same(parameters["discriminator"], original["discriminator"])
 
 
-def test_a_run_without_snapshots_is_a_clear_error(saved, monkeypatch):
+def test_a_run_without_snapshots_is_a_clear_error(tiny_run, tmp_path):
     from emgail_jax.host.checkpoints import CheckpointError
 
-    monkeypatch.setattr(consolidation.checkpoints, "snapshot_iterations", lambda run_dir: [])
+    copy = tmp_path / "run"
+    shutil.copytree(tiny_run, copy)
+    shutil.rmtree(copy / "snapshots")  # as a run with --snapshot-every 0 leaves it
     with pytest.raises(CheckpointError, match="kept no snapshots"):
-        consolidation.snapshot_policy_samples(saved, 0, jax.random.PRNGKey(0))
+        consolidation.snapshot_policy_samples(SavedRun.open(str(copy)), 0, jax.random.PRNGKey(0))

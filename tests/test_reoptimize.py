@@ -61,18 +61,30 @@ def test_the_run_matching_is_the_last_evaluation_at_or_before_the_iteration(save
         )
 
 
-def test_the_baseline_is_read_from_the_cache_the_second_time(tiny_run, reoptimized, monkeypatch):
+def test_the_baseline_is_read_from_the_cache_the_second_time(tiny_run, reoptimized):
+    """A second reoptimize reads the true-reward baseline the first stored: with its bars
+    flipped in the cache file, the flipped bars come back (the same baseline trained again,
+    from the same keys, would give the first run's)."""
     first, cache = reoptimized
-    trained = []
-    original = reoptimize.train_fresh
-    monkeypatch.setattr(
-        reoptimize, "train_fresh", lambda *a, **k: trained.append(a[-2]) or original(*a, **k)
-    )
+    path = first["baseline"]["cache"]
+    with open(path) as f:
+        stored = json.load(f)
+    marked = {
+        **stored,
+        "success": [{**q, "meets_bar": not q["meets_bar"]} for q in stored["success"]],
+    }
+    with open(path, "w") as f:
+        json.dump(marked, f)
     out = tiny_run / "again.json"
     args = [str(tiny_run), "--iterations", "2", "--cache", str(cache), "--out", str(out)]
-    assert reoptimize.main([*args, "--quiet"]) == 0
-    assert trained == ["re-optimising"]  # the learned rewards only
+    try:
+        assert reoptimize.main([*args, "--quiet"]) == 0
+    finally:
+        with open(path, "w") as f:
+            json.dump(stored, f)
     again = json.loads(out.read_text())
+    flipped = [not met for met in first["baseline"]["meets_bar"]]
+    assert again["baseline"]["meets_bar"] == flipped
     assert again["baseline"]["erd_curve"] == first["baseline"]["erd_curve"]
     assert again["erd"] == first["erd"]  # the same keys: the same fresh policies
 
