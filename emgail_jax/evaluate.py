@@ -22,9 +22,23 @@ import csv
 import os
 import sys
 
+import jax
+import jax.numpy as jnp
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
-from emgail_jax.host import jax_setup
+import envs
+from emgail_jax.host import jax_setup, records
+from emgail_jax.host.checkpoints import CheckpointError
+from emgail_jax.host.demonstration_files import DemonstrationError
+from emgail_jax.host.run_spec import RunError
+from emgail_jax.host.saved_run import SavedRun
+from emgail_jax.host.schedule import FINAL_WINDOW
+from emgail_jax.method.choosing import kept_share
+from emgail_jax.method.metrics import normalized_erd
+from emgail_jax.method.rollout import episodes as run_episodes
 
 COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red")
 EVALUATION_SEED = 12345  # the episodes' key: every evaluation of a run sees the same starts
@@ -32,12 +46,6 @@ EVALUATION_SEED = 12345  # the episodes' key: every evaluation of a run sees the
 
 def rollouts(run, seed: int, episodes: int, key):
     """Deterministic episodes of every learned intention: ``(returns [K, E, K], alive, trace)``."""
-    import jax
-    import jax.numpy as jnp
-
-    import envs
-    from emgail_jax.method.rollout import episodes as run_episodes
-
     env = envs.EpisodeWrapper(run.problem.env)
     k = run.num_intentions
     policy = run.policy(seed)
@@ -48,12 +56,6 @@ def rollouts(run, seed: int, episodes: int, key):
 
 def expert_rollouts(run, episodes: int, key):
     """The experts' episodes, when an expert can act in the env; else None."""
-    import jax
-    import jax.numpy as jnp
-
-    import envs
-    from emgail_jax.method.rollout import episodes as run_episodes
-
     raw = run.problem.env
     env = envs.EpisodeWrapper(raw)
     k = raw.num_intentions
@@ -75,10 +77,6 @@ def expert_rollouts(run, episodes: int, key):
 def score(run, seed: int, returns: np.ndarray) -> dict:
     """ERD with the best matching, and the clustering accuracies as training measures them
     (with the Hungarian mapping of true intentions to clusters)."""
-    from scipy.optimize import linear_sum_assignment
-
-    from emgail_jax.method.metrics import normalized_erd
-
     demos = run.problem.demos
     mean_returns = returns.mean(1)  # [K learned, K env]
     in_use = run.intentions_in_use(seed)
@@ -111,8 +109,6 @@ def score(run, seed: int, returns: np.ndarray) -> dict:
 
 
 def plot_learning_curves(run_dir: str, path: str) -> None:
-    import matplotlib.pyplot as plt
-
     with open(os.path.join(run_dir, "metrics.csv")) as f:
         rows = list(csv.DictReader(f))
     seeds = sorted({int(r["seed"]) for r in rows})
@@ -137,11 +133,6 @@ def plot_intention_weights(run, path: str) -> None:
     """Each seed's mixture weights against the iteration, with the share an intention needs to
     be kept when K is chosen from the data: how ``--intentions auto`` decided. An intention
     retired at the end (too light, or a duplicate the seeds' consensus merged) is dashed."""
-    import matplotlib.pyplot as plt
-
-    from emgail_jax.host.seed_runner import FINAL_WINDOW
-    from emgail_jax.method.choosing import kept_share
-
     weights = np.asarray(run.history["posterior/intention_weights"])  # [S, L, K]
     seeds, iterations, k = weights.shape
     fig, axes = plt.subplots(1, seeds, figsize=(3.2 * seeds, 3), sharey=True, squeeze=False)
@@ -151,7 +142,7 @@ def plot_intention_weights(run, path: str) -> None:
             style = "-" if kept is None or kept[i] else "--"
             ax.plot(np.arange(1, iterations + 1), weights[seed, :, i], color=COLORS[i],
                     ls=style, label=f"learned {i}", lw=1.2)  # fmt: skip
-        if run.config.choose_intentions:
+        if run.config.method.choose_intentions:
             ax.axhline(kept_share(run.demonstration_pairs.episodes), color="k", ls=":", lw=1,
                        label="kept above")  # fmt: skip
             ax.axvspan(max(iterations - FINAL_WINDOW, 0), iterations, color="0.9")
@@ -170,8 +161,6 @@ def plot_intention_weights(run, path: str) -> None:
 
 
 def plot_driver_paths(run, trace, alive, matching, path: str) -> None:
-    import matplotlib.pyplot as plt
-
     env = run.problem.env
     demos = run.problem.demos
     fig, ax = plt.subplots(figsize=(6, 5))
@@ -199,8 +188,6 @@ def plot_driver_paths(run, trace, alive, matching, path: str) -> None:
 
 
 def plot_traces(run, trace, alive, expert, matching, path: str) -> None:
-    import matplotlib.pyplot as plt
-
     names = list(trace)
     k = run.num_intentions
     fig, axes = plt.subplots(1, len(names), figsize=(5 * len(names), 3.5), squeeze=False)
@@ -275,8 +262,6 @@ def write_figures(
 ) -> list[str]:
     """The learning curves, and the paths (driver) or traces (MJX, beside ``episodes`` of the
     experts' own) of ``seed``, whose rollouts and scores are ``seed_results``."""
-    import jax
-
     os.makedirs(out, exist_ok=True)
     written = [os.path.join(out, "learning_curves.png")]
     plot_learning_curves(run_dir, written[-1])
@@ -306,18 +291,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", default=None, help="figure directory (default RUN_DIR/figures)")
     args = parser.parse_args(argv)
     jax_setup.setup(host_devices=1)
-
-    import jax
-    import matplotlib
-
     matplotlib.use("Agg")
-
-    import envs
-    from emgail_jax.host import records
-    from emgail_jax.host.checkpoints import CheckpointError
-    from emgail_jax.host.demonstration_files import DemonstrationError
-    from emgail_jax.host.run_spec import RunError
-    from emgail_jax.host.saved_run import SavedRun
 
     try:
         run = SavedRun.open(args.run_dir)
@@ -327,7 +301,7 @@ def main(argv=None) -> int:
         return 2
 
     env = run.problem.env
-    print(f"{run.config.algo} on {env.name} (K={run.num_intentions}), iteration {run.iteration}, "
+    print(f"{run.spec.algo} on {env.name} (K={run.num_intentions}), iteration {run.iteration}, "
           f"{args.episodes} deterministic episodes per learned intention")  # fmt: skip
     key = jax.random.PRNGKey(EVALUATION_SEED)
     results = []

@@ -69,16 +69,15 @@ def checkpoint_dir(env_name: str, root: str | None = None) -> str:
 
 
 def _config(spec: ExpertSpec):
-    from emgail_jax.method.config import Config
+    from emgail_jax.method.config import BStepConfig, MethodConfig, NetworkConfig, RolloutConfig
     from emgail_jax.method.trpo import TRPOConfig
 
-    return Config(
-        num_envs=spec.num_envs,
-        rollout_length=spec.rollout_length,
-        gamma=spec.gamma,
-        init_log_std=spec.init_log_std,
-        value_epochs=spec.value_epochs,
-        trpo=TRPOConfig(max_kl=spec.max_kl),
+    return MethodConfig(
+        rollout=RolloutConfig(num_envs=spec.num_envs, rollout_length=spec.rollout_length),
+        networks=NetworkConfig(init_log_std=spec.init_log_std),
+        b_step=BStepConfig(
+            gamma=spec.gamma, value_epochs=spec.value_epochs, trpo=TRPOConfig(max_kl=spec.max_kl)
+        ),
     )
 
 
@@ -194,11 +193,12 @@ def make_policy(env, experts, spec: ExpertSpec | None = None):
     from emgail_jax.method.networks import GaussianPolicy, policy_action
 
     config = _config(spec or SPECS[env.name])
-    net = GaussianPolicy(env.action_size, config.hidden, config.init_log_std)
+    shape = config.networks
+    net = GaussianPolicy(env.action_size, shape.hidden, shape.init_log_std)
 
     def mean_action(params, stats, obs):
         no_condition = jnp.zeros((*obs.shape[:-1], 0))
-        return policy_action(net, params, stats, obs, no_condition, config.obs_clip)
+        return policy_action(net, params, stats, obs, no_condition, obs_clip=shape.obs_clip)
 
     def policy(obs, intention):
         every = jax.vmap(mean_action, in_axes=(0, 0, None))(
@@ -339,7 +339,7 @@ def _intention_indices(env, names: list[str] | None) -> list[int] | None:
     return [env.intention_names.index(name) for name in names]
 
 
-def _train_and_save(env, spec: ExpertSpec, args, root: str, meta: dict, only, kept):
+def _train_and_save(env, spec: ExpertSpec, args, root: str, meta: dict, *, only, kept):
     """Trains the experts of every intention (or of the indices ``only``, taking the others
     from the saved experts ``kept``), saves them and returns them with ``meta`` updated by
     their training record."""
@@ -387,7 +387,7 @@ def export_minari(env, out: str | None) -> int:
     return 0
 
 
-def main(argv=None) -> int:
+def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="python -m emgail_jax.experts", description=__doc__.split("\n")[0]
     )
@@ -416,7 +416,11 @@ def main(argv=None) -> int:
         help="write the shipped demonstrations as Minari datasets, one per intention",
     )
     parser.add_argument("--quiet", action="store_true")
-    args = parser.parse_args(argv)
+    return parser.parse_args(argv)
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
     if args.seeds < 1 or (args.iterations is not None and args.iterations < 1):
         print("error: --seeds and --iterations must be at least 1", file=sys.stderr)
         return 2
@@ -438,21 +442,11 @@ def main(argv=None) -> int:
     if os.path.exists(meta_path):
         with open(meta_path) as f:
             meta = json.load(f)
-
-    if args.evaluate or args.demos_only:
-        try:
-            experts = load(env, root)
-        except ExpertError as error:
-            print(f"error: {error}", file=sys.stderr)
-            return 2
-    else:
-        try:
-            only = _intention_indices(env, args.only)
-            kept = load(env, root) if only is not None else None
-        except (ExpertError, ValueError) as error:
-            print(f"error: {error}", file=sys.stderr)
-            return 2
-        experts, meta = _train_and_save(env, spec, args, root, meta, only, kept)
+    try:
+        experts, meta = _experts(env, spec, args, root, meta)
+    except ExpertError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
     policy = make_policy(env, experts)
     results = quality(env, policy, key_quality)
     print_quality(env.name, results)
@@ -463,6 +457,19 @@ def main(argv=None) -> int:
         records.write_json(meta_path, meta)
         print(f"wrote {len(demos)} pairs to {path}; expert returns {demos.expert_returns}")
     return 0
+
+
+def _experts(env, spec: ExpertSpec, args: argparse.Namespace, root: str, meta: dict):
+    """``(experts, meta)``: the saved experts (``--evaluate``, ``--demos-only``) or new ones,
+    trained and saved (those of ``--only``, the others kept)."""
+    if args.evaluate or args.demos_only:
+        return load(env, root), meta
+    try:
+        only = _intention_indices(env, args.only)
+    except ValueError as error:  # an unknown intention name
+        raise ExpertError(str(error)) from None
+    kept = load(env, root) if only is not None else None
+    return _train_and_save(env, spec, args, root, meta, only=only, kept=kept)
 
 
 if __name__ == "__main__":

@@ -70,7 +70,9 @@ SUCCESS_EPISODES = 10  # the experts' bars are defined over 10 deterministic epi
 
 
 def default_budget(run) -> Budget:
-    return BUDGETS.get(run.spec.env, Budget(run.config.iterations, run.config.gamma))
+    return BUDGETS.get(
+        run.spec.env, Budget(run.config.schedule.iterations, run.config.method.b_step.gamma)
+    )
 
 
 def default_cache() -> str:
@@ -148,9 +150,10 @@ def success(env, trainer, states, matching) -> list[dict]:
 def _fresh_trainer(run, budget: Budget, reward_fn=None):
     from emgail_jax.method.rl import make_rl_train, true_reward
 
-    config = run.config.replace(gamma=budget.gamma)
+    config = run.config.with_values(gamma=budget.gamma).method
     env = run.problem.env
-    return make_rl_train(config, env, reward_fn or true_reward, eval_episodes=config.num_envs)
+    episodes = config.rollout.num_envs
+    return make_rl_train(config, env, reward_fn or true_reward, eval_episodes=episodes)
 
 
 def scored(returns, matching, run, seed: int | None) -> dict:
@@ -257,7 +260,7 @@ def reoptimize(
         "iteration": iteration,
         "snapshot": run.snapshot,
         "budget": dataclasses.asdict(budget),
-        "eval_episodes": run.config.num_envs,
+        "eval_episodes": run.config.method.rollout.num_envs,
         "expert_returns": run.problem.demos.expert_returns,
         "random_returns": run.problem.random_returns,
         "seeds": list(seeds),
@@ -366,7 +369,7 @@ def print_result(run, result: dict) -> None:
         )
 
 
-def main(argv=None) -> int:
+def parse_args(argv=None) -> argparse.Namespace:
     from emgail_jax.method.algorithms import REWARD_FORMS
 
     parser = argparse.ArgumentParser(
@@ -408,7 +411,43 @@ def main(argv=None) -> int:
     )
     parser.add_argument("--out", default=None, help="default: RUN_DIR/reoptimize[-...].json")
     parser.add_argument("--quiet", action="store_true")
-    args = parser.parse_args(argv)
+    return parser.parse_args(argv)
+
+
+def _check_options(args: argparse.Namespace) -> None:
+    from emgail_jax.host.run_spec import RunError
+
+    if args.iterations is not None and args.iterations < 1:
+        raise RunError("--iterations must be at least 1")
+    if args.gamma is not None and not 0 < args.gamma <= 1:
+        raise RunError("--gamma must be in (0, 1]")
+    if args.consolidate < 0:
+        raise RunError("--consolidate must be 0 (none) or more steps")
+    if args.consolidate_penalty < 0 or (args.consolidate_penalty and not args.consolidate):
+        raise RunError("--consolidate-penalty is a weight >= 0 and goes with --consolidate")
+
+
+def _opened(args: argparse.Namespace):
+    """``(run, seeds, reward parameters or None, consolidation or None)`` of the command line:
+    the saved run with the reward form asked for, and its consolidated rewards if asked."""
+    from emgail_jax.host.saved_run import SavedRun
+    from emgail_jax.method.algorithms import make_algorithm
+
+    _check_options(args)
+    run = SavedRun.open(args.run_dir, snapshot=args.snapshot)
+    seeds = list(range(run.spec.seeds)) if args.seed is None else [args.seed]
+    run.seed_state(seeds[0])  # checks --seed
+    if args.reward_form is not None:
+        config = run.config
+        run.algorithm = make_algorithm(config.method.algo, config.info_weight, args.reward_form)
+    if not args.consolidate:
+        return run, seeds, None, None
+    parameters, consolidation = consolidated(run, seeds, args.consolidate, args.consolidate_penalty)
+    return run, seeds, parameters, consolidation
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
     jax_setup.setup(host_devices=1)
 
     import envs
@@ -416,29 +455,9 @@ def main(argv=None) -> int:
     from emgail_jax.host.checkpoints import CheckpointError
     from emgail_jax.host.demonstration_files import DemonstrationError
     from emgail_jax.host.run_spec import RunError
-    from emgail_jax.host.saved_run import SavedRun
-    from emgail_jax.method.algorithms import make_algorithm
 
     try:
-        if args.iterations is not None and args.iterations < 1:
-            raise RunError("--iterations must be at least 1")
-        if args.gamma is not None and not 0 < args.gamma <= 1:
-            raise RunError("--gamma must be in (0, 1]")
-        if args.consolidate < 0:
-            raise RunError("--consolidate must be 0 (none) or more steps")
-        if args.consolidate_penalty < 0 or (args.consolidate_penalty and not args.consolidate):
-            raise RunError("--consolidate-penalty is a weight >= 0 and goes with --consolidate")
-        run = SavedRun.open(args.run_dir, snapshot=args.snapshot)
-        seeds = list(range(run.spec.seeds)) if args.seed is None else [args.seed]
-        run.seed_state(seeds[0])  # checks --seed
-        if args.reward_form is not None:
-            config = run.config
-            run.algorithm = make_algorithm(config.algo, config.info_weight, args.reward_form)
-        parameters, consolidation = None, None
-        if args.consolidate:
-            parameters, consolidation = consolidated(
-                run, seeds, args.consolidate, args.consolidate_penalty
-            )
+        run, seeds, parameters, consolidation = _opened(args)
     except (RunError, CheckpointError, envs.EnvError, DemonstrationError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2

@@ -59,6 +59,7 @@ class DriverEnv(Env):
     def __init__(
         self,
         intentions: int | None = 2,
+        *,
         radius: float = 20.0,
         path1_radius: float = 3.5,
         speed: float = 0.1,

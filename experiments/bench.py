@@ -50,14 +50,15 @@ def child(env_name: str, k: int, seed_counts: list[int], chunks: int, cache: str
 
     from emgail_jax.host.problem import make_problem
     from emgail_jax.method.batches import DemonstrationPairs
-    from emgail_jax.method.config import Config
+    from emgail_jax.method.config import RunConfig, RunSchedule
     from emgail_jax.method.training import RunData, evaluation_phases, make_train
 
     problem = make_problem(env_name, k)
     env = problem.env
-    config = Config(eval_every=EVAL_EVERY).resolved(env)
+    run_config = RunConfig(schedule=RunSchedule(eval_every=EVAL_EVERY)).resolved(env)
+    config = run_config.method
     pairs = DemonstrationPairs.create(problem.demos, problem.random_returns, env.num_intentions)
-    data = RunData.create(pairs, env, config)
+    data = RunData.create(pairs, env, run_config.info_weight)
     trainer = make_train(config, env)
     result = {"env": f"{env_name}-{k}"}
     result.update(time_runs(trainer, data, seed_counts, chunks))
@@ -74,7 +75,8 @@ def child(env_name: str, k: int, seed_counts: list[int], chunks: int, cache: str
 
     result["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     phases = evaluation_phases(config, env)
-    steps_per_iteration = k * config.num_envs * config.rollout_length * (1 + phases / EVAL_EVERY)
+    rollout = config.rollout
+    steps_per_iteration = k * rollout.num_envs * rollout.rollout_length * (1 + phases / EVAL_EVERY)
     result["env_steps_per_iteration"] = steps_per_iteration
     if hasattr(env, "mj_model"):
         result["native_s"] = native_seconds(env, steps_per_iteration)
@@ -86,7 +88,8 @@ def time_runs(trainer, data, seed_counts: list[int], chunks: int) -> dict:
     compile times (cold, its ``init`` alone, and warm)."""
     import jax
 
-    from emgail_jax.host.seed_runner import Runner, evaluation_plan
+    from emgail_jax.host.schedule import evaluation_plan
+    from emgail_jax.host.seed_runner import Runner
 
     # A chunk in the middle of a 400-iteration run: one evaluation in ten iterations.
     steady = evaluation_plan(100, CHUNK, 400, EVAL_EVERY)
@@ -138,7 +141,9 @@ def piece_programs(config, env, state, data) -> dict:
     end, transitions = jax.jit(rollout)(state, data)
     batch = LearningBatch.of(transitions, end, env.episode_length)
     normalizer = obs_norm.update(state.normalizer, transitions.obs)
-    seen = training.normalized_batch(normalizer, transitions, data.demos, env, config.obs_clip)
+    seen = training.normalized_batch(
+        normalizer, transitions, data.demos, env, config.networks.obs_clip
+    )
     e = jax.jit(learned.e_step)(state.posterior, seen, data.demos, state.intention_weights)
     m_step = lambda discriminator, seen, gamma: learned.m_step(
         discriminator, seen, gamma, algorithm
@@ -147,7 +152,7 @@ def piece_programs(config, env, state, data) -> dict:
 
     def b_step(state, batch, seen, discriminator, own_log_posterior):
         reward = learned.pseudo_reward(discriminator, algorithm, seen, own_log_posterior)
-        reward = time_major(reward, config.rollout_length)
+        reward = time_major(reward, config.rollout.rollout_length)
         return stages.improve(state, batch, seen.normalizer, reward, key)
 
     def evaluation(state, data):
@@ -162,7 +167,7 @@ def piece_programs(config, env, state, data) -> dict:
             more, alive = episode_totals(batch, alive)
             return (end, totals + more, alive), None
 
-        shape = (k, config.num_envs)
+        shape = (k, config.rollout.num_envs)
         carry = (fresh_starts(state.env_state), jnp.zeros((*shape, k)), jnp.ones(shape))
         phases = jnp.arange(training.evaluation_phases(config, env))
         return jax.lax.scan(phase, carry, phases)[0][1]

@@ -31,57 +31,55 @@ def by_step(values: np.ndarray, step: np.ndarray) -> str:
     return "  ".join(f"{s}: {values[step == s].mean():.3f}" for s in shown)
 
 
-def main(argv=None) -> int:
+def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--env", required=True)
     parser.add_argument("--intentions", type=int, required=True)
     parser.add_argument("--episodes", type=int, default=500, help="fresh episodes per intention")
     parser.add_argument("--demos", default=None, help="demonstrations file (default: shipped)")
     parser.add_argument("--run", default=None, metavar="DIR", help="an EM-GAIL run to compare")
-    args = parser.parse_args(argv)
+    return parser.parse_args(argv)
 
-    from emgail_jax.host import jax_setup
 
-    jax_setup.setup(host_devices=1)
+def _pairs(demos) -> np.ndarray:
+    return np.concatenate([demos.observations, demos.actions], 1)
+
+
+def supervised_ceiling(name: str, env, demos, expert, episodes: int) -> np.ndarray:
+    """Whether the supervised posterior, trained on ``episodes`` fresh expert episodes per
+    intention, labels each demonstration pair right (printed overall and by step)."""
     import jax
-    import jax.numpy as jnp
     from sklearn.neural_network import MLPClassifier
     from sklearn.preprocessing import StandardScaler
 
-    from emgail_jax import experts
-    from emgail_jax.host.problem import make_problem
     from emgail_jax.method import demonstrations
-    from emgail_jax.method.metrics import hungarian_accuracy
 
-    problem = make_problem(args.env, args.intentions, args.demos)
-    env, demos = problem.env, problem.demos
-    expert = experts.load_expert_policy(env)
-    if expert is None:
-        print(f"error: no shipped experts for '{args.env}'", file=sys.stderr)
-        return 2
     # A key the shipped demonstrations were not drawn with.
     fresh = demonstrations.generate(
-        env, lambda state, i, _: expert(state.obs, i), args.episodes, jax.random.PRNGKey(12345)
+        env, lambda state, i, _: expert(state.obs, i), episodes, jax.random.PRNGKey(12345)
     )
-    pair = lambda d: np.concatenate([d.observations, d.actions], 1)
-    step = demos.step_in_episode
-    labels = np.asarray(demos.intentions)
-
-    scaler = StandardScaler().fit(pair(fresh))
+    scaler = StandardScaler().fit(_pairs(fresh))
     classifier = MLPClassifier((64, 64), activation="tanh", early_stopping=True, random_state=0)
-    classifier.fit(scaler.transform(pair(fresh)), fresh.intentions)
-    right = classifier.predict(scaler.transform(pair(demos))) == labels
+    classifier.fit(scaler.transform(_pairs(fresh)), fresh.intentions)
+    right = classifier.predict(scaler.transform(_pairs(demos))) == np.asarray(demos.intentions)
     print(
-        f"{args.env}-{args.intentions}: {len(fresh)} fresh expert pairs; on the {len(labels)} "
-        f"demonstration pairs the supervised posterior scores {right.mean():.4f}"
+        f"{name}: {len(fresh)} fresh expert pairs; on the "
+        f"{len(right)} demonstration pairs the supervised posterior scores {right.mean():.4f}"
     )
-    print(f"  accuracy by step:                  {by_step(right, step)}")
-    if args.run is None:
-        return 0
+    print(f"  accuracy by step:                  {by_step(right, demos.step_in_episode)}")
+    return right
+
+
+def compare_run(run_dir: str, demos, expert) -> None:
+    """The per-step accuracy of a run's own posterior, how far apart the experts' actions are,
+    and how far each learned policy's mean action is from its own expert's."""
+    import jax.numpy as jnp
 
     from emgail_jax.host.saved_run import SavedRun
+    from emgail_jax.method.metrics import hungarian_accuracy
 
-    run = SavedRun.open(args.run)
+    step, labels = demos.step_in_episode, np.asarray(demos.intentions)
+    run = SavedRun.open(run_dir)
     k = run.num_intentions
     obs = jnp.asarray(run.demonstration_pairs.observations)
     experts_actions = [np.asarray(expert(obs, jnp.full(obs.shape[:1], i))) for i in range(k)]
@@ -114,6 +112,25 @@ def main(argv=None) -> int:
             imitated = np.asarray(policy(obs[mine], matched[t]))
             error[mine] = np.linalg.norm(imitated - experts_actions[t][mine], axis=-1)
         print(f"    |policy - its expert| by step:   {by_step(error, step)}")
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    from emgail_jax.host import jax_setup
+
+    jax_setup.setup(host_devices=1)
+    from emgail_jax import experts
+    from emgail_jax.host.problem import make_problem
+
+    problem = make_problem(args.env, args.intentions, args.demos)
+    expert = experts.load_expert_policy(problem.env)
+    if expert is None:
+        print(f"error: no shipped experts for '{args.env}'", file=sys.stderr)
+        return 2
+    name = f"{args.env}-{args.intentions}"
+    supervised_ceiling(name, problem.env, problem.demos, expert, args.episodes)
+    if args.run is not None:
+        compare_run(args.run, problem.demos, expert)
     return 0
 
 

@@ -35,14 +35,14 @@ def main(argv=None) -> int:
 
     from emgail_jax.host.problem import make_problem
     from emgail_jax.host.seed_runner import chunk_length, chunks, run_chunks
-    from emgail_jax.method.config import Config
+    from emgail_jax.method.config import RunConfig
     from emgail_jax.method.rl import intention_chunk, make_rl_train
 
     problem = make_problem(args.env, args.intentions)
     env = problem.env
     expert_returns = np.asarray(problem.demos.expert_returns)
     random_returns = np.asarray(problem.random_returns)
-    trainer = make_rl_train(Config().with_settings(args.set), env)
+    trainer = make_rl_train(RunConfig().with_settings(args.set).method, env)
     step = intention_chunk(trainer, jnp.arange(env.num_intentions))
     plan = chunks(0, args.iterations, chunk_length(args.iterations, 10))
     start = time.perf_counter()

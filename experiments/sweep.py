@@ -24,6 +24,7 @@ import argparse
 import contextlib
 import csv
 import dataclasses
+import enum
 import fnmatch
 import functools
 import json
@@ -38,6 +39,9 @@ import traceback
 from collections.abc import Callable, Iterator
 
 import numpy as np
+
+from emgail_jax.host.final_results import FinalResults
+from emgail_jax.host.run_spec import RunError, read_summary
 
 ROBOTICS_INTENTIONS = {
     "swimmer": (2,),
@@ -61,13 +65,29 @@ ALGO_LABELS = {
     "gail": "GAIL",
     "gmm": "GMM",
 }
-# EM-GAIL with one of the paper's own choices where the default departs from it (README,
-# "Departures from the paper"), for Table 3.
-VARIANTS = {
-    "onehot": ("--intention-input", "onehot"),
-    "pair": ("--responsibilities", "pair"),
+
+
+class Variant(enum.StrEnum):
+    """EM-GAIL with one of the paper's own choices where the default departs from it (README,
+    "Departures from the paper"), for Table 3; or with K chosen from the demonstrations."""
+
+    DEFAULT = ""
+    ONEHOT = "onehot"
+    PAIR = "pair"
+    AUTO = "auto"  # K chosen from demonstrations of ``intentions`` true ones
+
+
+VARIANT_OPTIONS = {
+    Variant.ONEHOT: ("--intention-input", "onehot"),
+    Variant.PAIR: ("--responsibilities", "pair"),
 }
-TABLE3_METHODS = ("gmm", "infogail", "emgail", "emgail-onehot", "emgail-pair")
+# Table 3's learned methods (algorithm, variant), after the GMM of the separability table.
+TABLE3_METHODS = (
+    ("infogail", Variant.DEFAULT),
+    ("emgail", Variant.DEFAULT),
+    ("emgail", Variant.ONEHOT),
+    ("emgail", Variant.PAIR),
+)
 FIGURES = ("fig4a", "fig4b", "fig5a", "fig5b", "fig6", "table2", "table3", "choosing-k")
 
 # The paper's Table 3 (clustering accuracy, %) and Table 2 (EM-GAIL seconds per iteration on
@@ -106,17 +126,38 @@ class SweepError(RuntimeError):
 
 
 @dataclasses.dataclass(frozen=True)
+class DemoSet:
+    """The demonstrations a cell trains on: a row of the separability table."""
+
+    env: str
+    intentions: int
+    radius: float | None = None  # the driver's path-2 radius
+
+    @property
+    def name(self) -> str:
+        """Its key in ``separability.csv``: ``hopper-3``, ``driver-r10``."""
+        if self.radius is not None:
+            return f"{self.env}-r{self.radius:g}"
+        return f"{self.env}-{self.intentions}"
+
+
+def method_name(algo: str, variant: Variant) -> str:
+    """``emgail``, ``emgail-onehot``: a key of ALGO_LABELS and of PAPER_TABLE3."""
+    return algo + (f"-{variant}" if variant else "")
+
+
+@dataclasses.dataclass(frozen=True)
 class Cell:
-    """One run of the sweep and the figures and tables it feeds."""
+    """One run of the sweep and the figures and tables it feeds. A cell is its env,
+    intentions, algorithm, radius and variant: ``groups`` says where it is drawn, not which
+    run it is, so ``Cell("hopper", 2, "emgail")`` finds the cell of any groups."""
 
     env: str
     intentions: int
     algo: str  # "emgail" | "infogail" | "gail"
-    groups: tuple[str, ...]
+    groups: tuple[str, ...] = dataclasses.field(default=(), compare=False)
     radius: float | None = None  # the driver's path-2 radius
-    # A key of VARIANTS (one of the paper's choices instead of the default), or "auto": K
-    # chosen from demonstrations of ``intentions`` true ones.
-    variant: str = ""
+    variant: Variant = Variant.DEFAULT
 
     @property
     def name(self) -> str:
@@ -125,7 +166,11 @@ class Cell:
 
     @property
     def method(self) -> str:
-        return self.algo + (f"-{self.variant}" if self.variant else "")
+        return method_name(self.algo, self.variant)
+
+    @property
+    def data(self) -> DemoSet:
+        return DemoSet(self.env, self.intentions, self.radius)
 
     def log_path(self, out: str) -> str:
         return os.path.join(out, "logs", f"{self.name}.log")
@@ -139,12 +184,13 @@ class Cell:
     @property
     def reoptimized(self) -> bool:
         """The paper's reward check (§5.2) runs on every default EM-GAIL cell of Table 3."""
-        return self.method == "emgail" and "table3" in self.groups
+        default_emgail = self.algo == "emgail" and self.variant == Variant.DEFAULT
+        return default_emgail and "table3" in self.groups
 
     @property
     def learned_intentions(self) -> int:
         """K trained: the env's maximum when K is chosen from the data."""
-        if self.variant == "auto":
+        if self.variant == Variant.AUTO:
             import envs
 
             return len(envs.env_class(self.env).intention_names)
@@ -154,7 +200,7 @@ class Cell:
         """The demonstrations file of an auto cell whose true K is not all the env has (and of
         every driver cell of it, whose demonstrations are generated): written by
         :func:`write_demonstrations` under ``out/demos``; None for the default ones."""
-        if self.variant != "auto" or (
+        if self.variant != Variant.AUTO or (
             self.env != "driver" and self.intentions == self.learned_intentions
         ):
             return None
@@ -162,7 +208,7 @@ class Cell:
 
     def run_args(self, settings: tuple[str, ...] = (), out: str = "results") -> list[str]:
         """``python -m emgail_jax.run`` options of a new run; ``settings`` go to ``--set``."""
-        intentions = "auto" if self.variant == "auto" else str(self.intentions)
+        intentions = "auto" if self.variant == Variant.AUTO else str(self.intentions)
         args = ["--env", self.env, "--intentions", intentions, "--algo", self.algo]
         demos = self.demonstrations(out)
         if demos is not None:
@@ -171,7 +217,7 @@ class Cell:
             args += ["--set", setting]
         if self.radius is not None:
             args += ["--radius", f"{self.radius:g}"]
-        return args + list(VARIANTS.get(self.variant, ()))
+        return args + list(VARIANT_OPTIONS.get(self.variant, ()))
 
 
 def all_cells() -> list[Cell]:
@@ -184,15 +230,15 @@ def all_cells() -> list[Cell]:
                 groups = ("fig4a", "fig6", "fig5b") + (("table3",) if algo != "gail" else ())
                 groups += ("table2",) if k == 2 else ()
                 cells.append(Cell(env, k, algo, groups))
-            cells.append(Cell(env, k, "emgail", ("table3",), variant="onehot"))
+            cells.append(Cell(env, k, "emgail", ("table3",), variant=Variant.ONEHOT))
     for radius in DRIVER_RADII:
         for algo in ALGOS:
             cells.append(Cell("driver", 2, algo, ("fig4b", "fig5a"), radius=radius))
     for env, ks in ROBOTICS_INTENTIONS.items():  # the paper's E-step, for comparison
-        cells += [Cell(env, k, "emgail", ("table3",), variant="pair") for k in ks]
+        cells += [Cell(env, k, "emgail", ("table3",), variant=Variant.PAIR) for k in ks]
     for env, ks in CHOOSING_K.items():  # last: beyond the paper
         for k in ks:
-            cells.append(Cell(env, k, "emgail", ("choosing-k",), variant="auto"))
+            cells.append(Cell(env, k, "emgail", ("choosing-k",), variant=Variant.AUTO))
             if env == "driver":  # the robotics envs' K-given cells are Table 3's
                 cells.append(Cell(env, k, "emgail", ("choosing-k",)))
     return cells
@@ -223,35 +269,44 @@ def select(cells: list[Cell], only: str | None) -> list[Cell]:
 # ---- running cells -----------------------------------------------------------------------------
 
 
-def read_summary(run_dir: str) -> dict | None:
+def _summary_or_none(run_dir: str) -> dict | None:
+    """The run's ``summary.json`` (:func:`emgail_jax.host.run_spec.read_summary`), or None where
+    it is missing, unreadable or no JSON: the sweep tells these apart by the file's presence."""
     try:
-        with open(os.path.join(run_dir, "summary.json")) as f:
-            return json.load(f)
-    except (OSError, json.JSONDecodeError):
+        return read_summary(run_dir)
+    except (RunError, OSError):
         return None
 
 
-def cell_status(run_dir: str, seeds: int, iterations: int) -> str:
-    """ "done", "resume" (a checkpointed run short of ``iterations``), "damaged" (a
-    ``summary.json`` that is not a run's, e.g. cut short) or "new"."""
-    summary = read_summary(run_dir)
+class Status(enum.StrEnum):
+    """Where a cell's run directory stands (the status column of the sweep's table)."""
+
+    DONE = "done"
+    RESUME = "resume"  # a checkpointed run short of the sweep's iterations
+    DAMAGED = "damaged"  # a summary.json that is not a run's, e.g. cut short
+    NEW = "new"
+
+
+def cell_status(run_dir: str, seeds: int, iterations: int) -> Status:
+    """What the sweep does with the run in ``run_dir``: skip, resume, repair it or start it."""
+    summary = _summary_or_none(run_dir)
     if summary is None:
         path = os.path.join(run_dir, "summary.json")
-        return "damaged" if os.path.exists(path) else "new"
+        return Status.DAMAGED if os.path.exists(path) else Status.NEW
     if not isinstance(summary, dict) or "seeds" not in summary:
-        return "damaged"
+        return Status.DAMAGED
     if summary.get("seeds") != seeds:
         raise SweepError(
             f"{run_dir} was run with {summary.get('seeds')} seeds, not {seeds}: pass the same "
             f"SEEDS, or another OUT for a new sweep"
         )
     if summary.get("status") == "completed" and summary.get("iterations_done", 0) >= iterations:
-        return "done"
+        return Status.DONE
     # A killed run never wrote its iterations to summary.json ("running"): its checkpoints
     # are what it has done.
     from emgail_jax.host.checkpoints import latest_iteration
 
-    return "resume" if latest_iteration(run_dir) else "new"
+    return Status.RESUME if latest_iteration(run_dir) else Status.NEW
 
 
 def estimate_seconds(cell: Cell, seeds: int, iterations: int, measured: dict) -> float:
@@ -267,7 +322,7 @@ def measured_seconds(runs_dir: str) -> dict:
     median over cells) and seconds to compile."""
     units, compiles = {}, {}
     for name in sorted(os.listdir(runs_dir)) if os.path.isdir(runs_dir) else ():
-        summary = read_summary(os.path.join(runs_dir, name))
+        summary = _summary_or_none(os.path.join(runs_dir, name))
         if not summary or summary.get("status") != "completed":
             continue
         timings = summary["timings"]
@@ -333,15 +388,15 @@ def train_cell(
     status = cell_status(run_dir, seeds, iterations)
     new_args = [*cell.run_args(settings, out), "--seeds", str(seeds)]
     new_args += ["--iterations", str(iterations)]
-    if status == "damaged":
+    if status == Status.DAMAGED:
         status = repair_cell(cell.name, run_dir, new_args, log_path)
-    if status == "resume":
+    if status == Status.RESUME:
         args = ["--resume", run_dir, "--iterations", str(iterations)]
-    elif status == "new":
+    elif status == Status.NEW:
         args = list(new_args)
         write_demonstrations(cell, out)
         args += ["--out", run_dir, "--overwrite"]
-    if status != "done":
+    if status != Status.DONE:
         if cell.shares_programs:
             code = run_in_process([*args, "--quiet"], log_path)
         else:
@@ -355,7 +410,7 @@ def train_cell(
             raise SweepError(f"re-optimising {cell.name} failed (exit {code}): see {log_path}")
 
 
-def repair_cell(name: str, run_dir: str, run_args: list[str], log_path: str) -> str:
+def repair_cell(name: str, run_dir: str, run_args: list[str], log_path: str) -> Status:
     """A cell whose ``summary.json`` is damaged: the file is kept beside as
     ``summary.json.damaged``, said so on stderr and in the cell's log, and the cell continues
     from its last good checkpoint under a summary rebuilt from its own options (``run_args``);
@@ -378,7 +433,7 @@ def repair_cell(name: str, run_dir: str, run_args: list[str], log_path: str) -> 
     print(message, file=sys.stderr)
     with open(log_path, "a") as log:
         log.write(f"\n{message}\n")
-    return "new" if done is None else "resume"
+    return Status.NEW if done is None else Status.RESUME
 
 
 def write_demonstrations(cell: Cell, out: str) -> None:
@@ -563,14 +618,23 @@ def code_fingerprint() -> str:
 
 # ---- separability -------------------------------------------------------------------------------
 
+SEPARABILITY_COLUMNS = ("separability", "separability_std", "gmm_accuracy", "gmm_accuracy_std")
 
-def separability_table(out: str, cells: list[Cell]) -> dict:
-    """``{"hopper-3" | "driver-r10": {"separability", "separability_std", "gmm_accuracy",
-    "gmm_accuracy_std"}}`` of the demonstrations the cells train on, computed once and kept in
-    ``OUT/separability.csv``."""
-    from emgail_jax.host.problem import make_problem
-    from emgail_jax.method.metrics import gaussian_mixture_accuracies, separability_of
 
+@dataclasses.dataclass(frozen=True)
+class SeparabilityTable:
+    """``separability.csv``: the separability and the Gaussian mixture's accuracy of each set
+    of demonstrations (SEPARABILITY_COLUMNS), as :func:`measure_separability` makes them."""
+
+    rows: dict[str, dict[str, float]]  # by DemoSet.name, the file's key
+
+    def of(self, data: DemoSet) -> dict[str, float] | None:
+        return self.rows.get(data.name)
+
+
+def separability_table(out: str, cells: list[Cell]) -> SeparabilityTable:
+    """The separability of the demonstrations the cells train on, computed once and kept in
+    ``OUT/separability.csv`` (with what it held before)."""
     path = os.path.join(out, "separability.csv")
     table = {}
     if os.path.exists(path):
@@ -578,38 +642,50 @@ def separability_table(out: str, cells: list[Cell]) -> dict:
             table = {
                 row.pop("data"): {k: float(v) for k, v in row.items()} for row in csv.DictReader(f)
             }
-    wanted = {_data_name(c): c for c in cells if c.intentions >= 2}
+    wanted = {c.data.name: c.data for c in cells if c.intentions >= 2}
     missing = [name for name in wanted if name not in table]
     for name in missing:
-        cell = wanted[name]
-        options = {"radius": cell.radius} if cell.radius is not None else {}
-        demos = make_problem(cell.env, cell.intentions, None, options).demos
-        accuracies = gaussian_mixture_accuracies(
-            demos.observations, demos.actions, demos.intentions, cell.intentions
-        )
-        normalised = separability_of(accuracies, cell.intentions)
-        table[name] = {
-            "separability": float(normalised.mean()),
-            "separability_std": float(normalised.std()),
-            "gmm_accuracy": float(accuracies.mean()),
-            "gmm_accuracy_std": float(accuracies.std()),
-        }
+        table[name] = measure_separability(wanted[name])
     if missing:
         with open(path, "w") as f:
-            columns = ["separability", "separability_std", "gmm_accuracy", "gmm_accuracy_std"]
-            f.write(",".join(["data", *columns]) + "\n")
+            f.write(",".join(["data", *SEPARABILITY_COLUMNS]) + "\n")
             for name in sorted(table):
-                f.write(",".join([name] + [f"{table[name][c]:.4f}" for c in columns]) + "\n")
-    return table
+                row = [f"{table[name][c]:.4f}" for c in SEPARABILITY_COLUMNS]
+                f.write(",".join([name, *row]) + "\n")
+    return SeparabilityTable(table)
 
 
-def _data_name(cell: Cell) -> str:
-    return (
-        f"driver-r{cell.radius:g}" if cell.radius is not None else f"{cell.env}-{cell.intentions}"
+def measure_separability(data: DemoSet) -> dict[str, float]:
+    """A row of :func:`separability_table`: the Gaussian mixture's accuracy on ``data``'s pairs
+    (over its mixture seeds) and the separability normalised from it."""
+    from emgail_jax.host.problem import make_problem
+    from emgail_jax.method.metrics import gaussian_mixture_accuracies, separability_of
+
+    options = {"radius": data.radius} if data.radius is not None else {}
+    demos = make_problem(data.env, data.intentions, None, options).demos
+    accuracies = gaussian_mixture_accuracies(
+        demos.observations, demos.actions, demos.intentions, data.intentions
     )
+    normalised = separability_of(accuracies, data.intentions)
+    return {
+        "separability": float(normalised.mean()),
+        "separability_std": float(normalised.std()),
+        "gmm_accuracy": float(accuracies.mean()),
+        "gmm_accuracy_std": float(accuracies.std()),
+    }
 
 
-# ---- tables and figures -------------------------------------------------------------------------
+def robotics_sets() -> list[DemoSet]:
+    """Table 3's columns: every robotics env at each K of the paper's."""
+    return [DemoSet(env, k) for env, ks in ROBOTICS_INTENTIONS.items() for k in ks]
+
+
+def driver_sets() -> list[DemoSet]:
+    """Figure 4b's points: the driver at each radius of path 2."""
+    return [DemoSet("driver", 2, radius) for radius in DRIVER_RADII]
+
+
+# ---- results, selected by the cells' fields ----------------------------------------------------
 
 
 @dataclasses.dataclass(frozen=True)
@@ -624,88 +700,139 @@ class CellResult:
     intentions_held: np.ndarray | None = None  # [seeds], by the weights alone
 
 
-def collect(out: str, cells: list[Cell], seeds: int, iterations: int) -> dict[str, CellResult]:
-    """The finished cells' results, by cell name."""
+@dataclasses.dataclass(frozen=True)
+class Results:
+    """The finished cells' results in the sweep's order (:func:`all_cells`)."""
+
+    by_cell: dict[Cell, CellResult]
+
+    def get(
+        self,
+        env: str,
+        intentions: int,
+        algo: str,
+        *,
+        variant: Variant = Variant.DEFAULT,
+        radius: float | None = None,
+    ) -> CellResult | None:
+        """The result of the one cell of these fields, if it has finished."""
+        return self.by_cell.get(Cell(env, intentions, algo, radius=radius, variant=variant))
+
+    def where(self, chosen: Callable[[Cell], bool]) -> list[CellResult]:
+        """The results of the cells ``chosen`` keeps, in the sweep's order."""
+        return [result for cell, result in self.by_cell.items() if chosen(cell)]
+
+
+def on_driver_radius(cell: Cell) -> bool:
+    """Figure 5a's cells: the driver at one radius of path 2."""
+    return cell.radius is not None
+
+
+def robotics_default(cell: Cell) -> bool:
+    """Figure 6's cells (and 5b's of K >= 2): a robotics env with the defaults."""
+    return cell.env != "driver" and cell.variant == Variant.DEFAULT
+
+
+def robotics_many(cell: Cell) -> bool:
+    """Figure 5b's cells: a robotics env with the defaults and more than one intention."""
+    return robotics_default(cell) and cell.intentions >= 2
+
+
+def collect(out: str, cells: list[Cell], seeds: int, iterations: int) -> Results:
+    """The results of the cells that have finished."""
     results = {}
     for cell in cells:
         run_dir = os.path.join(out, "runs", cell.name)
-        summary = read_summary(run_dir)
-        if summary is None or cell_status(run_dir, seeds, iterations) != "done":
-            continue
-        final = summary["final"]
-        accuracy = final.get("cluster_accuracy")
-        reoptimized = None
-        path = os.path.join(run_dir, "reoptimize.json")
-        if os.path.exists(path):
-            with open(path) as f:
-                check = json.load(f)
-            # Since every seed is re-optimised, "erd" lists them; older files hold one float.
-            reoptimized = check.get("erd_mean", check.get("erd"))
-        results[cell.name] = CellResult(
-            cell=cell,
-            erd=np.asarray(final["erd"], float),
-            accuracy=None if accuracy is None else np.asarray(accuracy, float),
-            parameters=int(summary["parameters"]["total"]),
-            seconds_per_iteration=summary["timings"]["train_time_s"]
-            / summary["timings"]["iterations"],
-            reoptimized_erd=reoptimized,
-            intentions_chosen=final.get("intentions_chosen"),
-            intentions_held=final.get("intentions_held"),
-        )
-    return results
+        if cell_status(run_dir, seeds, iterations) == Status.DONE:
+            results[cell] = read_cell_result(cell, run_dir)
+    return Results(results)
+
+
+def read_cell_result(cell: Cell, run_dir: str) -> CellResult:
+    """A finished cell's final numbers, from its ``summary.json`` and ``reoptimize.json``."""
+    summary = read_summary(run_dir)
+    final = FinalResults.from_summary(summary)
+    accuracy = final.cluster_accuracy
+    reoptimized = None
+    path = os.path.join(run_dir, "reoptimize.json")
+    if os.path.exists(path):
+        with open(path) as f:
+            check = json.load(f)
+        # Since every seed is re-optimised, "erd" lists them; older files hold one float.
+        reoptimized = check.get("erd_mean", check.get("erd"))
+    timings = summary["timings"]
+    return CellResult(
+        cell=cell,
+        erd=np.asarray(final.erd, float),
+        accuracy=None if accuracy is None else np.asarray(accuracy, float),
+        parameters=int(summary["parameters"]["total"]),
+        seconds_per_iteration=timings["train_time_s"] / timings["iterations"],
+        reoptimized_erd=reoptimized,
+        intentions_chosen=final.intentions_chosen,
+        intentions_held=final.intentions_held,
+    )
+
+
+# ---- tables -------------------------------------------------------------------------------------
 
 
 def _mean_std(values) -> str:
     return f"{np.mean(values):.1f} ± {np.std(values):.1f}"
 
 
-def write_table3(out: str, results: dict[str, CellResult], separability: dict) -> None:
-    columns = [f"{env}-{k}" for env, ks in ROBOTICS_INTENTIONS.items() for k in ks]
-    rows = []  # (method, column, accuracies in %)
-    for column in columns:
-        if column in separability:
-            gmm = separability[column]
-            rows.append(
-                ("gmm", column, None, 100 * gmm["gmm_accuracy"], 100 * gmm["gmm_accuracy_std"], 5)
-            )
-        for method in TABLE3_METHODS[1:]:
-            result = results.get(f"{column}-{method}")
+def table3_rows(
+    results: Results, separability: SeparabilityTable
+) -> list[tuple[str, DemoSet, float, float, int]]:
+    """Table 3's accuracies: (method, demonstrations, mean %, std %, seeds) of the GMM and of
+    every finished cell of TABLE3_METHODS."""
+    rows = []
+    for data in robotics_sets():
+        gmm = separability.of(data)
+        if gmm is not None:
+            rows.append(("gmm", data, 100 * gmm["gmm_accuracy"], 100 * gmm["gmm_accuracy_std"], 5))
+        for algo, variant in TABLE3_METHODS:
+            result = results.get(data.env, data.intentions, algo, variant=variant)
             if result is not None and result.accuracy is not None:
                 acc = 100 * result.accuracy
-                rows.append((method, column, acc, acc.mean(), acc.std(), len(acc)))
+                rows.append((result.cell.method, data, acc.mean(), acc.std(), len(acc)))
+    return rows
+
+
+def write_table3(out: str, results: Results, separability: SeparabilityTable) -> None:
+    rows = table3_rows(results, separability)
     with open(os.path.join(out, "table3.csv"), "w") as f:
         f.write("env,intentions,method,accuracy_mean,accuracy_std,seeds\n")
-        for method, column, _, mean, std, n in rows:
-            env, k = column.rsplit("-", 1)
-            f.write(f"{env},{k},{method},{mean / 100:.4f},{std / 100:.4f},{n}\n")
-    found = {(method, column): (mean, std) for method, column, _, mean, std, _ in rows}
+        for method, data, mean, std, n in rows:
+            f.write(f"{data.env},{data.intentions},{method},{mean / 100:.4f},{std / 100:.4f},{n}\n")
+    found = {(method, data): (mean, std) for method, data, mean, std, _ in rows}
+    columns = robotics_sets()
     lines = [
         "Clustering accuracy (%) of the expert pairs, mean ± std over seeds (GMM: over 5 "
         "mixture seeds); the paper's value in brackets.",
         "",
-        "| method | " + " | ".join(columns) + " |",
+        "| method | " + " | ".join(data.name for data in columns) + " |",
         "|---|" + "---:|" * len(columns),
     ]
-    for method in TABLE3_METHODS:
+    for method in ("gmm", *(method_name(algo, variant) for algo, variant in TABLE3_METHODS)):
         cells = []
-        for column in columns:
-            value = found.get((method, column))
+        for data in columns:
+            value = found.get((method, data))
             text = "—" if value is None else f"{value[0]:.1f} ± {value[1]:.1f}"
-            paper = PAPER_TABLE3.get(method, {}).get(column)
+            paper = PAPER_TABLE3.get(method, {}).get(data.name)
             cells.append(text + (f" [{paper}]" if paper is not None else ""))
         lines.append(f"| {ALGO_LABELS[method]} | " + " | ".join(cells) + " |")
     _write_text(os.path.join(out, "table3.md"), lines)
 
 
-def write_choosing_k(out: str, results: dict[str, CellResult]) -> None:
+def write_choosing_k(out: str, results: Results) -> None:
     """``choosing-k.md`` and ``.csv``: the K ``--intentions auto`` chose on every seed of each
     set of K true intentions, and its accuracy and ERD beside the same cell with K given."""
     rows = []
     for env, ks in CHOOSING_K.items():
         for k in ks:
-            auto, given = results.get(f"{env}-{k}-emgail-auto"), results.get(f"{env}-{k}-emgail")
+            auto = results.get(env, k, "emgail", variant=Variant.AUTO)
             if auto is not None:
-                rows.append((env, k, auto, given))
+                rows.append((env, k, auto, results.get(env, k, "emgail")))
     with open(os.path.join(out, "choosing-k.csv"), "w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(
@@ -744,7 +871,7 @@ def _per_seed(counts, separator: str = ", ") -> str:
     return "—" if counts is None else separator.join(str(c) for c in counts)
 
 
-def write_table2(out: str, results: dict[str, CellResult], seeds: int) -> None:
+def write_table2(out: str, results: Results, seeds: int) -> None:
     lines = [
         f"Learnable parameters (policy, value, discriminator and posterior, as `summary.json` "
         f"counts them) and seconds per iteration of the K = 2 cells on this machine's CPU "
@@ -759,7 +886,7 @@ def write_table2(out: str, results: dict[str, CellResult], seeds: int) -> None:
     ]
     for env in ROBOTICS_INTENTIONS:
         for algo in ALGOS:
-            result = results.get(f"{env}-2-{algo}")
+            result = results.get(env, 2, algo)
             params, paper_seconds = PAPER_TABLE2[env][algo]
             if result is None:
                 ours, seconds = "—", "—"
@@ -773,22 +900,19 @@ def write_table2(out: str, results: dict[str, CellResult], seeds: int) -> None:
     _write_text(os.path.join(out, "table2.md"), lines)
 
 
-def write_erd_csvs(out: str, results: dict[str, CellResult], separability: dict) -> None:
+def write_erd_csvs(out: str, results: Results, separability: SeparabilityTable) -> None:
     with open(os.path.join(out, "fig5a.csv"), "w") as f:
         f.write("algo,radius,separability,erd_mean,erd_std,seeds\n")
-        for result in results.values():
+        for result in results.where(on_driver_radius):
             cell = result.cell
-            if cell.radius is not None:
-                sep = separability.get(_data_name(cell), {}).get("separability", math.nan)
-                f.write(f"{cell.algo},{cell.radius:g},{sep:.4f},{result.erd.mean():.4f},"
-                        f"{result.erd.std():.4f},{len(result.erd)}\n")  # fmt: skip
+            sep = (separability.of(cell.data) or {}).get("separability", math.nan)
+            f.write(f"{cell.algo},{cell.radius:g},{sep:.4f},{result.erd.mean():.4f},"
+                    f"{result.erd.std():.4f},{len(result.erd)}\n")  # fmt: skip
     with open(os.path.join(out, "fig6.csv"), "w") as f:
         f.write("env,intentions,algo,separability,erd_mean,erd_std,reoptimized_erd,seeds\n")
-        for result in results.values():
+        for result in results.where(robotics_default):
             cell = result.cell
-            if cell.env == "driver" or cell.variant:
-                continue
-            sep = separability.get(_data_name(cell), {}).get("separability")
+            sep = (separability.of(cell.data) or {}).get("separability")
             reopt = result.reoptimized_erd
             f.write(
                 f"{cell.env},{cell.intentions},{cell.algo},{'' if sep is None else f'{sep:.4f}'},"
@@ -802,135 +926,145 @@ def _write_text(path: str, lines: list[str]) -> None:
         f.write("\n".join(lines) + "\n")
 
 
-def draw_figures(out: str, results: dict[str, CellResult], separability: dict) -> list[str]:
-    """The paper's Figures 4-6 from what is finished: means as lines, ± std as shading."""
+# ---- figures: the paper's Figures 4-6, means as lines, ± std as shading -------------------------
+
+COLORS = {"emgail": "tab:red", "infogail": "tab:blue", "gail": "tab:green"}
+ERD_TOP = 1.05  # the top of the ERD axis: 1 is random actions
+
+
+def _pyplot():
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    colors = {"emgail": "tab:red", "infogail": "tab:blue", "gail": "tab:green"}
-    written = []
+    return plt
 
-    def save(fig, name):
-        fig.tight_layout()
-        fig.savefig(os.path.join(out, name), dpi=120, bbox_inches="tight")
-        plt.close(fig)
-        written.append(name)
 
-    def band(ax, x, mean, std, **style):
-        order = np.argsort(x)
-        x, mean, std = (np.asarray(v)[order] for v in (x, mean, std))
-        (line,) = ax.plot(x, mean, marker="o", **style)
-        ax.fill_between(x, mean - std, mean + std, alpha=0.2, color=line.get_color())
+def _save(fig, out: str, name: str) -> str:
+    fig.tight_layout()
+    fig.savefig(os.path.join(out, name), dpi=120, bbox_inches="tight")
+    _pyplot().close(fig)
+    return name
 
-    def erd_axis(ax):
-        """The paper's ERD scale, 0 to 1 (random actions); a mean beyond it (a policy worse
-        than random on some intention) is marked at the top edge with its value."""
-        top = 1.05
-        ax.set_ylim(0, top)
-        ax.set_ylabel("normalised ERD")
-        for line in list(ax.lines):
-            for x, y in zip(*line.get_data(), strict=True):
-                if y > top:
-                    ax.plot(x, top, marker="^", color=line.get_color(), clip_on=False)
-                    ax.annotate(
-                        f"{y:.2f}", (x, top), xytext=(-6, -3), textcoords="offset points",
-                        ha="right", va="top", color=line.get_color(), fontsize=8,
-                    )  # fmt: skip
 
-    # fig4a: separability of the shipped demonstrations against K, per env.
-    fig, ax = plt.subplots(figsize=(5, 3.5))
-    drawn = False
+def _save_drawn(fig, out: str, name: str, legend_on, **legend) -> str | None:
+    """``fig`` saved as ``name`` with a legend on the axes ``legend_on``, if any of its axes
+    has a line (a point finished); otherwise dropped."""
+    if not any(ax.lines for ax in fig.axes):
+        _pyplot().close(fig)
+        return None
+    legend_on.legend(**legend)
+    return _save(fig, out, name)
+
+
+def _band(ax, x, mean, std, **style) -> None:
+    order = np.argsort(x)
+    x, mean, std = (np.asarray(v)[order] for v in (x, mean, std))
+    (line,) = ax.plot(x, mean, marker="o", **style)
+    ax.fill_between(x, mean - std, mean + std, alpha=0.2, color=line.get_color())
+
+
+def _erd_axis(ax) -> None:
+    """The paper's ERD scale, 0 to 1 (random actions); a mean beyond it (a policy worse than
+    random on some intention) is marked at the top edge with its value."""
+    ax.set_ylim(0, ERD_TOP)
+    ax.set_ylabel("normalised ERD")
+    for line in list(ax.lines):
+        for x, y in zip(*line.get_data(), strict=True):
+            if y > ERD_TOP:
+                ax.plot(x, ERD_TOP, marker="^", color=line.get_color(), clip_on=False)
+                ax.annotate(
+                    f"{y:.2f}", (x, ERD_TOP), xytext=(-6, -3), textcoords="offset points",
+                    ha="right", va="top", color=line.get_color(), fontsize=8,
+                )  # fmt: skip
+
+
+def _erd_band(ax, points: list[tuple[float, np.ndarray]], algo: str) -> None:
+    """One algorithm's line of (x, ERD per seed) points."""
+    x, erds = zip(*points, strict=True)
+    mean, std = [e.mean() for e in erds], [e.std() for e in erds]
+    _band(ax, x, mean, std, color=COLORS[algo], label=ALGO_LABELS[algo])
+
+
+def draw_fig4a(out: str, separability: SeparabilityTable) -> str | None:
+    """The separability of the shipped demonstrations against K, per env."""
+    fig, ax = _pyplot().subplots(figsize=(5, 3.5))
     for env, ks in ROBOTICS_INTENTIONS.items():
-        points = [(k, separability[f"{env}-{k}"]) for k in ks if f"{env}-{k}" in separability]
+        points = [(k, separability.of(DemoSet(env, k))) for k in ks]
+        points = [(k, row) for k, row in points if row is not None]
         if points:
             ks_, rows = zip(*points, strict=True)
-            band(
-                ax,
-                ks_,
-                [r["separability"] for r in rows],
-                [r["separability_std"] for r in rows],
-                label=env,
-            )
-            drawn = True
+            mean = [r["separability"] for r in rows]
+            _band(ax, ks_, mean, [r["separability_std"] for r in rows], label=env)
     ax.set(xlabel="number of intentions", ylabel="separability", ylim=(0, 1.05), xticks=(2, 3, 4))
-    if drawn:
-        ax.legend()
-        save(fig, "fig4a.png")
-    else:
-        plt.close(fig)
+    return _save_drawn(fig, out, "fig4a.png", ax)
 
-    # fig4b: the driver's separability against the radius of path 2.
-    driver = sorted(
-        (float(n.split("-r")[1]), v) for n, v in separability.items() if n.startswith("driver-r")
-    )
-    if driver:
-        fig, ax = plt.subplots(figsize=(5, 3.5))
-        band(ax, [r for r, _ in driver], [v["separability"] for _, v in driver],
-             [v["separability_std"] for _, v in driver], color="black")  # fmt: skip
-        ax.set(xlabel="radius of path 2", ylabel="separability", ylim=(0, 1.05))
-        save(fig, "fig4b.png")
 
-    def erd_against_separability(cells_of, name, title):
-        fig, ax = plt.subplots(figsize=(6.5, 3.5))
-        for algo in ALGOS:
-            points = [
-                (separability[_data_name(r.cell)]["separability"], r.erd.mean(), r.erd.std())
-                for r in cells_of(algo)
-                if _data_name(r.cell) in separability
-            ]
-            if points:
-                x, mean, std = zip(*points, strict=True)
-                band(ax, x, mean, std, color=colors[algo], label=ALGO_LABELS[algo])
-        if ax.lines:
-            ax.set(xlabel="separability", title=title)
-            erd_axis(ax)
-            ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1))  # clear of the lines
-            save(fig, name)
-        else:
-            plt.close(fig)
+def draw_fig4b(out: str, separability: SeparabilityTable) -> str | None:
+    """The driver's separability against the radius of path 2."""
+    found = [(data.radius, separability.of(data)) for data in driver_sets()]
+    driver = sorted((radius, row) for radius, row in found if row is not None)
+    if not driver:
+        return None
+    fig, ax = _pyplot().subplots(figsize=(5, 3.5))
+    _band(ax, [r for r, _ in driver], [v["separability"] for _, v in driver],
+          [v["separability_std"] for _, v in driver], color="black")  # fmt: skip
+    ax.set(xlabel="radius of path 2", ylabel="separability", ylim=(0, 1.05))
+    return _save(fig, out, "fig4b.png")
 
-    driver_results = [r for r in results.values() if r.cell.radius is not None]
-    robotics = [r for r in results.values() if r.cell.env != "driver" and not r.cell.variant]
-    erd_against_separability(
-        lambda algo: [r for r in driver_results if r.cell.algo == algo], "fig5a.png", "driver"
-    )
-    erd_against_separability(
-        lambda algo: [r for r in robotics if r.cell.algo == algo and r.cell.intentions >= 2],
-        "fig5b.png",
-        "robotics envs",
-    )
 
-    # fig6: ERD against K per env; K = 1 is GAIL on one expert, the start of every line.
-    fig, axes = plt.subplots(1, len(ROBOTICS_INTENTIONS), figsize=(14, 3.5))
-    any_point = False
+def draw_erd_against_separability(
+    out: str,
+    results: list[CellResult],
+    separability: SeparabilityTable,
+    *,
+    name: str,
+    title: str,
+) -> str | None:
+    """Figures 5a and 5b: each algorithm's ERD against the separability of its cells' data."""
+    fig, ax = _pyplot().subplots(figsize=(6.5, 3.5))
+    for algo in ALGOS:
+        found = [(separability.of(r.cell.data), r.erd) for r in results if r.cell.algo == algo]
+        points = [(row["separability"], erd) for row, erd in found if row is not None]
+        if points:
+            _erd_band(ax, points, algo)
+    ax.set(xlabel="separability", title=title)
+    _erd_axis(ax)
+    # The legend beside the axes, clear of the lines.
+    return _save_drawn(fig, out, name, ax, loc="upper left", bbox_to_anchor=(1.02, 1))
+
+
+def draw_fig6(out: str, results: Results) -> str | None:
+    """ERD against K per env; K = 1 is GAIL on one expert, the start of every line."""
+    fig, axes = _pyplot().subplots(1, len(ROBOTICS_INTENTIONS), figsize=(14, 3.5))
     for ax, (env, ks) in zip(axes, ROBOTICS_INTENTIONS.items(), strict=True):
-        floor = results.get(f"{env}-1-gail")
+        floor = results.get(env, 1, "gail")
         for algo in ALGOS:
             points = [(1, floor.erd)] if floor is not None else []
-            points += [
-                (k, results[f"{env}-{k}-{algo}"].erd) for k in ks if f"{env}-{k}-{algo}" in results
-            ]
+            found = [(k, results.get(env, k, algo)) for k in ks]
+            points += [(k, result.erd) for k, result in found if result is not None]
             if points:
-                x, erds = zip(*points, strict=True)
-                band(
-                    ax,
-                    x,
-                    [e.mean() for e in erds],
-                    [e.std() for e in erds],
-                    color=colors[algo],
-                    label=ALGO_LABELS[algo],
-                )
-        any_point |= bool(ax.lines)
+                _erd_band(ax, points, algo)
         ax.set(title=env, xlabel="number of intentions", xticks=(1, *ks))
-        erd_axis(ax)
-    if any_point:
-        axes[0].legend()
-        save(fig, "fig6.png")
-    else:
-        plt.close(fig)
-    return written
+        _erd_axis(ax)
+    return _save_drawn(fig, out, "fig6.png", axes[0])
+
+
+def draw_figures(out: str, results: Results, separability: SeparabilityTable) -> list[str]:
+    """The figures that what is finished can draw; returns their file names."""
+    drawn = [
+        draw_fig4a(out, separability),
+        draw_fig4b(out, separability),
+        draw_erd_against_separability(
+            out, results.where(on_driver_radius), separability, name="fig5a.png", title="driver"
+        ),
+        draw_erd_against_separability(
+            out, results.where(robotics_many), separability, name="fig5b.png", title="robotics envs"
+        ),
+        draw_fig6(out, results),
+    ]
+    return [name for name in drawn if name is not None]
 
 
 def write_report(out: str, cells: list[Cell], seeds: int, iterations: int) -> list[str]:
@@ -965,7 +1099,7 @@ def _format_duration(seconds: float) -> str:
     return f"{hours}h{rest // 60:02d}m" if hours else f"{rest // 60}m{rest % 60:02d}s"
 
 
-def main(argv=None) -> int:
+def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=4)
     parser.add_argument("--iterations", type=int, default=400)
@@ -994,94 +1128,132 @@ def main(argv=None) -> int:
     parser.add_argument("--gpus-per-cell", type=int, default=None, help="default: 1 if any")
     parser.add_argument("--list", action="store_true", help="list the cells and stop")
     parser.add_argument("--report-only", action="store_true", help="tables and figures only")
-    args = parser.parse_args(argv)
+    return parser.parse_args(argv)
 
-    from rich.console import Console
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+@dataclasses.dataclass(frozen=True)
+class Plan:
+    """The cells a sweep covers, where each stands, and the seconds each still needs."""
+
+    cells: list[Cell]
+    statuses: dict[Cell, Status]
+    estimates: dict[Cell, float]  # of the cells to run alone
+
+    @property
+    def todo(self) -> list[Cell]:
+        return [cell for cell in self.cells if self.statuses[cell] != Status.DONE]
+
+
+def plan_sweep(args: argparse.Namespace) -> Plan:
+    """The options checked, the cells chosen, their run directories read; raises SweepError."""
+    if args.seeds < 1 or args.iterations < 1:
+        raise SweepError("--seeds and --iterations must be at least 1")
+    if (args.cpus_per_cell or 1) < 1 or (args.gpus_per_cell or 0) < 0:
+        raise SweepError("--cpus-per-cell must be at least 1, --gpus-per-cell at least 0")
+    if args.engine == "ray":
+        import_ray()
+    cells = select(all_cells(), args.only)
+    runs_dir = os.path.join(args.out, "runs")
+    statuses = {
+        c: cell_status(os.path.join(runs_dir, c.name), args.seeds, args.iterations) for c in cells
+    }
+    measured = measured_seconds(runs_dir)
+    estimates = {
+        c: estimate_seconds(c, args.seeds, args.iterations, measured)
+        for c in cells
+        if statuses[c] != Status.DONE
+    }
+    return Plan(cells, statuses, estimates)
+
+
+def print_plan(console, plan: Plan, args: argparse.Namespace) -> None:
+    """The table of cells, what each feeds, its status and estimate, and the total."""
     from rich.table import Table
 
-    console = Console(file=sys.stdout)  # not the cell logs that in-process runs print to
-    try:
-        if args.seeds < 1 or args.iterations < 1:
-            raise SweepError("--seeds and --iterations must be at least 1")
-        if (args.cpus_per_cell or 1) < 1 or (args.gpus_per_cell or 0) < 0:
-            raise SweepError("--cpus-per-cell must be at least 1, --gpus-per-cell at least 0")
-        if args.engine == "ray":
-            import_ray()
-        everything = all_cells()
-        cells = select(everything, args.only)
-        runs_dir = os.path.join(args.out, "runs")
-        statuses = {
-            c.name: cell_status(os.path.join(runs_dir, c.name), args.seeds, args.iterations)
-            for c in cells
-        }
-    except SweepError as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
-
-    measured = measured_seconds(runs_dir)
-    todo = [c for c in cells if statuses[c.name] != "done"]
-    estimates = {c.name: estimate_seconds(c, args.seeds, args.iterations, measured) for c in todo}
     table = Table(
-        title=f"sweep: {len(cells)} cells, {args.seeds} seeds × {args.iterations} iterations, "
-        f"in {args.out}"
+        title=f"sweep: {len(plan.cells)} cells, {args.seeds} seeds × {args.iterations} "
+        f"iterations, in {args.out}"
     )
     for column in ("cell", "feeds", "status", "estimate"):
         table.add_column(column)
-    for cell in cells:
-        estimate = _format_duration(estimates[cell.name]) if cell.name in estimates else ""
-        table.add_row(cell.name, ", ".join(cell.groups), statuses[cell.name], estimate)
+    for cell in plan.cells:
+        estimate = plan.estimates.get(cell)
+        estimate = "" if estimate is None else _format_duration(estimate)
+        table.add_row(cell.name, ", ".join(cell.groups), plan.statuses[cell], estimate)
     console.print(table)
-    total = sum(estimates.values())
-    console.print(f"{len(todo)} cells to run, estimated {_format_duration(total)} on this machine")
+    total = _format_duration(sum(plan.estimates.values()))
+    console.print(f"{len(plan.todo)} cells to run, estimated {total} on this machine")
+
+
+def _describe(on_ray: bool, statuses: dict[Cell, Status], remaining: list[Cell]) -> str:
+    """The progress bar's text: the cell in progress, or how many run on Ray."""
+    if on_ray:  # the cells run at once, as the cluster has room
+        return f"{len(remaining)} cells on Ray"
+    return f"{remaining[0].name} ({statuses[remaining[0]]})" if remaining else ""
+
+
+def run_cells(console, plan: Plan, args: argparse.Namespace) -> int | None:
+    """Trains the cells to run on the engine of ``args``; an exit code if the sweep stops."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    columns = (
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed}/{task.total} cells"),
+        TimeElapsedColumn(),
+    )
+    job = CellJob(args.out, args.seeds, args.iterations, tuple(args.set))
+    on_ray = args.engine == "ray"
+    engine_context = contextlib.ExitStack()
+    try:  # the Ray engine starts or joins Ray here and checks what a cell can reserve
+        engine = engine_context.enter_context(
+            ray_engine(args.ray_address, args.seeds, args.cpus_per_cell, args.gpus_per_cell)
+            if on_ray
+            else contextlib.nullcontext(train_here)
+        )
+    except SweepError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    describe = functools.partial(_describe, on_ray, plan.statuses)
+    todo, started = plan.todo, time.monotonic()
+    try:
+        with engine_context, Progress(*columns, console=console) as progress:
+            remaining = list(todo)
+            task = progress.add_task(describe(remaining), total=len(todo))
+            for cell in engine(todo, job):
+                remaining.remove(cell)
+                progress.update(task, description=describe(remaining), advance=1)
+    except SweepError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        kept = "the running cells keep their last checkpoints"
+        kept = kept if on_ray else "the cell in progress is checkpointed"
+        console.print(f"interrupted: {kept}; run the same command to resume")
+        return 130
+    console.print(f"ran {len(todo)} cells in {_format_duration(time.monotonic() - started)}")
+    return None
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    from rich.console import Console
+
+    console = Console(file=sys.stdout)  # not the cell logs that in-process runs print to
+    try:
+        plan = plan_sweep(args)
+    except SweepError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    print_plan(console, plan, args)
     if args.list:
         return 0
-
-    if not args.report_only and todo:
-        columns = (
-            TextColumn("{task.description}"),
-            BarColumn(),
-            TextColumn("{task.completed}/{task.total} cells"),
-            TimeElapsedColumn(),
-        )
-        job = CellJob(args.out, args.seeds, args.iterations, tuple(args.set))
-        on_ray = args.engine == "ray"
-        engine_context = contextlib.ExitStack()
-        try:  # the Ray engine starts or joins Ray here and checks what a cell can reserve
-            engine = engine_context.enter_context(
-                ray_engine(args.ray_address, args.seeds, args.cpus_per_cell, args.gpus_per_cell)
-                if on_ray
-                else contextlib.nullcontext(train_here)
-            )
-        except SweepError as error:
-            print(f"error: {error}", file=sys.stderr)
-            return 2
-
-        def describe(remaining: list[Cell]) -> str:
-            if on_ray:  # the cells run at once, as the cluster has room
-                return f"{len(remaining)} cells on Ray"
-            return f"{remaining[0].name} ({statuses[remaining[0].name]})" if remaining else ""
-
-        started = time.monotonic()
-        try:
-            with engine_context, Progress(*columns, console=console) as progress:
-                remaining = list(todo)
-                task = progress.add_task(describe(remaining), total=len(todo))
-                for cell in engine(todo, job):
-                    remaining.remove(cell)
-                    progress.update(task, description=describe(remaining), advance=1)
-        except SweepError as error:
-            print(f"error: {error}", file=sys.stderr)
-            return 1
-        except KeyboardInterrupt:
-            kept = "the running cells keep their last checkpoints"
-            kept = kept if on_ray else "the cell in progress is checkpointed"
-            console.print(f"interrupted: {kept}; run the same command to resume")
-            return 130
-        console.print(f"ran {len(todo)} cells in {_format_duration(time.monotonic() - started)}")
-
+    if not args.report_only and plan.todo:
+        stopped = run_cells(console, plan, args)
+        if stopped is not None:
+            return stopped
     try:
-        written = write_report(args.out, cells, args.seeds, args.iterations)
+        written = write_report(args.out, plan.cells, args.seeds, args.iterations)
     except SweepError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2

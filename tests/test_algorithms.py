@@ -149,13 +149,13 @@ def test_baseline_m_step_is_the_gail_loss(name):
     loss, _ = discriminator_loss(
         _linear_discriminator,
         params,
-        expert_obs,
-        expert_act,
-        algorithm.expert_weights(gamma),
-        algorithm.discriminator_conditions(k),
-        policy_obs[None],
-        policy_act[None],
-        algorithm.discriminator_condition(jnp.array([[0, 1, 2, 0]]), k),
+        expert_obs=expert_obs,
+        expert_actions=expert_act,
+        expert_weights=algorithm.expert_weights(gamma),
+        conditions=algorithm.discriminator_conditions(k),
+        policy_obs=policy_obs[None],
+        policy_actions=policy_act[None],
+        policy_conditions=algorithm.discriminator_condition(jnp.array([[0, 1, 2, 0]]), k),
     )
     f_real = np.asarray(jnp.concatenate([expert_obs, expert_act], -1) @ params["w"], np.float64)
     f_fake = np.asarray(jnp.concatenate([policy_obs, policy_act], -1) @ params["w"], np.float64)

@@ -8,7 +8,7 @@ import optax
 import pytest
 
 from emgail_jax.method.b_step import PolicySamples, make_b_step
-from emgail_jax.method.config import Config
+from emgail_jax.method.config import BStepConfig
 from emgail_jax.method.gae import generalized_advantages
 from emgail_jax.method.networks import GaussianPolicy, ValueNet, action_distribution
 from emgail_jax.method.optim import Learner
@@ -38,7 +38,7 @@ def problem():
     policy_net, value_net = GaussianPolicy(A, (8,), heads=True), ValueNet((8,), heads=True)
     policy = policy_net.init(keys[4], samples.obs[0, 0], samples.condition[0, 0])
     value = value_net.init(keys[5], samples.obs[0, 0], samples.condition[0, 0], samples.time[0, 0])
-    config = Config(hidden=(8,), value_epochs=3, value_minibatches=2)
+    config = BStepConfig(value_epochs=3, value_minibatches=2)
     return samples, reward, policy_net, value_net, policy, value, config, keys[6]
 
 
@@ -94,8 +94,8 @@ def by_hand(policy_net, value_net, config, policy, value, samples, reward, key):
         (obs, condition, time),
         intention_major(returns),
         key,
-        config.value_epochs,
-        config.value_minibatches,
+        epochs=config.value_epochs,
+        minibatches=config.value_minibatches,
     )
     return expected_policy, expected_value
 

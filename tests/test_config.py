@@ -1,14 +1,35 @@
-"""Run hyper-parameters: paper defaults, env-dependent rollout sizes, and serialisation."""
+"""Run hyper-parameters by layer: paper defaults, env-dependent rollout sizes, the typed options,
+the flat --set namespace, domains, and serialisation (also of the committed runs)."""
 
 import dataclasses
+import glob
 import json
+import os
 import types
 
+import jax.numpy as jnp
 import pytest
 
 import envs
-from emgail_jax.method.config import DOMAINS, Config, SettingError, rollout_defaults
+from emgail_jax.method.algorithms import AlgorithmName, RewardForm
+from emgail_jax.method.config import (
+    DOMAINS,
+    SETTINGS,
+    BStepConfig,
+    EStepConfig,
+    IntentionInput,
+    MethodConfig,
+    Prior,
+    ResponsibilityMode,
+    RewardFrom,
+    RunConfig,
+    RunSchedule,
+    SettingError,
+    rollout_defaults,
+)
 from emgail_jax.method.trpo import TRPOConfig
+
+RUNS = os.path.join(os.path.dirname(__file__), "..", "results", "runs")
 
 
 def _fake_env(name, episode_length):
@@ -16,31 +37,38 @@ def _fake_env(name, episode_length):
     return types.SimpleNamespace(name=name, episode_length=episode_length)
 
 
+def _stored_config(cell: str) -> dict:
+    with open(os.path.join(RUNS, cell, "summary.json")) as f:
+        return json.load(f)["config"]
+
+
 def test_paper_defaults():
-    config = Config()
-    assert config.algo == "emgail" and config.iterations == 400
-    assert config.gamma == 0.995 and 0.97 <= config.gae_lambda <= 0.98
-    assert config.trpo == TRPOConfig()
-    assert config.trpo.max_kl == 0.01 and config.trpo.cg_iterations == 10
-    assert config.discriminator_learning_rate == config.posterior_learning_rate == 1e-3
-    assert config.hidden == (64, 64) and config.obs_clip == 5.0
+    config = RunConfig()
+    method, schedule = config.method, config.schedule
+    assert method.algo is AlgorithmName.EMGAIL and schedule.iterations == 400
+    assert method.b_step.gamma == 0.995 and 0.97 <= method.b_step.gae_lambda <= 0.98
+    assert method.b_step.trpo == TRPOConfig()
+    assert method.b_step.trpo.max_kl == 0.01 and method.b_step.trpo.cg_iterations == 10
+    assert method.m_step.learning_rate == method.e_step.learning_rate == 1e-3
+    assert method.networks.hidden == (64, 64) and method.networks.obs_clip == 5.0
     # ERD from at least 5 deterministic episodes: one per env of the rollout.
-    assert config.resolved(envs.make("driver")).num_envs >= 5
-    assert config.num_envs is None and config.rollout_length is None
+    assert config.resolved(envs.make("driver")).method.rollout.num_envs >= 5
+    assert method.rollout.num_envs is None and method.rollout.rollout_length is None
 
 
 def test_resolved_fills_the_driver_defaults():
-    resolved = Config().resolved(envs.make("driver", intentions=2))
-    assert (resolved.num_envs, resolved.rollout_length) == (5, 100)
+    resolved = RunConfig().resolved(envs.make("driver", intentions=2))
+    rollout = resolved.method.rollout
+    assert (rollout.num_envs, rollout.rollout_length) == (5, 100)
     # Everything else is unchanged.
-    assert resolved.replace(num_envs=None, rollout_length=None) == Config()
+    assert resolved.with_values(num_envs=None, rollout_length=None) == RunConfig()
 
 
 def test_resolved_follows_the_env_episode_length_and_wrappers():
     driver = envs.make("driver", intentions=2, episode_length=30)
-    assert Config().resolved(driver).rollout_length == 30
+    assert MethodConfig().resolved(driver).rollout.rollout_length == 30
     wrapped = envs.wrap_for_training(driver)
-    assert Config().resolved(wrapped).rollout_length == 30
+    assert MethodConfig().resolved(wrapped).rollout.rollout_length == 30
 
 
 @pytest.mark.parametrize(
@@ -55,84 +83,182 @@ def test_resolved_follows_the_env_episode_length_and_wrappers():
 def test_rollout_defaults_collect_the_paper_sample_counts(name, length, expected):
     defaults = rollout_defaults(name, length)
     assert (defaults["num_envs"], defaults["rollout_length"]) == expected
-    resolved = Config().resolved(_fake_env(name, length))
-    assert (resolved.num_envs, resolved.rollout_length) == expected
+    rollout = MethodConfig().resolved(_fake_env(name, length)).rollout
+    assert (rollout.num_envs, rollout.rollout_length) == expected
     # 2500 pairs per intention per iteration on the robotics tasks (5 x 500 or 50 x 50).
     if name != "driver":
         assert expected[0] * expected[1] == 2500
 
 
 def test_explicit_sizes_win_over_the_env_defaults():
-    config = Config(num_envs=2, rollout_length=20)
+    config = RunConfig().with_values(num_envs=2, rollout_length=20)
     resolved = config.resolved(_fake_env("reacher", 50))
-    assert (resolved.num_envs, resolved.rollout_length) == (2, 20)
-    partial = Config(num_envs=3).resolved(_fake_env("reacher", 50))
-    assert (partial.num_envs, partial.rollout_length) == (3, 50)
+    assert (resolved.value("num_envs"), resolved.value("rollout_length")) == (2, 20)
+    partial = RunConfig().with_values(num_envs=3).resolved(_fake_env("reacher", 50))
+    assert (partial.value("num_envs"), partial.value("rollout_length")) == (3, 50)
     assert resolved.resolved(_fake_env("driver", 100)) == resolved  # idempotent once filled
 
 
-def test_replace_returns_a_new_config_and_the_original_is_frozen():
-    config = Config()
-    changed = config.replace(algo="gail", iterations=3, trpo=TRPOConfig(max_kl=0.05))
-    assert (changed.algo, changed.iterations, changed.trpo.max_kl) == ("gail", 3, 0.05)
-    assert (config.algo, config.iterations, config.trpo.max_kl) == ("emgail", 400, 0.01)
+def test_with_values_returns_a_new_config_and_the_original_is_frozen():
+    config = RunConfig()
+    changed = config.with_values(algo="gail", iterations=3, trpo=TRPOConfig(max_kl=0.05))
+    assert (changed.method.algo, changed.schedule.iterations) == ("gail", 3)
+    assert changed.method.b_step.trpo.max_kl == 0.05
+    assert (config.method.algo, config.schedule.iterations) == ("emgail", 400)
     with pytest.raises(dataclasses.FrozenInstanceError):
-        config.algo = "gail"
-    with pytest.raises(TypeError):
-        config.replace(no_such_field=1)
+        config.method.algo = "gail"
+    with pytest.raises(ValueError, match="unknown setting 'no_such_field'"):
+        config.with_values(no_such_field=1)
 
 
-def test_config_is_hashable_for_use_as_a_static_argument():
-    assert hash(Config()) == hash(Config())
-    assert Config(hidden=(8,)) != Config()
-    assert len({Config(), Config(), Config(algo="gail")}) == 2
+def test_configs_are_hashable_for_use_as_static_arguments():
+    assert hash(MethodConfig()) == hash(MethodConfig())
+    assert RunConfig().with_values(hidden=(8,)) != RunConfig()
+    gail = RunConfig().with_values(algo="gail")
+    assert len({RunConfig().method, RunConfig().method, gail.method}) == 2
 
 
-def test_to_dict_is_json_serialisable_and_complete():
-    config = Config(num_envs=2, hidden=(8, 8)).resolved(_fake_env("driver", 100))
-    data = json.loads(json.dumps(config.to_dict()))
-    assert set(data) == {f.name for f in dataclasses.fields(Config)}
-    assert data["num_envs"] == 2 and data["rollout_length"] == 100
-    assert data["hidden"] == [8, 8]
-    assert data["trpo"] == dataclasses.asdict(TRPOConfig())
-    # The dict rebuilds an equal config.
-    rebuilt = Config(
-        **{**data, "hidden": tuple(data["hidden"]), "trpo": TRPOConfig(**data["trpo"])}
+def test_options_are_typed_once_and_keep_their_spellings():
+    """A string given for an option becomes its enum member, equal to its name, and JSON and
+    the command line keep the names."""
+    method = (
+        RunConfig()
+        .with_values(
+            responsibilities="trajectory-centered", prior="mixture", reward_from="previous"
+        )
+        .method
     )
-    assert rebuilt == config
+    assert method.e_step.responsibilities is ResponsibilityMode.TRAJECTORY_CENTERED
+    assert method.e_step.prior is Prior.MIXTURE and method.reward.source is RewardFrom.PREVIOUS
+    assert method.e_step.responsibilities == "trajectory-centered"
+    assert json.dumps(method.e_step.prior) == '"mixture"'
+    assert isinstance(MethodConfig(algo="gail").algo, AlgorithmName)
 
 
-def test_intention_input_defaults_to_heads_and_rejects_unknown_values():
-    assert Config().intention_input == "heads"
-    assert Config(intention_input="onehot").intention_input == "onehot"
-    with pytest.raises(ValueError, match="intention_input must be one of onehot, heads"):
-        Config(intention_input="twoheads")
+def test_the_options_behaviour_is_their_properties():
+    modes = {
+        mode: (mode.per_demonstration, mode.centered, mode.oracle) for mode in ResponsibilityMode
+    }
+    assert modes == {
+        ResponsibilityMode.TRAJECTORY: (True, False, False),
+        ResponsibilityMode.TRAJECTORY_CENTERED: (True, True, False),
+        ResponsibilityMode.PAIR: (False, False, False),
+        ResponsibilityMode.LABELS: (False, False, True),
+    }
+    assert Prior.MIXTURE.estimated and not Prior.UNIFORM.estimated
+    assert IntentionInput.HEADS.heads and not IntentionInput.ONEHOT.heads
+    assert RewardFrom.UPDATED.choose(updated=1, previous=2) == 1
+    assert RewardFrom.PREVIOUS.choose(updated=1, previous=2) == 2
+    assert [name.learns_posterior for name in AlgorithmName] == [True, True, False]
+    logit = jnp.array([-1.0, 2.0])
+    assert RewardForm.LOGIT.of(logit).tolist() == logit.tolist()
+    assert RewardForm.GAIL.of(logit).tolist() == pytest.approx([0.3132617, 2.1269280])
+
+
+def test_to_dict_is_the_flat_namespace_json_serialisable_and_complete():
+    config = RunConfig().with_values(num_envs=2, hidden=(8, 8)).resolved(_fake_env("driver", 100))
+    data = json.loads(json.dumps(config.to_dict()))
+    assert list(data) == list(SETTINGS)
+    assert data["num_envs"] == 2 and data["rollout_length"] == 100
+    assert data["hidden"] == [8, 8] and data["intention_input"] == "heads"
+    assert data["trpo"] == dataclasses.asdict(TRPOConfig())
+    assert data["discriminator_steps"] == config.method.m_step.steps
+
+
+def test_from_dict_round_trips_what_new_runs_write():
+    config = RunConfig().with_values(
+        intention_input="onehot",
+        hidden=(8,),
+        prior="mixture",
+        choose_intentions=True,
+        reward_form="logit",
+        info_weight=0.3,
+        seed_batch=2,
+        snapshot_every=0,
+    )
+    written = json.loads(json.dumps(config.to_dict()))
+    assert RunConfig.from_dict(written) == config
+    assert RunConfig.from_dict(written).to_dict() == config.to_dict()
+
+
+def test_older_runs_without_an_option_read_as_they_ran():
+    older = {k: v for k, v in RunConfig().to_dict().items() if k != "intention_input"}
+    assert RunConfig.from_dict(older).method.networks.intention_input is IntentionInput.ONEHOT
+    with pytest.raises(TypeError, match="unknown settings"):
+        RunConfig.from_dict({**RunConfig().to_dict(), "no_such_setting": 1})
+
+
+def test_a_committed_summary_is_read_back_identically():
+    """``driver-r4-emgail`` (re-seeding on) holds every setting of its time: the stored flat
+    dict lands in the layers and comes back out unchanged."""
+    stored = _stored_config("driver-r4-emgail")
+    config = RunConfig.from_dict(stored)
+    assert config.method.e_step.reseed and config.method.e_step.responsibilities == "trajectory"
+    assert config.method.networks.intention_input is IntentionInput.HEADS
+    written = json.loads(json.dumps(config.to_dict()))
+    assert {key: written[key] for key in stored} == stored
+
+
+def test_an_old_committed_summary_takes_the_defaults_of_its_time():
+    """``driver-r10-emgail`` predates the prior, re-seeding and the gradient penalty: it reads
+    with re-seeding off and the settings it lacks at their defaults."""
+    stored = _stored_config("driver-r10-emgail")
+    assert "reseed" not in stored and "prior" not in stored
+    config = RunConfig.from_dict(stored)
+    assert not config.method.e_step.reseed and config.method.e_step.prior is Prior.UNIFORM
+    assert config.method.m_step.gradient_penalty == 0.0
+    written = config.to_dict()
+    assert {key: written[key] for key in stored if key != "hidden"} == {
+        key: value for key, value in stored.items() if key != "hidden"
+    }
+
+
+def test_every_committed_summary_reads():
+    cells = glob.glob(os.path.join(RUNS, "*", "summary.json"))
+    assert len(cells) >= 79
+    for path in cells:
+        with open(path) as f:
+            RunConfig.from_dict(json.load(f)["config"])
 
 
 def test_choosing_k_needs_a_posterior_and_the_mixture_prior():
-    assert Config(prior="mixture", choose_intentions=True).choose_intentions
+    assert RunConfig().with_values(prior="mixture", choose_intentions=True).method.choose_intentions
     for wrong in ({}, {"prior": "mixture", "algo": "gail"}):
         with pytest.raises(ValueError, match="needs a posterior and the mixture prior"):
-            Config(choose_intentions=True, **wrong)
-
-
-def test_from_dict_round_trip_and_older_runs_without_the_intention_input():
-    config = Config(intention_input="onehot", hidden=(8,))
-    assert Config.from_dict(json.loads(json.dumps(config.to_dict()))) == config
-    older = {k: v for k, v in Config().to_dict().items() if k != "intention_input"}
-    assert Config.from_dict(older).intention_input == "onehot"
+            MethodConfig(
+                algo=wrong.get("algo", "emgail"),
+                e_step=EStepConfig(prior=wrong.get("prior", "uniform")),
+                choose_intentions=True,
+            )
 
 
 def test_with_settings_parses_each_value_as_the_type_of_its_default():
-    config = Config().with_settings(
+    config = RunConfig().with_settings(
         ["discriminator_steps=5", "trpo.cg_damping=0", "hidden=(32, 32)", "algo=gail"]
     )
-    assert config.discriminator_steps == 5
-    assert config.trpo.cg_damping == 0.0 and isinstance(config.trpo.cg_damping, float)
-    assert config.hidden == (32, 32)
-    assert config.algo == "gail"
-    assert config.trpo.max_kl == Config().trpo.max_kl  # the rest untouched
-    assert Config().with_settings([]) == Config()
+    method = config.method
+    assert method.m_step.steps == 5
+    assert method.b_step.trpo.cg_damping == 0.0 and isinstance(method.b_step.trpo.cg_damping, float)
+    assert method.networks.hidden == (32, 32)
+    assert method.algo is AlgorithmName.GAIL
+    assert method.b_step.trpo.max_kl == TRPOConfig().max_kl  # the rest untouched
+    assert RunConfig().with_settings([]) == RunConfig()
+
+
+@pytest.mark.parametrize(
+    ("flat", "layered"),
+    [
+        ("discriminator_steps=5", "method.m_step.steps=5"),
+        ("trpo.max_kl=0.02", "method.b_step.trpo.max_kl=0.02"),
+        ("posterior_steps=3", "method.e_step.steps=3"),
+        ("reward_from=previous", "method.reward.source=previous"),
+        ("iterations=7", "schedule.iterations=7"),
+        ("info_weight=0.5", "info_weight=0.5"),
+    ],
+)
+def test_set_takes_todays_flat_keys_and_the_layered_paths_alike(flat, layered):
+    assert RunConfig().with_settings([flat]) == RunConfig().with_settings([layered])
+    assert RunConfig().with_settings([flat]) != RunConfig()
 
 
 @pytest.mark.parametrize(
@@ -140,44 +266,55 @@ def test_with_settings_parses_each_value_as_the_type_of_its_default():
     [
         ("discriminator_step=5", "unknown setting 'discriminator_step'"),
         ("trpo.damping=0", "unknown setting 'trpo.damping'"),
+        ("method.m_step.step=5", "unknown setting 'method.m_step.step'"),
         ("discriminator_steps=0.5", "like its default 10"),
         ("gamma=fast", "not a number"),
         ("trpo=1", "has fields"),
+        ("method.e_step=1", "has fields"),
         ("gamma", "KEY=VALUE"),
         ("eval_every=0", "eval_every must be at least 1"),
     ],
 )
 def test_with_settings_rejects_what_it_cannot_apply_in_one_line(setting, message):
     with pytest.raises(ValueError, match=message) as error:
-        Config().with_settings([setting])
+        RunConfig().with_settings([setting])
     assert "\n" not in str(error.value)
 
 
-def test_program_key_clears_what_does_not_shape_the_update():
-    base = Config()
-    same = Config(iterations=50, eval_every=7, chunk_size=5, info_weight=0.3)
-    assert same.program_key() == base.program_key()
+def test_program_key_is_the_method_config():
+    base = RunConfig()
+    same = RunConfig(
+        schedule=RunSchedule(iterations=50, eval_every=7, chunk_size=5, seed_batch=2),
+        info_weight=0.3,
+    )
+    assert same.program_key() == base.program_key() == base.method
     assert hash(same.program_key()) == hash(base.program_key())
-    for changed in (Config(discriminator_steps=3), Config(algo="gail"), Config(seed_batch=2)):
-        assert changed.program_key() != base.program_key()
+    for changed in ({"discriminator_steps": 3}, {"algo": "gail"}, {"reward_form": "logit"}):
+        assert base.with_values(**changed).program_key() != base.program_key()
 
 
-def _leaf_keys(node, prefix=""):
+def _leaf_paths(node, prefix=()):
     for f in dataclasses.fields(node):
         value = getattr(node, f.name)
-        if dataclasses.is_dataclass(value):
-            yield from _leaf_keys(value, f"{prefix}{f.name}.")
+        if dataclasses.is_dataclass(value) and not isinstance(value, TRPOConfig):
+            yield from _leaf_paths(value, (*prefix, f.name))
         else:
-            yield f"{prefix}{f.name}"
+            yield (*prefix, f.name)
+
+
+def test_the_flat_table_covers_every_field_once():
+    paths = [setting.path for setting in SETTINGS.values()]
+    assert sorted(paths) == sorted(_leaf_paths(RunConfig()))
+    assert len(set(paths)) == len(paths)
 
 
 def test_every_hyper_parameter_has_a_domain_its_default_is_in():
-    assert sorted(DOMAINS) == sorted(_leaf_keys(Config()))
+    trpo = {f"trpo.{f.name}" for f in dataclasses.fields(TRPOConfig)}
+    assert set(DOMAINS) == (set(SETTINGS) - {"trpo"}) | trpo
     for key, domain in DOMAINS.items():
-        value = Config()
-        for name in key.split("."):
-            value = getattr(value, name)
-        assert domain.holds(value), key
+        name, _, field = key.partition(".")
+        value = RunConfig().value(name)
+        assert domain.holds(getattr(value, field) if field else value), key
 
 
 @pytest.mark.parametrize(
@@ -198,17 +335,28 @@ def test_every_hyper_parameter_has_a_domain_its_default_is_in():
         ("trpo.cg_damping=-1", "trpo.cg_damping must be a number >= 0"),
         ("choose_intentions=3", "choose_intentions must be True or False"),
         ("prior=flat", "prior must be one of uniform, mixture; got 'flat'"),
+        ("snapshot_every=-1", "snapshot_every must be an integer >= 0; got -1"),
     ],
 )
 def test_a_value_outside_its_domain_is_refused_in_one_line(setting, message):
     with pytest.raises(SettingError) as error:
-        Config().with_settings([setting])
+        RunConfig().with_settings([setting])
     assert message in str(error.value) and "\n" not in str(error.value)
     assert error.value.key == setting.partition("=")[0]
 
 
+def test_a_layer_built_alone_is_checked_too():
+    with pytest.raises(SettingError, match="gamma must be in"):
+        BStepConfig(gamma=2.0)
+    with pytest.raises(SettingError, match=r"trpo\.max_kl must be a positive number"):
+        BStepConfig(trpo=TRPOConfig(max_kl=0.0))
+    with pytest.raises(SettingError, match="algo must be one of emgail, infogail, gail"):
+        MethodConfig(algo="ppo")
+
+
 def test_values_at_the_edges_of_their_domains_are_accepted():
-    config = Config().with_settings(
-        ["gamma=1", "gae_lambda=1", "trpo.cg_damping=0", "seed_batch=1"]
+    config = RunConfig().with_settings(
+        ["gamma=1", "gae_lambda=1", "trpo.cg_damping=0", "seed_batch=1", "snapshot_every=0"]
     )
-    assert (config.gamma, config.gae_lambda, config.trpo.cg_damping) == (1.0, 1.0, 0.0)
+    b_step = config.method.b_step
+    assert (b_step.gamma, b_step.gae_lambda, b_step.trpo.cg_damping) == (1.0, 1.0, 0.0)

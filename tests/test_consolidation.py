@@ -16,7 +16,8 @@ def saved(tiny_run):
 def test_samples_come_from_every_snapshot_up_to_the_networks_held(tiny_run, saved):
     key = jax.random.PRNGKey(0)
     obs, executed = consolidation.snapshot_policy_samples(saved, 0, key)
-    k, b, t = 2, saved.config.num_envs, saved.config.rollout_length
+    rollout = saved.config.method.rollout
+    k, b, t = 2, rollout.num_envs, rollout.rollout_length
     assert obs.shape == (k, 2 * b * t, saved.problem.env.observation_size)  # snapshots 2 and 4
     assert executed.shape == (k, 2 * b * t, 1) and np.all(np.abs(executed) <= 1)
     # The two snapshots' policies differ, so do their samples.

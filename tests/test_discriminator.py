@@ -9,6 +9,7 @@ import optax
 import pytest
 
 from emgail_jax.method.algorithms import make_algorithm
+from emgail_jax.method.config import MStepConfig
 from emgail_jax.method.discriminator import (
     discriminator_loss,
     discriminator_update,
@@ -48,13 +49,13 @@ def test_loss_hand_computed_values():
     loss, metrics = discriminator_loss(
         toy_apply,
         params,
-        expert_obs,
-        expert_actions,
-        gamma,
-        conditions,
-        policy_obs,
-        policy_actions,
-        policy_conditions,
+        expert_obs=expert_obs,
+        expert_actions=expert_actions,
+        expert_weights=gamma,
+        conditions=conditions,
+        policy_obs=policy_obs,
+        policy_actions=policy_actions,
+        policy_conditions=policy_conditions,
     )
     expert_term = ((0.5 * math.log(2) + 0.5 * math.log(4 / 3)) + math.log(4)) / 2
     policy_term = (math.log(4) + math.log(4 / 3)) / 2
@@ -163,13 +164,13 @@ def test_loss_finite_at_extreme_logits():
     loss, _ = discriminator_loss(
         toy_apply,
         params,
-        huge,
-        jnp.zeros((2, 1)),
-        jnp.ones((2, 1)),
-        jnp.ones((1, 1)),
-        huge[None],
-        jnp.zeros((1, 2, 1)),
-        jnp.ones((1, 2, 1)),
+        expert_obs=huge,
+        expert_actions=jnp.zeros((2, 1)),
+        expert_weights=jnp.ones((2, 1)),
+        conditions=jnp.ones((1, 1)),
+        policy_obs=huge[None],
+        policy_actions=jnp.zeros((1, 2, 1)),
+        policy_conditions=jnp.ones((1, 2, 1)),
     )
     # Expert: softplus(-100) + softplus(100) ~ 100, halved; policy: the same.
     assert float(loss) == pytest.approx(100.0, rel=1e-4)
@@ -202,7 +203,7 @@ def test_m_step_trains_on_the_algorithms_weights_and_conditions(algo, random_bat
     params = net.init(jax.random.PRNGKey(3), batch.obs, batch.executed, conditions)
     optimizer = optax.adam(1e-2)
     start = Learner.create(params, optimizer)
-    result = make_m_step(net.apply, optimizer, 5)(start, batch, gamma, algorithm)
+    result = make_m_step(net.apply, optimizer, MStepConfig(steps=5))(start, batch, gamma, algorithm)
     expected, expected_metrics = discriminator_update(
         net.apply,
         optimizer,
@@ -235,7 +236,14 @@ def test_learned_reward_is_the_algorithms_pseudo_reward_of_the_own_condition(alg
     own_log_posterior = jnp.full((k, m), -0.7)
     params = jnp.array([0.3, -0.4]) if algorithm.conditional_discriminator else jnp.zeros(0)
     reward = learned_reward(
-        toy_apply, params, algorithm, k, obs, executed, intention, own_log_posterior
+        toy_apply,
+        params,
+        algorithm,
+        k,
+        obs=obs,
+        executed=executed,
+        intention=intention,
+        own_log_posterior=own_log_posterior,
     )
     logit = obs[..., 0] + executed[..., 0]
     if algorithm.conditional_discriminator:

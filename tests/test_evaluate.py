@@ -1,6 +1,7 @@
 """python -m emgail_jax.evaluate: scores, figures, and bad input."""
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -140,6 +141,21 @@ def test_an_auto_run_reports_what_the_seeds_agree_on(auto_run):
         assert final["intentions_chosen"][seed] == expected[seed].sum()
         assert final["cluster_accuracy"][seed] == run.clustering(seed)["cluster_accuracy"]
     assert all(1 <= k <= 3 for k in final["intentions_held"])
+
+
+def test_a_saved_run_without_the_stored_choice_decides_k_as_training_did(auto_run, tmp_path):
+    """The intentions kept come from the run's final results; a summary without them (older
+    runs) has them decided again from the final state, to the same."""
+    from emgail_jax.host.saved_run import SavedRun
+
+    copy = tmp_path / "older"
+    shutil.copytree(auto_run, copy)
+    summary = json.loads((copy / "summary.json").read_text())
+    stored = summary["final"].pop("intentions_kept")
+    (copy / "summary.json").write_text(json.dumps(summary))
+    again = SavedRun.open(str(copy))
+    for seed in range(2):
+        np.testing.assert_array_equal(again.intentions_in_use(seed), stored[seed])
 
 
 @pytest.mark.parametrize(

@@ -106,14 +106,12 @@ def test_choosing_k_table_sets_the_chosen_k_beside_k_given(tmp_path):
             cells[name], np.asarray(erd), np.asarray(accuracy), 0, 1.0, None, chosen, held
         )
 
-    results = {
-        "reacher-2-emgail-auto": result(
-            "reacher-2-emgail-auto", [0.9, 1.0], [0.1, 0.2], [2, 3], [4, 3]
-        ),
-        "reacher-2-emgail": result("reacher-2-emgail", [0.95, 0.95], [0.1, 0.1]),
-        "hopper-3-emgail-auto": result("hopper-3-emgail-auto", [1.0, 1.0], [0.0, 0.0], [3, 3]),
-    }
-    sweep.write_choosing_k(str(tmp_path), results)
+    found = [
+        result("reacher-2-emgail-auto", [0.9, 1.0], [0.1, 0.2], [2, 3], [4, 3]),
+        result("reacher-2-emgail", [0.95, 0.95], [0.1, 0.1]),
+        result("hopper-3-emgail-auto", [1.0, 1.0], [0.0, 0.0], [3, 3]),
+    ]
+    sweep.write_choosing_k(str(tmp_path), sweep.Results({r.cell: r for r in found}))
     table = (tmp_path / "choosing-k.md").read_text()
     row = (
         "| reacher, 2 of 4 | 2, 3 | 4, 3 | 95.0 ± 5.0 | 95.0 ± 0.0 | 0.150 ± 0.050 | 0.100 ± 0.000"
@@ -126,6 +124,112 @@ def test_choosing_k_table_sets_the_chosen_k_beside_k_given(tmp_path):
         ("reacher", "2", "2 3", "4 3"),
     ]
     assert rows[1]["given_accuracy_mean"] == "0.9500" and rows[0]["given_erd_mean"] == "nan"
+
+
+def test_sweep_cells_are_records_whose_names_follow_from_their_fields():
+    """A cell is its env, K, algorithm, radius and variant: its name (and run directory) and
+    its data's name are made from these, and the groups it feeds do not make it another."""
+    sweep = _load("sweep")
+    Cell, Variant = sweep.Cell, sweep.Variant
+    assert Cell("hopper", 3, "emgail", variant=Variant.PAIR).name == "hopper-3-emgail-pair"
+    assert Cell("driver", 2, "gail", radius=7.0).name == "driver-r7-gail"
+    assert Cell("driver", 2, "gail", radius=7.0).data.name == "driver-r7"
+    assert Cell("reacher", 4, "emgail", variant=Variant.AUTO).data == sweep.DemoSet("reacher", 4)
+    assert Cell("swimmer", 2, "emgail", ("table3",)) == Cell("swimmer", 2, "emgail")
+    assert Cell("swimmer", 2, "emgail") != Cell("swimmer", 2, "emgail", variant=Variant.ONEHOT)
+    for cell in sweep.all_cells():  # every field of the record is the one its name says
+        env, where, algo, *variant = cell.name.split("-")
+        assert (cell.env, cell.algo, cell.variant) == (env, algo, Variant("".join(variant)))
+        expected = f"r{cell.radius:g}" if cell.radius is not None else str(cell.intentions)
+        assert where == expected
+    onehot = Cell("hopper", 2, "emgail", variant=Variant.ONEHOT).run_args()
+    assert onehot[-2:] == ["--intention-input", "onehot"]
+
+
+def test_sweep_results_are_selected_by_the_cells_fields():
+    """Results.get finds the one cell of the fields asked (the default variant, no radius,
+    unless asked), Results.where every cell a predicate keeps, in the sweep's order."""
+    sweep = _load("sweep")
+    Variant = sweep.Variant
+    cells = sweep.all_cells()
+
+    def result(cell, erd):
+        return sweep.CellResult(cell, np.asarray([erd]), None, 0, 1.0, None)
+
+    results = sweep.Results({cell: result(cell, i) for i, cell in enumerate(cells)})
+    by_name = {cell.name: i for i, cell in enumerate(cells)}
+
+    def erd_of(found):
+        return None if found is None else int(found.erd[0])
+
+    assert erd_of(results.get("hopper", 2, "emgail")) == by_name["hopper-2-emgail"]
+    pair = results.get("hopper", 2, "emgail", variant=Variant.PAIR)
+    assert erd_of(pair) == by_name["hopper-2-emgail-pair"]
+    assert erd_of(results.get("driver", 2, "gail", radius=4.0)) == by_name["driver-r4-gail"]
+    assert erd_of(results.get("driver", 2, "emgail")) == by_name["driver-2-emgail"]
+    assert results.get("driver", 2, "gail") is None  # the driver's K-given cells are EM-GAIL's
+    assert results.get("walker", 2, "gail") is None
+    driver = results.where(sweep.on_driver_radius)
+    assert [r.cell.name for r in driver] == [
+        f"driver-r{radius:g}-{algo}" for radius in sweep.DRIVER_RADII for algo in sweep.ALGOS
+    ]
+    robotics = results.where(sweep.robotics_default)
+    assert {r.cell.env for r in robotics} == set(sweep.ROBOTICS_INTENTIONS)
+    assert all(r.cell.variant == Variant.DEFAULT for r in robotics)
+    assert len(robotics) == 4 + 3 * 8  # K = 1, and 3 algorithms at each of the 8 K
+    assert len(results.where(sweep.robotics_many)) == 3 * 8
+    partial = sweep.Results({c: r for c, r in results.by_cell.items() if c.algo != "gail"})
+    assert partial.get("hopper", 2, "gail") is None
+
+
+def test_sweep_table3_takes_each_column_from_its_cells(tmp_path):
+    """Table 3's csv rows name the env and K of the data the cell trained on, the GMM's row
+    comes from the separability table, and a cell that has not finished is a dash."""
+    sweep = _load("sweep")
+    Cell, Variant = sweep.Cell, sweep.Variant
+    found = [
+        sweep.CellResult(Cell("hopper", 3, "emgail"), np.zeros(2), np.asarray([0.9, 0.8]), 0,
+                         1.0, None),
+        sweep.CellResult(Cell("reacher", 2, "emgail", variant=Variant.PAIR), np.zeros(1),
+                         np.asarray([0.5]), 0, 1.0, None),
+    ]  # fmt: skip
+    separability = sweep.SeparabilityTable(
+        {"hopper-3": {"gmm_accuracy": 0.7, "gmm_accuracy_std": 0.1}}
+    )
+    sweep.write_table3(str(tmp_path), sweep.Results({r.cell: r for r in found}), separability)
+    rows = [line.split(",") for line in (tmp_path / "table3.csv").read_text().splitlines()]
+    assert rows[1:] == [
+        ["hopper", "3", "gmm", "0.7000", "0.1000", "5"],
+        ["hopper", "3", "emgail", "0.8500", "0.0500", "2"],
+        ["reacher", "2", "emgail-pair", "0.5000", "0.0000", "1"],
+    ]
+    table = (tmp_path / "table3.md").read_text().splitlines()
+    pair = next(line for line in table if line.startswith("| EM-GAIL (per-pair E-step) |"))
+    columns = [c.strip() for c in pair.split("|")[2:-1]]
+    names = [data.name for data in sweep.robotics_sets()]
+    assert columns[names.index("reacher-2")] == "50.0 ± 0.0"
+    assert columns[names.index("hopper-3")] == "—"
+
+
+def test_sweep_draws_the_figures_whose_cells_have_finished(tmp_path):
+    """Each figure takes its cells by field: swimmer's default cells alone draw Figure 6, and
+    with the separability of their data Figures 4a and 5b; the driver's none."""
+    sweep = _load("sweep")
+    Cell = sweep.Cell
+    found = [
+        sweep.CellResult(Cell("swimmer", k, algo), np.asarray([0.2, 0.4]), None, 0, 1.0, None)
+        for k in (1, 2)
+        for algo in sweep.ALGOS
+        if k > 1 or algo == "gail"
+    ]
+    results = sweep.Results({r.cell: r for r in found})
+    empty = sweep.SeparabilityTable({})
+    assert sweep.draw_figures(str(tmp_path), results, empty) == ["fig6.png"]
+    row = {"separability": 0.5, "separability_std": 0.1}
+    known = sweep.SeparabilityTable({"swimmer-2": row})
+    written = sweep.draw_figures(str(tmp_path), results, known)
+    assert written == ["fig4a.png", "fig5b.png", "fig6.png"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == written
 
 
 def test_sweep_cell_status_reads_the_run_directory(tmp_path):
@@ -152,14 +256,14 @@ def test_sweep_cell_status_reads_the_run_directory(tmp_path):
         sweep.cell_status(str(tmp_path), 2, 400)
 
 
-def test_sweep_runs_skips_and_reports_driver_cells(tmp_path, monkeypatch, capsys):
+def test_sweep_runs_skips_and_reports_driver_cells(tmp_path, capsys):
     """End to end on two tiny driver cells (the sizes of the other tiny driver runs): trained in
     this process, the second radius on the first one's compiled programs, reported, then
     skipped."""
-    from emgail_jax.host import seed_runner
+    from emgail_jax.host.program_cache import SHARED
 
     sweep = _load("sweep")
-    monkeypatch.setattr(seed_runner, "_shared_programs", type(seed_runner._shared_programs)())
+    SHARED.clear()
     out = tmp_path / "results"
     args = [
         *("--only", "driver-r4-emgail,driver-r20-emgail", "--seeds", "2", "--iterations", "4"),
@@ -167,7 +271,7 @@ def test_sweep_runs_skips_and_reports_driver_cells(tmp_path, monkeypatch, capsys
         *("--out", str(out)),
     ]
     assert sweep.main(args) == 0
-    assert len(seed_runner._shared_programs) == 1  # both radii ran one set of programs
+    assert len(SHARED) == 1  # both radii ran one set of programs
     for name in ("table2.md", "table3.md", "table3.csv", "fig6.csv", "fig4b.png", "fig5a.png"):
         assert (out / name).exists(), name
     rows = {float(row["radius"]): row for row in csv.DictReader((out / "fig5a.csv").open())}
@@ -214,11 +318,13 @@ def test_sweep_separability_of_the_driver_falls_with_the_radius(tmp_path):
     sweep = _load("sweep")
     cells = sweep.select(sweep.all_cells(), "driver-r4-gail,driver-r20-gail")
     table = sweep.separability_table(str(tmp_path), cells)
-    assert table["driver-r4"]["separability"] < 0.2 < 0.9 < table["driver-r20"]["separability"]
+    near, far = (sweep.DemoSet("driver", 2, radius) for radius in (4.0, 20.0))
+    assert table.of(near)["separability"] < 0.2 < 0.9 < table.of(far)["separability"]
+    assert sorted(table.rows) == ["driver-r20", "driver-r4"]
     # Kept in separability.csv and read back rather than recomputed.
     again = sweep.separability_table(str(tmp_path), cells)
-    for data in ("driver-r4", "driver-r20"):
-        assert again[data] == pytest.approx(table[data], abs=1e-4)
+    for data in (near, far):
+        assert again.of(data) == pytest.approx(table.of(data), abs=1e-4)
 
 
 @pytest.mark.slow  # its own compile of the RL update: 30-90 s

@@ -290,10 +290,16 @@ def test_policy_action_is_the_mean_unless_exploring():
     stats = RunningStats(mean=jnp.array([1.0, 0.0, 0.0]), var=jnp.full(3, 4.0), count=jnp.ones(()))
     mean, log_std = policy.apply(params, normalize(stats, obs, 5.0), condition)
     key = jax.random.PRNGKey(1)
-    np.testing.assert_array_equal(policy_action(policy, params, stats, obs, condition, 5.0), mean)
-    quiet = policy_action(policy, params, stats, obs, condition, 5.0, key, explore=False)
+    np.testing.assert_array_equal(
+        policy_action(policy, params, stats, obs, condition, obs_clip=5.0), mean
+    )
+    quiet = policy_action(
+        policy, params, stats, obs, condition, obs_clip=5.0, key=key, explore=False
+    )
     np.testing.assert_array_equal(quiet, mean)
-    sample = policy_action(policy, params, stats, obs, condition, 5.0, key, explore=True)
+    sample = policy_action(
+        policy, params, stats, obs, condition, obs_clip=5.0, key=key, explore=True
+    )
     np.testing.assert_allclose(sample, mean + jnp.exp(log_std) * jax.random.normal(key, (2, 2)))
     # The same draw as the action distribution's own sampler, so that either may be used.
     np.testing.assert_array_equal(sample, action_distribution(mean, log_std).sample(seed=key))

@@ -9,7 +9,12 @@ import optax
 import pytest
 
 from emgail_jax.method.batches import DemonstrationPairs
-from emgail_jax.method.config import Config
+from emgail_jax.method.config import (
+    EStepConfig,
+    ResponsibilityMode,
+    RewardFrom,
+    SettingError,
+)
 from emgail_jax.method.networks import Posterior
 from emgail_jax.method.optim import Learner
 from emgail_jax.method.posterior import (
@@ -64,7 +69,15 @@ def pair_mode(logits, episode=None, episodes=1, mode="pair"):
     n = logits.shape[0]
     episode = jnp.zeros(n, jnp.int32) if episode is None else episode
     zeros = jnp.zeros((n, 1))
-    return expert_responsibilities(toy_apply, logits, zeros, zeros, episode, episodes, mode)
+    return expert_responsibilities(
+        toy_apply,
+        logits,
+        zeros,
+        zeros,
+        episode=episode,
+        episodes=episodes,
+        mode=ResponsibilityMode(mode),
+    )
 
 
 def test_responsibilities_are_the_posterior_probabilities():
@@ -77,9 +90,10 @@ def test_responsibilities_are_the_posterior_probabilities():
     np.testing.assert_array_equal(result.trajectory_labels, [1, 0, 1])
 
 
-def test_unknown_mode_is_refused():
-    with pytest.raises(ValueError, match="trajectory-centered, pair or labels"):
-        pair_mode(jnp.zeros((2, 2)), mode="episode")
+def test_unknown_mode_is_refused_where_the_option_is_read():
+    with pytest.raises(SettingError, match="one of trajectory, trajectory-centered, pair, labels"):
+        EStepConfig(responsibilities="episode")
+    assert EStepConfig(responsibilities="pair").responsibilities is ResponsibilityMode.PAIR
 
 
 def test_labels_mode_is_the_one_hot_labels_and_keeps_the_posterior_pair_labels():
@@ -87,7 +101,16 @@ def test_labels_mode_is_the_one_hot_labels_and_keeps_the_posterior_pair_labels()
     zeros = jnp.zeros((3, 1))
     episode = jnp.zeros(3, jnp.int32)
     labels = jnp.array([0, 0, 1])
-    result = expert_responsibilities(toy_apply, logits, zeros, zeros, episode, 1, "labels", labels)
+    result = expert_responsibilities(
+        toy_apply,
+        logits,
+        zeros,
+        zeros,
+        episode=episode,
+        episodes=1,
+        mode=ResponsibilityMode.LABELS,
+        labels=labels,
+    )
     np.testing.assert_array_equal(result.gamma, [[1, 0], [1, 0], [0, 1]])
     np.testing.assert_array_equal(result.pair_labels, [1, 0, 1])  # eq. 29: the posterior's
     np.testing.assert_array_equal(result.trajectory_labels, labels)
@@ -113,7 +136,9 @@ def separable_problem():
 def test_update_reduces_loss_on_separable_problem(separable_problem):
     net, params, obs, actions, labels = separable_problem
     optimizer = optax.adam(1e-2)
-    update = jax.jit(lambda p: posterior_update(net.apply, optimizer, p, obs, actions, labels, 100))
+    update = jax.jit(
+        lambda p: posterior_update(net.apply, optimizer, p, obs, actions, labels, steps=100)
+    )
     trained, metrics = update(Learner.create(params, optimizer))
     new_params = trained.params
     before, _ = posterior_loss(net.apply, params, obs, actions, labels)
@@ -202,7 +227,7 @@ def _expert(n, episodes):
 
 def test_e_step_without_a_posterior_is_uniform_with_zero_log_posterior(random_batch):
     """GAIL's E-step: every pair belongs to every intention alike, and no reward term."""
-    e_step = make_e_step(None, optax.adam(1e-3), Config())
+    e_step = make_e_step(None, optax.adam(1e-3), EStepConfig())
     result = e_step(None, random_batch(3, 4, 6), _expert(6, 2), UNIFORM3)
     np.testing.assert_array_equal(result.gamma, np.full((6, 3), 1 / 3, np.float32))
     np.testing.assert_array_equal(result.own_log_posterior, np.zeros((3, 4)))
@@ -226,13 +251,14 @@ def test_e_step_trains_on_the_policy_samples_and_scores_their_own_intention(
 ):
     k, m, n = 3, 5, 6
     net, optimizer, batch, start = _posterior_and_batch(random_batch, k, m, n)
-    config = Config(posterior_steps=7, responsibilities="pair", reward_from=reward_from)
-    result = make_e_step(net.apply, optimizer, config)(start, batch, _expert(n, 2), UNIFORM3)
+    config = EStepConfig(steps=7, responsibilities="pair")
+    e_step = make_e_step(net.apply, optimizer, config, reward_from=RewardFrom(reward_from))
+    result = e_step(start, batch, _expert(n, 2), UNIFORM3)
     # The same training, written out: the samples labelled by the row they came from.
     labels = np.repeat(np.arange(k), m)
     flat = lambda x: x.reshape(k * m, -1)
     trained, _ = posterior_update(
-        net.apply, optimizer, start, flat(batch.obs), flat(batch.executed), labels, 7
+        net.apply, optimizer, start, flat(batch.obs), flat(batch.executed), labels, steps=7
     )
     np.testing.assert_allclose(
         result.posterior.params["params"]["MLP_0"]["Dense_0"]["kernel"],
@@ -268,7 +294,9 @@ def test_kept_only_relabels_to_the_most_likely_kept_intention():
     p = jnp.array([[0.6, 0.3, 0.1], [0.3, 0.5, 0.2], [0.2, 0.7, 0.1], [0.2, 0.5, 0.3]])
     episode = jnp.array([0, 0, 1, 1])
     apply = lambda logits, obs, act: logits
-    result = expert_responsibilities(apply, jnp.log(p), p, p, episode, 2, "trajectory")
+    result = expert_responsibilities(
+        apply, jnp.log(p), p, p, episode=episode, episodes=2, mode=ResponsibilityMode.TRAJECTORY
+    )
     np.testing.assert_array_equal(result.pair_labels, [0, 1, 1, 1])  # demonstration 0: 0.18 for 0
     np.testing.assert_array_equal(result.trajectory_labels, [0, 0, 1, 1])
     kept = result.kept_only(jnp.array([True, False, True]))
@@ -289,7 +317,14 @@ def test_the_prior_reweighs_the_posterior(mode):
     episode, w = jnp.array([0, 0, 1, 1]), jnp.array([0.2, 0.8])
     gamma = lambda weights: (
         expert_responsibilities(
-            lambda logits, obs, act: logits, jnp.log(p), p, p, episode, 2, mode, weights=weights
+            lambda logits, obs, act: logits,
+            jnp.log(p),
+            p,
+            p,
+            episode=episode,
+            episodes=2,
+            mode=ResponsibilityMode(mode),
+            weights=weights,
         ).gamma
     )
     if mode == "pair":
@@ -304,7 +339,7 @@ def test_the_prior_reweighs_the_posterior(mode):
 def test_e_step_with_the_mixture_prior_reestimates_the_weights(random_batch):
     k, m, n = 3, 5, 6
     net, optimizer, batch, start = _posterior_and_batch(random_batch, k, m, n)
-    config = Config(posterior_steps=3, responsibilities="pair", prior="mixture")
+    config = EStepConfig(steps=3, responsibilities="pair", prior="mixture")
     prior = jnp.array([0.6, 0.3, 0.1])
     result = make_e_step(net.apply, optimizer, config)(start, batch, _expert(n, 2), prior)
     log_p = log_posterior(

@@ -117,7 +117,7 @@ def test_the_jitted_rule_equals_the_plain_one():
 
 @pytest.mark.parametrize("field", ["reseed_patience", "reseed_window"])
 def test_the_rule_needs_at_least_one_e_step(field):
-    from emgail_jax.method.config import Config
+    from emgail_jax.method.config import RunConfig
 
     with pytest.raises(ValueError, match=field):
-        Config(**{field: 0})
+        RunConfig().with_values(**{field: 0})

@@ -7,10 +7,10 @@ import pytest
 
 import envs
 from emgail_jax.host.seed_runner import chunks, run_chunks
-from emgail_jax.method.config import Config
+from emgail_jax.method.config import RunConfig
 from emgail_jax.method.rl import intention_chunk, make_rl_train
 
-CONFIG = Config(hidden=(8,), num_envs=2, rollout_length=10, value_epochs=1)
+CONFIG = RunConfig().with_values(hidden=(8,), num_envs=2, rollout_length=10, value_epochs=1).method
 
 
 @pytest.fixture(scope="module")

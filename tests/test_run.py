@@ -7,6 +7,8 @@ import numpy as np
 import pytest
 
 from emgail_jax import run
+from emgail_jax.method.algorithms import AlgorithmName
+from emgail_jax.method.config import Prior
 
 SEEDS, ITERATIONS = 2, 2
 TINY = [
@@ -80,17 +82,17 @@ def test_summary_follows_the_run_contract(runs, algo):
         assert len(final["reseedings"]) == SEEDS and all(n >= 0 for n in final["reseedings"])
 
 
-def test_runs_differing_only_in_data_share_one_program(runs, tmp_path, monkeypatch):
+def test_runs_differing_only_in_data_share_one_program(runs, tmp_path):
     """After the fixture's radius-20 EM-GAIL run, a radius-10 run of this process reuses its
     compiled programs (no program is added) and gives what a run compiling afresh gives."""
-    from emgail_jax.host import seed_runner
+    from emgail_jax.host.program_cache import SHARED
 
-    programs = dict(seed_runner._shared_programs)
+    programs = SHARED.keys()
     code, shared = _run(tmp_path, "shared", "--radius", "10", "--info-weight", "0.5")
-    assert code == 0 and dict(seed_runner._shared_programs).keys() == programs.keys()
-    monkeypatch.setattr(seed_runner, "_shared_programs", type(seed_runner._shared_programs)())
+    assert code == 0 and set(SHARED.keys()) == set(programs)
+    SHARED.clear()
     code, fresh = _run(tmp_path, "fresh", "--radius", "10", "--info-weight", "0.5")
-    assert code == 0 and len(seed_runner._shared_programs) == 1
+    assert code == 0 and len(SHARED) == 1
     assert (shared / "metrics.csv").read_text() == (fresh / "metrics.csv").read_text()
     radius20 = (runs["emgail"] / "metrics.csv").read_text()
     assert (shared / "metrics.csv").read_text() != radius20
@@ -238,38 +240,47 @@ def test_demonstrations_without_labels_or_returns(tmp_path, capsys):
     assert np.asarray(final["returns"]).shape == (SEEDS, 2)
 
 
-def test_without_out_a_run_takes_the_first_free_directory(tmp_path):
-    root = str(tmp_path)
-    assert run.default_output("halfcheetah", "emgail", root) == f"{root}/halfcheetah-emgail"
-    (tmp_path / "halfcheetah-emgail").mkdir()
-    (tmp_path / "halfcheetah-emgail-2").mkdir()
-    assert run.default_output("halfcheetah", "emgail", root) == f"{root}/halfcheetah-emgail-3"
+def test_the_run_defining_options_are_those_the_parser_marks():
+    """One list: the options a resumed run refuses are the parser's run-defining group, every
+    one refused by its own name."""
+    options = run.run_options()
+    assert {"env", "algo", "seeds", "set", "seed_batch", "eval_every"} <= set(options)
+    assert not {"iterations", "out", "resume", "overwrite", "quiet"} & set(options)
+    defaults = vars(run.parse_args([]))
+    assert set(options) <= set(defaults)
+    for name in ("num_envs", "radius", "seed_batch"):
+        args = run.parse_args(["--resume", "somewhere", f"--{name.replace('_', '-')}", "2"])
+        with pytest.raises(run.RunError, match=f"drop --{name.replace('_', '-')} "):
+            run.spec_from_args(args)
 
 
 def test_intentions_auto_starts_from_the_env_maximum_with_the_mixture_prior():
     spec = run.spec_from_args(run.parse_args(["--env", "hopper", "--intentions", "auto"]))
     assert spec.intentions == 3
-    assert spec.config.choose_intentions and spec.config.prior == "mixture"
+    method = spec.config.method
+    assert method.choose_intentions and method.e_step.prior is Prior.MIXTURE
     spec = run.spec_from_args(
         run.parse_args(["--intentions", "auto", "--max-intentions", "3", "--algo", "infogail"])
     )
-    assert spec.intentions == 3 and spec.config.algo == "infogail"
+    assert spec.intentions == 3 and spec.config.method.algo is AlgorithmName.INFOGAIL
     spec = run.spec_from_args(run.parse_args(["--intentions", "2"]))
-    assert spec.intentions == 2 and not spec.config.choose_intentions
+    assert spec.intentions == 2 and not spec.config.method.choose_intentions
     with pytest.raises(SystemExit):
         run.parse_args(["--intentions", "two"])
 
 
 def test_re_seeding_is_on_by_default_and_one_flag_from_off():
-    assert run.spec_from_args(run.parse_args([])).config.reseed
-    assert not run.spec_from_args(run.parse_args(["--reseed", "off"])).config.reseed
+    assert run.spec_from_args(run.parse_args([])).config.method.e_step.reseed
+    off = run.spec_from_args(run.parse_args(["--reseed", "off"]))
+    assert not off.config.method.e_step.reseed
 
 
 def test_set_reaches_the_config_and_a_resume_refuses_it(tmp_path):
     spec = run.spec_from_args(
         run.parse_args(["--set", "discriminator_steps=3", "--set", "trpo.max_kl=0.02"])
     )
-    assert spec.config.discriminator_steps == 3 and spec.config.trpo.max_kl == 0.02
+    method = spec.config.method
+    assert method.m_step.steps == 3 and method.b_step.trpo.max_kl == 0.02
     with pytest.raises(run.RunError, match="drop --set"):
         run.spec_from_args(run.parse_args(["--resume", str(tmp_path), "--set", "gamma=0.99"]))
 

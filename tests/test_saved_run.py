@@ -28,7 +28,9 @@ def test_load_policy_is_the_trained_policy_and_jits(tiny_run, saved):
     state = saved.seed_state(1)
     for intention in (0, 1):
         condition = jax.nn.one_hot(jnp.full(7, intention), 2)
-        normalized = obs_norm.normalize(state.normalizer, obs, saved.config.obs_clip)
+        normalized = obs_norm.normalize(
+            state.normalizer, obs, saved.config.method.networks.obs_clip
+        )
         mean, _ = saved.networks.policy.apply(state.policy, normalized, condition)
         expected = np.clip(mean, -1, 1)
         np.testing.assert_allclose(policy(obs, intention), expected, rtol=1e-5, atol=1e-6)
@@ -41,7 +43,7 @@ def test_load_reward_is_minus_log_one_minus_d(tiny_run, saved):
     demos = saved.problem.demos
     obs, act = demos.observations[:5], demos.actions[:5]
     state = saved.seed_state(0)
-    normalized = obs_norm.normalize(state.normalizer, obs, saved.config.obs_clip)
+    normalized = obs_norm.normalize(state.normalizer, obs, saved.config.method.networks.obs_clip)
     for intention in (0, 1):
         condition = jax.nn.one_hot(jnp.full(5, intention), 2)
         logit = saved.networks.discriminator.apply(

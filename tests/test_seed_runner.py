@@ -1,5 +1,6 @@
 """The multi-seed runner: chunk sizes, seed sharding over host devices, chunked scans of the
-update, and the host-side history helpers. Uses a toy update so that it compiles in moments."""
+update, programs shared through the process's cache. Uses a toy update so that it compiles in
+moments."""
 
 import jax
 import jax.numpy as jnp
@@ -8,18 +9,16 @@ import pytest
 from jax.sharding import PartitionSpec
 
 import envs
-from emgail_jax.host import seed_runner
+from emgail_jax.host import program_cache, seed_runner
+from emgail_jax.host.history import concat_history
 from emgail_jax.host.seed_runner import (
     Runner,
     chunk_length,
     chunks,
-    concat_history,
-    evaluation_plan,
-    final_metrics,
     intention_runner,
     seed_sharding,
 )
-from emgail_jax.method.config import Config
+from emgail_jax.method.config import RunConfig
 from emgail_jax.method.rl import make_rl_train
 
 CHUNK = 3
@@ -103,18 +102,6 @@ def test_chunks_are_full_chunks_and_one_remainder():
     assert sum(length for _, length in plan) == 387
     assert chunks(5, 5, 10) == []
     assert chunks(0, 3, 10) == [(0, 3)]
-
-
-def test_evaluation_plan_every_n_and_the_last_ten():
-    # Iterations 1..30 of 30, every 10: 10, 20, and the last ten 21..30.
-    plan = np.concatenate([evaluation_plan(first, 10, 30, 10) for first in (0, 10, 20)])
-    np.testing.assert_array_equal(np.flatnonzero(plan) + 1, [10, 20, *range(21, 31)])
-    # Every iteration with every=1; a short run evaluates throughout.
-    assert evaluation_plan(0, 7, 400, 1).all()
-    assert evaluation_plan(0, 5, 5, 10).all()
-    # Iterations 391..397 of 397: 388..397 are the last ten, so all of them.
-    assert evaluation_plan(390, 7, 397, 10).all()
-    np.testing.assert_array_equal(np.flatnonzero(evaluation_plan(370, 10, 397, 10)) + 371, [380])
 
 
 def test_seed_sharding_uses_as_many_devices_as_divide_the_seeds():
@@ -215,14 +202,15 @@ def test_runners_of_one_program_key_share_their_compiled_programs(four_seeds):
     assert all(r._programs is not first._programs for r in others)
 
 
-def test_shared_programs_keep_the_most_recently_used(monkeypatch):
-    monkeypatch.setattr(seed_runner, "SHARED_PROGRAMS", 2)
-    monkeypatch.setattr(seed_runner, "_shared_programs", type(seed_runner._shared_programs)())
-    a, b = (Runner(toy_init, toy_update, 2, program_key=k) for k in "ab")
-    assert Runner(toy_init, toy_update, 2, program_key="a")._programs is a._programs
-    Runner(toy_init, toy_update, 2, program_key="c")  # drops b, the least recently used
-    assert Runner(toy_init, toy_update, 2, program_key="a")._programs is a._programs
-    assert Runner(toy_init, toy_update, 2, program_key="b")._programs is not b._programs
+def test_runners_share_programs_through_the_process_cache():
+    """A runner with a program key builds its programs into the process's cache once."""
+    program_cache.SHARED.clear()
+    first = Runner(toy_init, toy_update, 2, program_key="cached")
+    assert len(program_cache.SHARED) == 1
+    second = Runner(toy_init, toy_update, 2, program_key="cached")
+    assert second._programs is first._programs and len(program_cache.SHARED) == 1
+    Runner(toy_init, toy_update, 2)  # no key: programs of its own, not kept
+    assert len(program_cache.SHARED) == 1
 
 
 def test_a_placed_state_steps_like_an_initial_one_with_empty_leaves():
@@ -280,51 +268,6 @@ def test_per_iteration_inputs_reach_every_seed_and_a_remainder_compiles_once(fou
     np.testing.assert_allclose(history["x"][:, :6], six["x"], rtol=1e-6, atol=1e-6)
 
 
-def test_final_metrics_mean_of_the_last_iterations():
-    history = {
-        "erd": np.array([np.arange(12.0), 10 * np.arange(12.0)]),  # [S=2, L=12]
-        "returns": np.arange(2 * 12 * 2, dtype=float).reshape(2, 12, 2),
-    }
-    final = final_metrics(history)
-    # Mean of 2..11 = 6.5.
-    np.testing.assert_allclose(final["erd"], [6.5, 65.0])
-    assert final["returns"].shape == (2, 2)
-    # returns[s, l, k] = 24 s + 2 l + k: mean over l = 2..11 is 24 s + 13 + k.
-    np.testing.assert_allclose(final["returns"], [[13, 14], [37, 38]])
-    np.testing.assert_allclose(final_metrics(history, last=3)["erd"], [10.0, 100.0])
-    short = {"erd": np.array([[1.0, 2.0, 6.0]])}
-    np.testing.assert_allclose(final_metrics(short)["erd"], [3.0])
-
-
-def test_final_metrics_average_the_last_measured_iterations():
-    """Iterations without evaluation log NaN; the final value is the mean of the last ten that
-    were measured, per seed."""
-    erd = np.full((2, 40), np.nan)
-    erd[:, 9::10] = 100.0  # iterations 10, 20, 30, 40
-    erd[0, 28:] = np.arange(12.0)  # seed 0 measured in each of its last 12 iterations
-    returns = np.repeat(erd[..., None], 3, -1)
-    final = final_metrics({"erd": erd, "returns": returns})
-    # Seed 0: the last ten measured are 2..11 -> 6.5; seed 1: 100 at 10, 20, 30, 40 -> 100.
-    np.testing.assert_allclose(final["erd"], [6.5, 100.0])
-    np.testing.assert_allclose(final["returns"], [[6.5] * 3, [100.0] * 3])
-
-
-def test_final_metrics_keep_nan_for_missing_accuracy():
-    final = final_metrics({"eval/cluster_accuracy": np.full((2, 12), np.nan)})
-    assert final["eval/cluster_accuracy"].shape == (2,)
-    assert np.all(np.isnan(final["eval/cluster_accuracy"]))
-
-
-def test_concat_history_appends_along_iterations():
-    first = {"a": np.zeros((2, 3)), "b": np.zeros((2, 3, 4))}
-    history = concat_history(None, first)
-    assert history is not first and history.keys() == first.keys()
-    second = {"a": np.ones((2, 2)), "b": np.ones((2, 2, 4))}
-    history = concat_history(history, second)
-    assert history["a"].shape == (2, 5) and history["b"].shape == (2, 5, 4)
-    np.testing.assert_array_equal(history["a"][0], [0, 0, 0, 1, 1])
-
-
 def test_default_seed_batch_is_one_on_cpu():
     assert jax.default_backend() == "cpu"
     assert seed_runner.default_seed_batch() == 1
@@ -355,8 +298,8 @@ def test_vmapped_seed_batches_give_the_sequential_results(four_seeds, seed_batch
 
 
 def test_intention_runner_gives_each_seed_its_own_policies():
-    config = Config(hidden=(8,), num_envs=2, rollout_length=10, value_epochs=1)
-    trainer = make_rl_train(config, envs.make("driver"), eval_episodes=1)
+    config = RunConfig().with_values(hidden=(8,), num_envs=2, rollout_length=10, value_epochs=1)
+    trainer = make_rl_train(config.method, envs.make("driver"), eval_episodes=1)
     runner = intention_runner(trainer, jnp.arange(2), seeds=2)
     stop_after_first = lambda first, length, states, metrics: False
     states = runner.run(

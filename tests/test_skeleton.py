@@ -12,7 +12,7 @@ import envs
 from emgail_jax.method import normalizer as obs_norm
 from emgail_jax.method.b_step import PolicySamples
 from emgail_jax.method.batches import LearningBatch
-from emgail_jax.method.config import Config
+from emgail_jax.method.config import RunConfig
 from emgail_jax.method.networks import GaussianPolicy, ValueNet, policy_action
 from emgail_jax.method.rollout import batch_reset, time_major
 from emgail_jax.method.skeleton import (
@@ -24,7 +24,11 @@ from emgail_jax.method.skeleton import (
 )
 
 K, B, T = 2, 2, 5
-CONFIG = Config(num_envs=B, rollout_length=T, hidden=(4,), value_epochs=1, value_minibatches=1)
+CONFIG = (
+    RunConfig()
+    .with_values(num_envs=B, rollout_length=T, hidden=(4,), value_epochs=1, value_minibatches=1)
+    .method
+)
 
 
 @struct.dataclass
@@ -50,8 +54,8 @@ def stages(request, env):
         condition = unconditioned
     else:
         condition = lambda intentions: jax.nn.one_hot(intentions, K)
-    policy = GaussianPolicy(env.action_size, config.hidden, heads=False)
-    return PolicyStages.create(policy, ValueNet(config.hidden), condition, config, env)
+    policy = GaussianPolicy(env.action_size, config.networks.hidden, heads=False)
+    return PolicyStages.create(policy, ValueNet(config.networks.hidden), condition, config, env)
 
 
 @pytest.fixture(scope="module")
@@ -89,7 +93,12 @@ def test_acting_takes_the_mean_unless_exploring(stages, state, jit):
     act = lambda explore: wrap(stages.acting(state.policy, state.normalizer, explore))
     condition = stages.condition(intention_rows((K, B)))
     mean = policy_action(
-        stages.policy, state.policy, state.normalizer, obs, condition, CONFIG.obs_clip
+        stages.policy,
+        state.policy,
+        state.normalizer,
+        obs,
+        condition,
+        obs_clip=CONFIG.networks.obs_clip,
     )
     np.testing.assert_allclose(act(False)(obs, None), mean, rtol=1e-6)
     np.testing.assert_allclose(act(jnp.asarray(False))(obs, key), mean, rtol=1e-6)
@@ -133,7 +142,7 @@ def test_improve_is_the_b_step_on_the_normalised_rollout(env, stages, state, rol
     rows = intention_rows((K, T * B))
     samples = PolicySamples.of(
         batch,
-        lambda x: obs_norm.normalize(normalizer, x, CONFIG.obs_clip),
+        lambda x: obs_norm.normalize(normalizer, x, CONFIG.networks.obs_clip),
         time_major(stages.condition(rows), T),
         stages.condition(intention_rows((K, B))),
     )

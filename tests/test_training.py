@@ -11,7 +11,7 @@ import envs
 from emgail_jax.method import demonstrations
 from emgail_jax.method import normalizer as obs_norm
 from emgail_jax.method.batches import DemonstrationPairs
-from emgail_jax.method.config import Config
+from emgail_jax.method.config import RunConfig
 from emgail_jax.method.demonstrations import Demonstrations
 from emgail_jax.method.rollout import intention_major
 from emgail_jax.method.training import (
@@ -26,7 +26,7 @@ from emgail_jax.method.training import (
 
 K, B, T = 2, 2, 10
 RANDOM_RETURNS = np.array([-300.0, -250.0])
-CONFIG = Config(
+CONFIG = RunConfig().with_values(
     num_envs=B,
     rollout_length=T,
     hidden=(8,),
@@ -72,8 +72,8 @@ def expert(demos):
 def _train(config, env, expert, iterations, evaluating=(True, False)):
     """``(state_0, [(state_i, metrics_i)] for i = 1..iterations)`` with jitted init/update;
     iteration i evaluates if ``evaluating[i]``."""
-    init, update = make_train(config, env)
-    data = RunData.create(expert, env, config)
+    init, update = make_train(config.method, env)
+    data = RunData.create(expert, env, config.info_weight)
     state = jax.jit(init)(jax.random.PRNGKey(0), data)
     step = jax.jit(update)
     steps = []
@@ -92,7 +92,7 @@ def emgail(env, expert):
 
 @pytest.fixture(scope="module")
 def gail(env, expert):
-    return _train(CONFIG.replace(algo="gail"), env, expert, 1)
+    return _train(CONFIG.with_values(algo="gail"), env, expert, 1)
 
 
 def _leaves(tree):
@@ -107,13 +107,13 @@ def _first_kernel(params):
 
 @pytest.fixture(scope="module")
 def emgail_onehot(env, expert):
-    return _train(CONFIG.replace(intention_input="onehot"), env, expert, 1)
+    return _train(CONFIG.with_values(intention_input="onehot"), env, expert, 1)
 
 
 @pytest.fixture(scope="module")
 def emgail_pair(env, expert):
     """The paper's per-pair E-step (eq. 18); the default is trajectory responsibilities."""
-    return _train(CONFIG.replace(responsibilities="pair"), env, expert, 1)
+    return _train(CONFIG.with_values(responsibilities="pair"), env, expert, 1)
 
 
 # ---- DemonstrationPairs --------------------------------------------------------------------------
@@ -161,7 +161,9 @@ def test_init_gives_a_finite_state_with_k_by_b_envs(emgail):
     np.testing.assert_array_equal(state.env_state.info["steps"], np.zeros((K, B)))
     assert int(state.iteration) == 0 and state.iteration.dtype == jnp.int32
     assert float(state.normalizer.count) == 0.0
-    np.testing.assert_allclose(state.policy["params"]["log_std"], [CONFIG.init_log_std])
+    np.testing.assert_allclose(
+        state.policy["params"]["log_std"], [CONFIG.method.networks.init_log_std]
+    )
     assert state.posterior is not None and state.posterior.opt_state is not None
 
 
@@ -237,7 +239,7 @@ def test_update_metrics_have_the_documented_keys_and_shapes(emgail):
 def test_update_respects_the_trust_region(emgail):
     _, steps, _ = emgail
     for _, metrics in steps:
-        assert 0.0 <= metrics["policy/kl"] <= CONFIG.trpo.max_kl * (1 + 1e-3)
+        assert 0.0 <= metrics["policy/kl"] <= CONFIG.method.b_step.trpo.max_kl * (1 + 1e-3)
 
 
 def test_erd_is_the_mean_normalised_gap_of_the_matched_returns(emgail, expert):
@@ -264,9 +266,10 @@ def test_discriminator_and_posterior_see_the_executed_actions(env, expert):
     """With a policy std of e^2, nearly every raw sample lies outside the action range [-1, 1];
     the batch the E-step and the M-step learn from (``normalized_batch``) holds them clipped, as
     the env executed them, while TRPO is handed the raw samples."""
-    config = CONFIG.replace(init_log_std=2.0).resolved(env)
+    run_config = CONFIG.with_values(init_log_std=2.0)
+    config = run_config.method.resolved(env)
     init, _ = make_train(config, env)
-    data = RunData.create(expert, env, config)
+    data = RunData.create(expert, env, run_config.info_weight)
     state = jax.jit(init)(jax.random.PRNGKey(0), data)
     stages = make_policy_stages(config, env, make_networks(config, env))
 
@@ -274,7 +277,8 @@ def test_discriminator_and_posterior_see_the_executed_actions(env, expert):
         policy = stages.acting(state.policy, state.normalizer, explore=True)
         _, transitions = stages.collect(training_env(env, data), policy, state.env_state, key)
         normalizer = obs_norm.update(state.normalizer, transitions.obs)
-        batch = normalized_batch(normalizer, transitions, data.demos, env, config.obs_clip)
+        obs_clip = config.networks.obs_clip
+        batch = normalized_batch(normalizer, transitions, data.demos, env, obs_clip)
         return transitions, batch
 
     transitions, batch = jax.jit(seen)(state, jax.random.PRNGKey(1))
@@ -284,7 +288,7 @@ def test_discriminator_and_posterior_see_the_executed_actions(env, expert):
     )
     assert np.abs(batch.expert_actions).max() <= 1.0
     # TRPO saw the raw samples: their entropy is that of the wide Gaussian.
-    _, [(_, metrics)], _ = _train(config, env, expert, 1, (False,))
+    _, [(_, metrics)], _ = _train(run_config, env, expert, 1, (False,))
     assert metrics["policy/entropy"] > 2.0
 
 
@@ -318,7 +322,7 @@ def test_gail_has_no_posterior_and_no_accuracy(gail):
     for name, value in metrics.items():
         if name != "eval/cluster_accuracy":
             assert np.all(np.isfinite(value)), name
-    assert 0.0 <= metrics["policy/kl"] <= CONFIG.trpo.max_kl * (1 + 1e-3)
+    assert 0.0 <= metrics["policy/kl"] <= CONFIG.method.b_step.trpo.max_kl * (1 + 1e-3)
 
 
 @pytest.mark.slow  # two more compiles of the whole update (vmapped init and update)
@@ -339,9 +343,9 @@ def test_vmapped_update_over_seeds_equals_one_seed_at_a_time(env, expert, emgail
 @pytest.mark.slow  # op-by-op execution of a whole update takes about half a minute
 def test_update_without_jit_equals_the_jitted_update(env, expert, gail):
     state0, [(state1, metrics)], _ = gail
-    config = CONFIG.replace(algo="gail")
-    _, update = make_train(config, env)
-    data = RunData.create(expert, env, config)
+    config = CONFIG.with_values(algo="gail")
+    _, update = make_train(config.method, env)
+    data = RunData.create(expert, env, config.info_weight)
     eager_state, eager_metrics = update(state0, jnp.bool_(True), data)
     assert set(eager_metrics) == set(metrics)
     for name in metrics:
@@ -382,12 +386,12 @@ def test_trajectory_responsibilities_label_whole_demonstrations(emgail, expert):
 def test_runs_that_differ_only_in_data_share_one_program(expert):
     """The driver's radius and Info/IntentionGAIL's lambda are data: the lowered update is the
     same program at another radius and another lambda (so the compilation cache serves both)."""
-    config = CONFIG.replace(algo="infogail")
+    config = CONFIG.with_values(algo="infogail")
 
     def lowered(radius, info_weight):
         env = envs.make("driver", intentions=K, radius=radius)
-        init, update = make_train(config, env)
-        data = RunData.create(expert, env, config.replace(info_weight=info_weight))
+        init, update = make_train(config.method, env)
+        data = RunData.create(expert, env, info_weight)
         state = jax.eval_shape(init, jax.random.PRNGKey(0), data)
         return jax.jit(update).lower(state, jnp.bool_(True), data).as_text()
 
@@ -404,7 +408,7 @@ def test_reward_from_previous_changes_only_which_networks_score_the_reward(env, 
     """The M-step is the same either way; only the B-step's reward (and so the policy) differs:
     it comes from the discriminator and posterior before this iteration's E- and M-step."""
     _, updated, _ = emgail
-    _, previous, _ = _train(CONFIG.replace(reward_from="previous"), env, expert, 1)
+    _, previous, _ = _train(CONFIG.with_values(reward_from="previous"), env, expert, 1)
     (state_updated, metrics_updated), (state_previous, metrics_previous) = updated[0], previous[0]
     for a, b in zip(
         _leaves(state_updated.discriminator), _leaves(state_previous.discriminator), strict=True
@@ -422,7 +426,7 @@ def test_the_mixture_prior_carries_its_weights_from_one_e_step_to_the_next(env, 
     np.testing.assert_array_equal(first.intention_weights, np.full(K, 1 / K, np.float32))
     np.testing.assert_array_equal(uniform_state.intention_weights, first.intention_weights)
     assert "posterior/intention_weights" not in uniform_metrics
-    _, steps, _ = _train(CONFIG.replace(prior="mixture"), env, expert, 2)
+    _, steps, _ = _train(CONFIG.with_values(prior="mixture"), env, expert, 2)
     for state, metrics in steps:
         weights = metrics["posterior/intention_weights"]
         assert weights.shape == (K,) and np.isclose(weights.sum(), 1.0, atol=1e-5)
@@ -433,12 +437,12 @@ def test_an_intention_emptied_by_the_posterior_is_re_seeded(env, expert):
     """A posterior that gives every demonstration to intention 0 (a large bias on its logit,
     which 2 Adam steps per iteration cannot undo) leaves intention 1 empty; after `patience`
     E-steps it takes the worse-explained half of the demonstrations, for `window` E-steps."""
-    config = CONFIG.replace(reseed_patience=2, reseed_window=2)
-    init, update = make_train(config, env)
-    data = RunData.create(expert, env, config)
+    config = CONFIG.with_values(reseed_patience=2, reseed_window=2)
+    init, update = make_train(config.method, env)
+    data = RunData.create(expert, env, config.info_weight)
     state = jax.jit(init)(jax.random.PRNGKey(0), data)
     layers = state.posterior.params["params"]["MLP_0"]
-    last = f"Dense_{len(config.hidden)}"
+    last = f"Dense_{len(config.method.networks.hidden)}"
     bias = layers[last]["bias"].at[0].add(30.0)
     params = {"params": {"MLP_0": {**layers, last: {**layers[last], "bias": bias}}}}
     state = state.replace(posterior=state.posterior.replace(params=params))

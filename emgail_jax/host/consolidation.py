@@ -32,9 +32,9 @@ def snapshot_policy_samples(run, seed: int, key: jax.Array, iterations=None):
     of every snapshot of ``seed`` (``iterations``; default all up to the networks ``run``
     holds), concatenated."""
     config, env = run.config, run.problem.env
-    k, b = env.num_intentions, config.num_envs
-    stages = make_policy_stages(config, env, run.networks)
-    data = RunData.create(run.demonstration_pairs, env, config)
+    k, b = env.num_intentions, config.method.rollout.num_envs
+    stages = make_policy_stages(config.method, env, run.networks)
+    data = RunData.create(run.demonstration_pairs, env, config.info_weight)
     train_env = training_env(env, data)
 
     @jax.jit
@@ -79,7 +79,7 @@ def consolidated_parameters(
     algorithm, config, k = run.algorithm, run.config, run.num_intentions
     pairs = run.demonstration_pairs
     obs, executed = snapshot_policy_samples(run, seed, key)
-    normalize = lambda x: obs_norm.normalize(state.normalizer, x, config.obs_clip)
+    normalize = lambda x: obs_norm.normalize(state.normalizer, x, config.method.networks.obs_clip)
     if algorithm.learns_posterior:
         gamma = np.asarray(run.responsibilities(seed).gamma)
     else:
@@ -96,7 +96,7 @@ def consolidated_parameters(
         gradient_penalty=gradient_penalty,
     )
     apply = run.networks.discriminator.apply
-    optimizer = make_optimizers(config).discriminator
+    optimizer = make_optimizers(config.method).discriminator
     fit = jax.jit(lambda learner: discriminator_update(apply, optimizer, learner, steps, **batch))
     trained, before = fit(state.discriminator)
     _, after = jax.jit(lambda learner: discriminator_update(apply, optimizer, learner, 1, **batch))(

@@ -26,12 +26,12 @@ class RunSpec:
     first_seed: int
     demo_sources: tuple[str, ...]  # --demos (demonstration_sources); empty: the env's own
     demo_seed: int
-    config: object  # emgail_jax.method.config.Config
+    config: object  # emgail_jax.method.config.RunConfig
     random_episodes: int = DEFAULT_RANDOM_EPISODES
 
     @classmethod
     def from_summary(cls, summary: dict) -> RunSpec:
-        from emgail_jax.method.config import Config
+        from emgail_jax.method.config import RunConfig
 
         try:
             demos = summary["demonstrations"]
@@ -44,7 +44,7 @@ class RunSpec:
                 first_seed=summary["first_seed"],
                 demo_sources=_sources(demos["path"]),
                 demo_seed=demos["seed"],
-                config=Config.from_dict(summary["config"]),
+                config=RunConfig.from_dict(summary["config"]),
                 random_episodes=summary.get("random_episodes", DEFAULT_RANDOM_EPISODES),
             )
         except (KeyError, TypeError) as error:

@@ -20,14 +20,16 @@ import jax.numpy as jnp
 import numpy as np
 
 from emgail_jax.host import checkpoints
+from emgail_jax.host.final_results import FinalResults
 from emgail_jax.host.problem import Problem, problem_of
+from emgail_jax.host.results_pipeline import final_responsibilities, kept_intentions
 from emgail_jax.host.run_spec import RunError, RunSpec, read_summary
 from emgail_jax.host.seed_runner import Runner
 from emgail_jax.method import normalizer as obs_norm
 from emgail_jax.method.algorithms import Algorithm, make_algorithm
 from emgail_jax.method.batches import DemonstrationPairs
-from emgail_jax.method.choosing import chosen_intentions, demonstrations_held
-from emgail_jax.method.config import Config
+from emgail_jax.method.choosing import demonstrations_held
+from emgail_jax.method.config import RunConfig
 from emgail_jax.method.discriminator import learned_reward
 from emgail_jax.method.networks import policy_action
 from emgail_jax.method.posterior import (
@@ -52,7 +54,7 @@ class SavedRun:
     summary: dict
     spec: RunSpec
     problem: Problem
-    config: Config  # resolved for the env
+    config: RunConfig  # resolved for the env
     algorithm: Algorithm
     networks: Networks
     state: TrainState  # every seed, leading axis
@@ -79,8 +81,8 @@ class SavedRun:
         # Only `init`'s shapes are needed; ERD's references do not enter them.
         k_true = problem.true_intentions
         pairs = DemonstrationPairs.create(problem.demos, np.full(k_true, np.nan), k_true)
-        init, update = make_train(config, env)
-        runner = Runner(init, update, spec.seeds, RunData.create(pairs, env, config))
+        init, update = make_train(config.method, env)
+        runner = Runner(init, update, spec.seeds, RunData.create(pairs, env, config.info_weight))
         target = runner.abstract_state(jax.random.PRNGKey(spec.first_seed))
         state, history, iteration = checkpoints.restore(run_dir, target)
         if snapshot is not None:
@@ -91,8 +93,10 @@ class SavedRun:
             spec=spec,
             problem=problem,
             config=config,
-            algorithm=make_algorithm(config.algo, config.info_weight, config.reward_form),
-            networks=make_networks(config, env),
+            algorithm=make_algorithm(
+                config.method.algo, config.info_weight, config.method.reward.form
+            ),
+            networks=make_networks(config.method, env),
             state=state,
             history=history,
             iteration=iteration,
@@ -107,17 +111,30 @@ class SavedRun:
     def intentions_in_use(self, seed: int = 0) -> np.ndarray | None:
         """``[K]`` bool, the learned intentions ``seed`` keeps when K is chosen from the data
         (``--intentions auto``), decided by all the run's seeds together as training decided
-        at its end (:func:`~emgail_jax.method.choosing.chosen_intentions`); None when K was
-        given."""
-        if not self.config.choose_intentions:
+        at its end (:func:`~emgail_jax.host.final_results.kept_intentions`): the run's final
+        results say, and for a snapshot (or a summary without them) they are decided anew
+        from its state; None when K was given."""
+        if not self.config.method.choose_intentions:
             return None
         self.seed_state(seed)  # checks the seed
         if self._kept is None:
+            self._kept = self._stored_kept()
+        if self._kept is None:
             pairs = self.demonstration_pairs
-            gamma = np.stack([self.responsibilities(s).gamma for s in range(self.spec.seeds)])
-            weights = np.asarray(self.state.intention_weights)
-            self._kept = chosen_intentions(gamma, weights, pairs.episode, pairs.episodes)
+            responsibilities = final_responsibilities(
+                self.networks, self.config.method, self.state, pairs
+            )
+            self._kept = kept_intentions(responsibilities, self.state.intention_weights, pairs)
         return self._kept[seed]
+
+    def _stored_kept(self) -> np.ndarray | None:
+        """``[S, K]`` the intentions kept as the run's final results hold them, when ``state``
+        is the final state they were decided on."""
+        final = FinalResults.from_summary(self.summary)
+        at_end = self.snapshot is None and self.summary.get("iterations_done") == self.iteration
+        if final is None or final.intentions_kept is None or not at_end:
+            return None
+        return np.asarray(final.intentions_kept, bool)
 
     def seed_state(self, seed: int = 0) -> TrainState:
         """The train state of the run's ``seed``-th seed (0 .. seeds-1)."""
@@ -129,13 +146,19 @@ class SavedRun:
         """Deterministic ``pi(obs [..., D], intention [...]) -> action [..., A]`` (raw obs)."""
         state = self.seed_state(seed)
         env, k = self.problem.env, self.num_intentions
-        network, algorithm, clip = self.networks.policy, self.algorithm, self.config.obs_clip
+        network, algorithm, clip = (
+            self.networks.policy,
+            self.algorithm,
+            self.config.method.networks.obs_clip,
+        )
 
         def policy(obs, intention):
             obs = jnp.asarray(obs, jnp.float32)
             intention = jnp.broadcast_to(jnp.asarray(intention, jnp.int32), obs.shape[:-1])
             condition = algorithm.policy_condition(intention, k)
-            mean = policy_action(network, state.policy, state.normalizer, obs, condition, clip)
+            mean = policy_action(
+                network, state.policy, state.normalizer, obs, condition, obs_clip=clip
+            )
             return jnp.clip(mean, env.action_low, env.action_high)
 
         return policy
@@ -164,7 +187,11 @@ class SavedRun:
         """:meth:`reward` as ``R(parameters, obs, action, intention)``, the parameters
         (:meth:`reward_parameters` of a seed) an argument, so that one compiled program
         serves every seed's reward."""
-        k, algorithm, clip = self.num_intentions, self.algorithm, self.config.obs_clip
+        k, algorithm, clip = (
+            self.num_intentions,
+            self.algorithm,
+            self.config.method.networks.obs_clip,
+        )
         networks, env = self.networks, self.problem.env
 
         def reward(parameters, obs, action, intention):
@@ -185,10 +212,10 @@ class SavedRun:
                 parameters["discriminator"],
                 algorithm,
                 k,
-                normalized,
-                action,
-                intention,
-                own,
+                obs=normalized,
+                executed=action,
+                intention=intention,
+                own_log_posterior=own,
             )
 
         return reward
@@ -198,9 +225,11 @@ class SavedRun:
         ``seed`` (gamma ``[N, K]`` and the pair and trajectory labels), computed as training
         computes them, in the run's ``responsibilities`` mode."""
         if not self.algorithm.learns_posterior:
-            raise RunError(f"{self.config.algo} learns no posterior")
+            raise RunError(f"{self.config.method.algo} learns no posterior")
         state = self.seed_state(seed)
-        result = responsibilities_of(self.networks, self.config, state, self.demonstration_pairs)
+        result = responsibilities_of(
+            self.networks, self.config.method, state, self.demonstration_pairs
+        )
         return jax.device_get(result)
 
     def demonstrations_held(self, seed: int = 0) -> np.ndarray:
@@ -221,7 +250,7 @@ class SavedRun:
             self.responsibilities(seed),
             self.demonstration_pairs,
             self.num_intentions,
-            self.config.responsibilities,
+            self.config.method.e_step.responsibilities,
             self.intentions_in_use(seed),
         )
         return {name.removeprefix("eval/"): float(value) for name, value in metrics.items()}

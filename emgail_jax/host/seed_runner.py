@@ -15,9 +15,10 @@ from collections.abc import Callable, Hashable
 
 import jax
 import numpy as np
+from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from emgail_jax.host import jax_setup
+from emgail_jax.host import jax_setup, program_cache
 from emgail_jax.host.run_spec import RunError
 from emgail_jax.method import rl
 from emgail_jax.method.training import TrainState
@@ -99,7 +100,7 @@ class Runner:
     Runners given the same ``program_key`` (which must then identify ``init`` and ``update`` up
     to their data, e.g. the config and the env without its data) and the same seeds and data
     shapes share their compiled programs within a process: a second driver radius neither
-    traces nor compiles again (:data:`SHARED_PROGRAMS` are kept).
+    traces nor compiles again (:data:`~emgail_jax.host.program_cache.SHARED`).
     """
 
     def __init__(
@@ -108,6 +109,7 @@ class Runner:
         update: Callable,
         seeds: int,
         data=None,
+        *,
         seed_batch: int | None = None,
         program_key: Hashable | None = None,
     ):
@@ -129,7 +131,7 @@ class Runner:
             leaves, structure = jax.tree.flatten(self.data)
             shapes = tuple((x.shape, str(x.dtype)) for x in leaves)
             key = (program_key, seeds, self.seed_batch, mesh, structure, shapes)
-            self._programs = _shared(key, build)
+            self._programs = program_cache.SHARED.get(key, build)
 
     def init(self, key: jax.Array) -> TrainState:
         """Every seed's initial state, seed s from the s-th key of ``split(key, seeds)``."""
@@ -261,24 +263,6 @@ class _Programs:
         )
 
 
-# Program sets kept for runners of the same program key, most recently used last: enough for
-# a sweep's runs of one algorithm (one chunk length and a remainder each) without holding every
-# program a long test session compiles.
-SHARED_PROGRAMS = 4
-_shared_programs: collections.OrderedDict[Hashable, _Programs] = collections.OrderedDict()
-
-
-def _shared(key: Hashable, build: Callable[[], _Programs]) -> _Programs:
-    """The program set kept under ``key``, built on first use; the least recently used beyond
-    :data:`SHARED_PROGRAMS` are dropped."""
-    if key not in _shared_programs:
-        _shared_programs[key] = build()
-    _shared_programs.move_to_end(key)
-    while len(_shared_programs) > SHARED_PROGRAMS:
-        _shared_programs.popitem(last=False)
-    return _shared_programs[key]
-
-
 def place(tree, sharding: NamedSharding):
     """Host arrays onto ``sharding``'s devices, also when some of them belong to other processes
     of a multi-process run (each process places its own devices' shares; every process passes
@@ -296,8 +280,6 @@ def gather(tree):
     multi-process run gathers the other processes' shares)."""
     if jax.process_count() == 1:
         return jax.device_get(tree)
-    from jax.experimental import multihost_utils
-
     return jax.tree.map(np.asarray, multihost_utils.process_allgather(tree, tiled=True))
 
 
@@ -306,38 +288,3 @@ def chunks(done: int, total: int, chunk_size: int) -> list[tuple[int, int]]:
     ``chunk_size`` and one shorter remainder, so at most two programs are compiled."""
     starts = range(done, total, chunk_size)
     return [(first, min(chunk_size, total - first)) for first in starts]
-
-
-FINAL_WINDOW = 10
-
-
-def evaluation_plan(first: int, length: int, total: int, every: int) -> np.ndarray:
-    """``[length]`` whether iterations ``first + 1 .. first + length`` (of ``total``) run the
-    evaluation episodes: every ``every``-th iteration and each of the last
-    :data:`FINAL_WINDOW`, so that the final metrics always average evaluated iterations."""
-    numbers = np.arange(first + 1, first + length + 1)
-    return (numbers % every == 0) | (numbers > total - FINAL_WINDOW)
-
-
-def final_metrics(
-    history: dict[str, np.ndarray], last: int = FINAL_WINDOW
-) -> dict[str, np.ndarray]:
-    """Per-seed means over the last ``last`` iterations in which a metric was measured (an
-    iteration without evaluation logs NaN); single-iteration ERD is noisy."""
-    final = {}
-    for name, values in history.items():
-        values = np.asarray(values, np.float64)
-        measured = ~np.all(np.isnan(values.reshape(*values.shape[:2], -1)), -1)  # [S, L]
-        per_seed = []
-        for seed_values, seed_measured in zip(values, measured, strict=True):
-            chosen = seed_values[np.flatnonzero(seed_measured)[-last:]]
-            empty = np.full(values.shape[2:], np.nan)
-            per_seed.append(chosen.mean(0) if len(chosen) else empty)
-        final[name] = np.stack(per_seed)
-    return final
-
-
-def concat_history(history: dict | None, metrics: dict[str, np.ndarray]) -> dict:
-    if history is None:
-        return dict(metrics)
-    return {k: np.concatenate([history[k], metrics[k]], axis=1) for k in history}

@@ -17,27 +17,41 @@ reward of (s, a, i)       -log(1 - D(s,a,i))  -log(1 - D(s,a))    -log(1 - D(s,a
 
 from __future__ import annotations
 
+import dataclasses
+import enum
 from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
 
-REWARD_FORMS = ("gail", "logit")
+
+class RewardForm(enum.StrEnum):
+    """The B-step reward of a discriminator logit f (``--set reward_form=...``)."""
+
+    GAIL = "gail"  # -log(1 - D) = softplus(f), the paper's
+    LOGIT = "logit"  # log D - log(1 - D) = f, AIRL's form
+
+    def of(self, logit: jax.Array) -> jax.Array:
+        """The reward of a pair the discriminator scores ``logit``, high where D takes it for
+        the expert's. GAIL's is positive everywhere, so where episodes can end early it also
+        pays for staying alive; the logit is negative where D rejects the pair, so survival
+        alone earns nothing."""
+        if self is RewardForm.LOGIT:
+            return logit
+        return jax.nn.softplus(logit)
 
 
-def imitation_reward(logit: jax.Array, form: str = "gail") -> jax.Array:
-    """The reward of a pair the discriminator scores ``logit``, high where D takes it for the
-    expert's. "gail": -log(1 - D) = softplus(f), the paper's; positive everywhere, so where
-    episodes can end early it also pays for staying alive. "logit": log D - log(1 - D) = f
-    (AIRL's form), negative where D rejects the pair, so survival alone earns nothing."""
-    if form == "logit":
-        return logit
-    return jax.nn.softplus(logit)
+REWARD_FORMS = tuple(form.value for form in RewardForm)
+
+
+def imitation_reward(logit: jax.Array, form: RewardForm | str = RewardForm.GAIL) -> jax.Array:
+    """:meth:`RewardForm.of` for a form given by its name."""
+    return RewardForm(form).of(logit)
 
 
 @dataclass(frozen=True)
 class Algorithm:
-    name: str
+    name: AlgorithmName
     conditional_policy: bool
     learns_posterior: bool
     conditional_discriminator: bool
@@ -45,7 +59,7 @@ class Algorithm:
     # lambda of eq. 23: a float, or a traced scalar when the program takes it as an argument
     # (runs that differ only in lambda then share one compiled program).
     info_weight: float | jax.Array = 0.0
-    reward_form: str = "gail"  # see imitation_reward
+    reward_form: RewardForm = RewardForm.GAIL
 
     def policy_condition(self, intentions: jax.Array, num_intentions: int) -> jax.Array:
         """``[..., K]`` one-hot of ``intentions [...]``; ``[..., 0]`` if unconditioned."""
@@ -69,7 +83,7 @@ class Algorithm:
     def pseudo_reward(self, logit: jax.Array, posterior_log_prob: jax.Array) -> jax.Array:
         """The B-step reward of a policy sample from its discriminator logit (under its own
         condition) and log P(i | s, a) of the intention that generated it."""
-        reward = imitation_reward(logit, self.reward_form)
+        reward = self.reward_form.of(logit)
         if self.info_reward:
             reward = reward + self.info_weight * posterior_log_prob
         return reward
@@ -81,14 +95,59 @@ def _condition(intentions: jax.Array, num_intentions: int, conditional: bool) ->
     return jnp.zeros((*jnp.shape(intentions), 0))
 
 
-NAMES = ("emgail", "infogail", "gail")
+class AlgorithmName(enum.StrEnum):
+    """``--algo``: which of the three algorithms a run trains (:data:`ALGORITHMS`)."""
+
+    EMGAIL = "emgail"
+    INFOGAIL = "infogail"
+    GAIL = "gail"
+
+    @property
+    def algorithm(self) -> Algorithm:
+        """Its choices (Info/IntentionGAIL's lambda unset: see :func:`make_algorithm`)."""
+        return ALGORITHMS[self]
+
+    @property
+    def learns_posterior(self) -> bool:
+        return self.algorithm.learns_posterior
 
 
-def make_algorithm(name: str, info_weight: float = 1.0, reward_form: str = "gail") -> Algorithm:
-    if name == "emgail":
-        return Algorithm("emgail", True, True, True, reward_form=reward_form)
-    if name == "infogail":
-        return Algorithm("infogail", True, True, False, True, info_weight, reward_form=reward_form)
-    if name == "gail":
-        return Algorithm("gail", False, False, False, reward_form=reward_form)
-    raise ValueError(f"unknown algorithm '{name}': choose one of {', '.join(NAMES)}")
+NAMES = tuple(name.value for name in AlgorithmName)
+
+ALGORITHMS = {
+    AlgorithmName.EMGAIL: Algorithm(
+        AlgorithmName.EMGAIL,
+        conditional_policy=True,
+        learns_posterior=True,
+        conditional_discriminator=True,
+    ),
+    AlgorithmName.INFOGAIL: Algorithm(
+        AlgorithmName.INFOGAIL,
+        conditional_policy=True,
+        learns_posterior=True,
+        conditional_discriminator=False,
+        info_reward=True,
+    ),
+    AlgorithmName.GAIL: Algorithm(
+        AlgorithmName.GAIL,
+        conditional_policy=False,
+        learns_posterior=False,
+        conditional_discriminator=False,
+    ),
+}
+
+
+def make_algorithm(
+    name: AlgorithmName | str,
+    info_weight: float | jax.Array = 1.0,
+    reward_form: RewardForm | str = RewardForm.GAIL,
+) -> Algorithm:
+    """The algorithm ``name`` with its reward's form and, for Info/IntentionGAIL, lambda."""
+    if name not in NAMES:
+        raise ValueError(f"unknown algorithm '{name}': choose one of {', '.join(NAMES)}")
+    algorithm = ALGORITHMS[AlgorithmName(name)]
+    return dataclasses.replace(
+        algorithm,
+        info_weight=info_weight if algorithm.info_reward else 0.0,
+        reward_form=RewardForm(reward_form),
+    )

@@ -17,7 +17,7 @@ import optax
 from flax import struct
 
 from emgail_jax.method.batches import LearningBatch
-from emgail_jax.method.config import Config
+from emgail_jax.method.config import BStepConfig
 from emgail_jax.method.gae import generalized_advantages
 from emgail_jax.method.networks import action_distribution
 from emgail_jax.method.optim import Learner
@@ -75,7 +75,7 @@ def make_b_step(
     policy_apply: Callable,
     value_apply: Callable,
     value_optimizer: optax.GradientTransformation,
-    config: Config,
+    config: BStepConfig,
 ):
     """``b_step(policy, value, samples, reward, key) -> BStep``: one policy improvement of the
     policy parameters ``policy`` on ``reward [T, K, B]`` for ``samples`` (a
@@ -126,8 +126,8 @@ def make_b_step(
             (obs, condition, time),
             intention_major(returns),
             key,
-            config.value_epochs,
-            config.value_minibatches,
+            epochs=config.value_epochs,
+            minibatches=config.value_minibatches,
         )
         return BStep(policy, value, {**policy_metrics, **value_metrics})
 

@@ -1,21 +1,94 @@
-"""Hyper-parameters of a run, with the paper's defaults (§5.3) and per-env rollout sizes."""
+"""Hyper-parameters of a run, by layer: what the compiled method takes (:class:`MethodConfig`,
+one sub-config per step), what only the host reads (:class:`RunSchedule`), and the run's data
+(Info/IntentionGAIL's lambda), with the paper's defaults (§5.3) and per-env rollout sizes.
+
+Options are typed here, once (``enum`` members whose values are the command line's and
+``summary.json``'s spellings, with the behaviour the method needs as properties), and every
+setting is checked against its domain (:data:`SETTINGS`) whenever a config is built. The
+user's namespace is flat (``--set discriminator_steps=5``, ``summary.json``'s ``config``):
+:data:`SETTINGS` maps each flat key to its place in the layers. Why the defaults are what they
+are, with the measurements: docs/defaults.md.
+"""
 
 from __future__ import annotations
 
 import ast
 import dataclasses
+import enum
 import math
 import numbers
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from emgail_jax.method.algorithms import NAMES, REWARD_FORMS
+from emgail_jax.method.algorithms import AlgorithmName, RewardForm
 from emgail_jax.method.trpo import TRPOConfig
 
-INTENTION_INPUTS = ("onehot", "heads")
-RESPONSIBILITIES = ("trajectory", "trajectory-centered", "pair", "labels")
-REWARD_FROM = ("updated", "previous")
-PRIORS = ("uniform", "mixture")
+
+class IntentionInput(enum.StrEnum):
+    """How the intention enters the policy, the value and EM-GAIL's discriminator."""
+
+    ONEHOT = "onehot"  # an input of one network (the paper's Table 2)
+    HEADS = "heads"  # one network per intention (the paper's public code)
+
+    @property
+    def heads(self) -> bool:
+        return self is IntentionInput.HEADS
+
+
+class ResponsibilityMode(enum.StrEnum):
+    """The E-step's responsibilities gamma of the expert pairs."""
+
+    TRAJECTORY = "trajectory"  # the posterior of the pair's whole demonstration
+    TRAJECTORY_CENTERED = "trajectory-centered"  # the same, log-evidence centred
+    PAIR = "pair"  # P(i | s, a) of the pair alone (eq. 18)
+    LABELS = "labels"  # the hidden labels: an oracle, for diagnosis only
+
+    @property
+    def per_demonstration(self) -> bool:
+        """Whether a demonstration's pairs share one gamma (and trajectory labels exist)."""
+        return self in (ResponsibilityMode.TRAJECTORY, ResponsibilityMode.TRAJECTORY_CENTERED)
+
+    @property
+    def centered(self) -> bool:
+        return self is ResponsibilityMode.TRAJECTORY_CENTERED
+
+    @property
+    def oracle(self) -> bool:
+        """Whether gamma is the hidden labels (demonstrations must carry them)."""
+        return self is ResponsibilityMode.LABELS
+
+
+class Prior(enum.StrEnum):
+    """The E-step's prior over the intentions."""
+
+    UNIFORM = "uniform"  # 1/K, the paper's
+    MIXTURE = "mixture"  # weights re-estimated every E-step, for unequal shares
+
+    @property
+    def estimated(self) -> bool:
+        """Whether the E-step weighs gamma by mixture weights it re-estimates."""
+        return self is Prior.MIXTURE
+
+
+class RewardFrom(enum.StrEnum):
+    """Which discriminator (and Info/IntentionGAIL's posterior) scores the B-step's reward."""
+
+    UPDATED = "updated"  # after this iteration's E- and M-step (Algorithm 1)
+    PREVIOUS = "previous"  # before them (the paper's public code)
+
+    def choose(self, *, updated, previous):
+        """``updated`` or ``previous``, the networks this option scores the reward with."""
+        return updated if self is RewardFrom.UPDATED else previous
+
+
+def _values(options: type[enum.Enum]) -> tuple[str, ...]:
+    return tuple(option.value for option in options)
+
+
+INTENTION_INPUTS = _values(IntentionInput)
+RESPONSIBILITIES = _values(ResponsibilityMode)
+REWARD_FROM = _values(RewardFrom)
+PRIORS = _values(Prior)
 
 
 @dataclass(frozen=True)
@@ -37,17 +110,24 @@ def _numbers(test: Callable[[float], bool], text: str) -> Domain:
     return Domain(lambda v: not isinstance(v, (bool, str)) and math.isfinite(v) and test(v), text)
 
 
-def _one_of(choices: Sequence[str]) -> Domain:
-    return Domain(lambda v: v in choices, f"one of {', '.join(choices)}")
+def _one_of(options: type[enum.Enum]) -> Domain:
+    names = _values(options)
+    return Domain(lambda v: isinstance(v, str) and v in names, f"one of {', '.join(names)}")
 
 
 def _or_default(domain: Domain) -> Domain:
     return Domain(lambda v: v is None or domain.holds(v), f"{domain.text} (or None, the default)")
 
 
-COUNT = Domain(
-    lambda v: isinstance(v, numbers.Integral) and not isinstance(v, bool) and v >= 1, "at least 1"
-)
+def _integers(minimum: int) -> Domain:
+    text = "at least 1" if minimum == 1 else f"an integer >= {minimum}"
+    return Domain(
+        lambda v: isinstance(v, numbers.Integral) and not isinstance(v, bool) and v >= minimum,
+        text,
+    )
+
+
+COUNT = _integers(1)
 POSITIVE = _numbers(lambda v: v > 0, "a positive number")
 NON_NEGATIVE = _numbers(lambda v: v >= 0, "a number >= 0")
 FRACTION = _numbers(lambda v: 0 < v <= 1, "in (0, 1]")
@@ -55,48 +135,76 @@ FINITE = _numbers(lambda v: True, "a finite number")
 WIDTHS = Domain(lambda v: all(COUNT.holds(w) for w in v), "a tuple of layer widths >= 1")
 BOOLEAN = Domain(lambda v: isinstance(v, bool), "True or False")
 
-# Every hyper-parameter's domain, by its --set key; Config checks them all on construction.
-DOMAINS = {
-    "algo": _one_of(NAMES),
-    "iterations": COUNT,
-    "num_envs": _or_default(COUNT),
-    "rollout_length": _or_default(COUNT),
-    "eval_every": COUNT,
-    "hidden": WIDTHS,
-    "intention_input": _one_of(INTENTION_INPUTS),
-    "responsibilities": _one_of(RESPONSIBILITIES),
-    "prior": _one_of(PRIORS),
-    "reseed": BOOLEAN,
-    "reseed_patience": COUNT,
-    "reseed_window": COUNT,
-    "reseed_attempts": Domain(
-        lambda v: isinstance(v, numbers.Integral) and not isinstance(v, bool) and v >= 0,
-        "an integer >= 0",
+
+@dataclass(frozen=True)
+class Setting:
+    """Where a flat key lives in the layers (attribute names from :class:`RunConfig` down),
+    and its domain."""
+
+    path: tuple[str, ...]
+    domain: Domain | None = None  # None: a config of its own (trpo), checked field by field
+
+
+def _at(*path: str, domain: Domain | None = None) -> Setting:
+    return Setting(path, domain)
+
+
+# Every hyper-parameter by its flat key (--set, summary.json), in summary.json's order: where it
+# lives and its domain. trpo.FIELD keys reach into TRPOConfig.
+SETTINGS: dict[str, Setting] = {
+    "algo": _at("method", "algo", domain=_one_of(AlgorithmName)),
+    "iterations": _at("schedule", "iterations", domain=COUNT),
+    "num_envs": _at("method", "rollout", "num_envs", domain=_or_default(COUNT)),
+    "rollout_length": _at("method", "rollout", "rollout_length", domain=_or_default(COUNT)),
+    "eval_every": _at("schedule", "eval_every", domain=COUNT),
+    "hidden": _at("method", "networks", "hidden", domain=WIDTHS),
+    "intention_input": _at("method", "networks", "intention_input", domain=_one_of(IntentionInput)),
+    "responsibilities": _at(
+        "method", "e_step", "responsibilities", domain=_one_of(ResponsibilityMode)
     ),
-    "choose_intentions": BOOLEAN,
-    "init_log_std": FINITE,
-    "obs_clip": POSITIVE,
-    "gamma": FRACTION,
-    "gae_lambda": FRACTION,
-    "trpo.max_kl": POSITIVE,
-    "trpo.cg_iterations": COUNT,
-    "trpo.cg_damping": NON_NEGATIVE,
-    "trpo.line_search_steps": COUNT,
-    "trpo.line_search_decay": _numbers(lambda v: 0 < v < 1, "in (0, 1)"),
-    "trpo.accept_ratio": _numbers(lambda v: 0 <= v <= 1, "in [0, 1]"),
-    "value_learning_rate": POSITIVE,
-    "value_epochs": COUNT,
-    "value_minibatches": COUNT,
-    "discriminator_learning_rate": POSITIVE,
-    "discriminator_steps": COUNT,
-    "discriminator_gradient_penalty": NON_NEGATIVE,
-    "posterior_learning_rate": POSITIVE,
-    "posterior_steps": COUNT,
-    "reward_from": _one_of(REWARD_FROM),
-    "reward_form": _one_of(REWARD_FORMS),
-    "info_weight": NON_NEGATIVE,
-    "chunk_size": COUNT,
-    "seed_batch": _or_default(COUNT),
+    "prior": _at("method", "e_step", "prior", domain=_one_of(Prior)),
+    "reseed": _at("method", "e_step", "reseed", domain=BOOLEAN),
+    "reseed_patience": _at("method", "e_step", "reseed_patience", domain=COUNT),
+    "reseed_window": _at("method", "e_step", "reseed_window", domain=COUNT),
+    "reseed_attempts": _at("method", "e_step", "reseed_attempts", domain=_integers(0)),
+    "choose_intentions": _at("method", "choose_intentions", domain=BOOLEAN),
+    "init_log_std": _at("method", "networks", "init_log_std", domain=FINITE),
+    "obs_clip": _at("method", "networks", "obs_clip", domain=POSITIVE),
+    "gamma": _at("method", "b_step", "gamma", domain=FRACTION),
+    "gae_lambda": _at("method", "b_step", "gae_lambda", domain=FRACTION),
+    "trpo": _at("method", "b_step", "trpo"),
+    "value_learning_rate": _at("method", "b_step", "value_learning_rate", domain=POSITIVE),
+    "value_epochs": _at("method", "b_step", "value_epochs", domain=COUNT),
+    "value_minibatches": _at("method", "b_step", "value_minibatches", domain=COUNT),
+    "discriminator_learning_rate": _at("method", "m_step", "learning_rate", domain=POSITIVE),
+    "discriminator_steps": _at("method", "m_step", "steps", domain=COUNT),
+    "discriminator_gradient_penalty": _at(
+        "method", "m_step", "gradient_penalty", domain=NON_NEGATIVE
+    ),
+    "posterior_learning_rate": _at("method", "e_step", "learning_rate", domain=POSITIVE),
+    "posterior_steps": _at("method", "e_step", "steps", domain=COUNT),
+    "reward_from": _at("method", "reward", "source", domain=_one_of(RewardFrom)),
+    "reward_form": _at("method", "reward", "form", domain=_one_of(RewardForm)),
+    "info_weight": _at("info_weight", domain=NON_NEGATIVE),
+    "chunk_size": _at("schedule", "chunk_size", domain=COUNT),
+    "seed_batch": _at("schedule", "seed_batch", domain=_or_default(COUNT)),
+    "checkpoint_every": _at("schedule", "checkpoint_every", domain=COUNT),
+    "snapshot_every": _at("schedule", "snapshot_every", domain=_integers(0)),
+}
+
+TRPO_DOMAINS = {
+    "max_kl": POSITIVE,
+    "cg_iterations": COUNT,
+    "cg_damping": NON_NEGATIVE,
+    "line_search_steps": COUNT,
+    "line_search_decay": _numbers(lambda v: 0 < v < 1, "in (0, 1)"),
+    "accept_ratio": _numbers(lambda v: 0 <= v <= 1, "in [0, 1]"),
+}
+
+# Every domain by its --set key (trpo's fields as trpo.FIELD).
+DOMAINS: dict[str, Domain] = {
+    **{key: s.domain for key, s in SETTINGS.items() if s.domain is not None},
+    **{f"trpo.{name}": domain for name, domain in TRPO_DOMAINS.items()},
 }
 
 
@@ -112,137 +220,229 @@ class SettingError(ValueError):
         return f"{name} must be {self.domain.text}; got {self.value!r}"
 
 
-@dataclass(frozen=True)
-class Config:
-    """Everything that shapes one training run. Frozen: it is static inside ``jit``."""
+def _settle(node, prefix: tuple[str, ...]) -> None:
+    """Checks the fields of ``node`` (the config at ``prefix`` in the layers) against their
+    domains and turns option names into their enum members."""
+    for key, setting in SETTINGS.items():
+        if setting.path[:-1] != prefix or setting.domain is None:
+            continue
+        name = setting.path[-1]
+        value = getattr(node, name)
+        if not setting.domain.holds(value):
+            raise SettingError(key, value, setting.domain)
+        options = type(next(f for f in dataclasses.fields(node) if f.name == name).default)
+        if issubclass(options, enum.Enum):
+            object.__setattr__(node, name, options(value))
 
-    algo: str = "emgail"
-    iterations: int = 400
-    # Rollouts: `num_envs` envs per intention, `rollout_length` steps each per iteration.
-    # None takes the env's default (DRIVER_DEFAULTS / ROBOTICS_DEFAULTS below).
+
+class _Layer:
+    """A frozen config of one layer: checked on construction, and ``replace``-able."""
+
+    PREFIX: tuple[str, ...] = ()
+
+    def __post_init__(self):
+        _settle(self, self.PREFIX)
+
+    def replace(self, **changes):
+        return dataclasses.replace(self, **changes)
+
+
+@dataclass(frozen=True)
+class RolloutConfig(_Layer):
+    """Samples per iteration: ``num_envs`` envs per intention, ``rollout_length`` steps each
+    (None: the env's, :func:`rollout_defaults`); the evaluation runs one episode per env."""
+
+    PREFIX = ("method", "rollout")
     num_envs: int | None = None
     rollout_length: int | None = None
-    # Evaluation: deterministic episodes of every learned intention, one per env of the rollout
-    # (`num_envs`, 5 by default; the reacher's 50), every `eval_every` iterations and in each of
-    # the last 10, which the final metrics average; the clustering accuracy is measured every
-    # iteration.
-    eval_every: int = 10
+
+
+@dataclass(frozen=True)
+class NetworkConfig(_Layer):
+    """The four networks' shape: hidden widths, how the intention enters, the policy's
+    initial log-std, and the clip of the normalised observations."""
+
+    PREFIX = ("method", "networks")
     hidden: tuple[int, ...] = (64, 64)
-    # How the intention enters the policy, value and EM-GAIL's discriminator: "heads" (one
-    # network per intention, as the paper's public code) or "onehot" (an input of one network,
-    # as the paper's Table 2 counts); see emgail_jax.method.networks. Why heads: docs/defaults.md.
-    intention_input: str = "heads"
-    # The E-step's responsibilities: "trajectory" (each pair takes the posterior of its whole
-    # demonstration; emgail_jax.method.posterior.trajectory_responsibilities), "trajectory-centered"
-    # (the same, each intention's log-evidence centred over the demonstrations), "pair" (the
-    # paper's eq. 18) or "labels" (the hidden labels: an oracle, for diagnosis only). Trajectory
-    # is a departure from the paper, made because the per-pair E-step lets hopper-3 and
-    # reacher-4 collapse onto one intention: docs/defaults.md.
-    responsibilities: str = "trajectory"
-    # The E-step's prior over the intentions: "uniform" (1/K, the paper's) or "mixture" (weights
-    # w_i estimated as EM does for a mixture: each intention's mean responsibility over the
-    # demonstration pairs, updated every E-step), for demonstrations in unequal shares.
-    prior: str = "uniform"
-    # Re-seeding an emptied intention (emgail_jax.method.reseeding, docs/no-empty-intention.md):
-    # one that holds less than half a demonstration's share for `reseed_patience` E-steps takes
-    # the worse-explained half of the largest intention's demonstrations for `reseed_window`
-    # E-steps, at most `reseed_attempts` times per intention. Off for runs written before it.
+    intention_input: IntentionInput = IntentionInput.HEADS
+    init_log_std: float = 0.0
+    obs_clip: float = 5.0
+
+
+@dataclass(frozen=True)
+class EStepConfig(_Layer):
+    """The E-step (:mod:`emgail_jax.method.posterior`): the responsibilities, the prior, the
+    posterior's full-batch Adam steps, and re-seeding of emptied intentions
+    (:mod:`emgail_jax.method.reseeding`)."""
+
+    PREFIX = ("method", "e_step")
+    responsibilities: ResponsibilityMode = ResponsibilityMode.TRAJECTORY
+    prior: Prior = Prior.UNIFORM
+    learning_rate: float = 1e-3
+    steps: int = 20
     reseed: bool = True
     reseed_patience: int = 10
     reseed_window: int = 10
     reseed_attempts: int = 3
-    # Whether K is chosen from the data (`--intentions auto`): training starts with the most
-    # intentions allowed, keeps those whose mixture weight holds demonstrations, and at the end
-    # those the seeds agree on (emgail_jax.method.choosing): docs/choosing-k.md.
-    choose_intentions: bool = False
-    # The policy's initial log-std, 0 as in the paper's public code: a wide start lets the E-step
-    # separate the intentions before the policies commit (docs/defaults.md).
-    init_log_std: float = 0.0
-    obs_clip: float = 5.0
-    # B-step (TRPO on the pseudo-reward) and its value baseline.
+
+
+@dataclass(frozen=True)
+class MStepConfig(_Layer):
+    """The M-step (:mod:`emgail_jax.method.discriminator`): full-batch Adam steps and the
+    weight of a zero-centred gradient penalty on the logit (0: none)."""
+
+    PREFIX = ("method", "m_step")
+    learning_rate: float = 1e-3
+    steps: int = 10
+    gradient_penalty: float = 0.0
+
+
+@dataclass(frozen=True)
+class BStepConfig(_Layer):
+    """The B-step (:mod:`emgail_jax.method.b_step`): GAE, TRPO and the value baseline's fit
+    (``value_epochs`` epochs of ``value_minibatches`` Adam steps)."""
+
+    PREFIX = ("method", "b_step")
     gamma: float = 0.995
     gae_lambda: float = 0.97
     trpo: TRPOConfig = field(default_factory=TRPOConfig)
     value_learning_rate: float = 1e-3
-    # Epochs of the value baseline's fit per iteration (each `value_minibatches` Adam steps); the
-    # paper gives none, and fewer cannot follow halfcheetah's values (docs/defaults.md).
     value_epochs: int = 20
     value_minibatches: int = 4
-    # E-step and M-step: full-batch Adam steps per iteration (paper: Adam, lr 1e-3; the number
-    # of steps is not given, ours are measured on the driver: docs/defaults.md).
-    discriminator_learning_rate: float = 1e-3
-    discriminator_steps: int = 10
-    # Weight of a zero-centred gradient penalty on the discriminator's logit, on the expert
-    # pairs and the policy samples alike (Lipschitz control for a reward that re-optimises,
-    # docs/rewards-that-reoptimise.md); 0, the default, computes none.
-    discriminator_gradient_penalty: float = 0.0
-    posterior_learning_rate: float = 1e-3
-    posterior_steps: int = 20
-    # Which discriminator (and, for Info/IntentionGAIL, posterior) scores the B-step's reward:
-    # "updated", after this iteration's E- and M-step (Algorithm 1), or "previous", before them,
-    # as the paper's public code does (it computes the reward during the rollout), so that the
-    # reward comes from networks that have not yet been fitted to the samples they score.
-    reward_from: str = "updated"
-    # The B-step reward of a discriminator logit f: "gail", -log(1 - D) = softplus(f), the
-    # paper's, or "logit", f itself (AIRL's form), which pays nothing for merely staying alive.
-    reward_form: str = "gail"
-    # Info/IntentionGAIL's lambda (eq. 23): 1 weighs log P(i|s,a) like the discriminator term
-    # (docs/defaults.md).
-    info_weight: float = 1.0
-    # Iterations compiled into one call; host work (logs, progress) happens between chunks.
-    chunk_size: int = 10
-    # Seeds vmapped together on one device; None: one at a time on CPU, all on accelerators
-    # (emgail_jax.host.seed_runner.default_seed_batch). Part of the config because it changes the
-    # floating-point results slightly, and a resumed run must continue them exactly.
-    seed_batch: int | None = None
 
     def __post_init__(self):
-        for key, domain in DOMAINS.items():
-            value = self
-            for name in key.split("."):
-                value = getattr(value, name)
+        super().__post_init__()
+        for name, domain in TRPO_DOMAINS.items():
+            value = getattr(self.trpo, name)
             if not domain.holds(value):
-                raise SettingError(key, value, domain)
-        if self.choose_intentions and (self.prior != "mixture" or self.algo == "gail"):
+                raise SettingError(f"trpo.{name}", value, domain)
+
+
+@dataclass(frozen=True)
+class RewardConfig(_Layer):
+    """The B-step's reward: its form, and which networks score it."""
+
+    PREFIX = ("method", "reward")
+    form: RewardForm = RewardForm.GAIL
+    source: RewardFrom = RewardFrom.UPDATED
+
+
+@dataclass(frozen=True)
+class MethodConfig(_Layer):
+    """Exactly what ``training.make_train`` compiles: two runs with equal method configs (and
+    envs) share one program. ``choose_intentions``: K is chosen from the data
+    (``--intentions auto``, :mod:`emgail_jax.method.choosing`)."""
+
+    PREFIX = ("method",)
+    algo: AlgorithmName = AlgorithmName.EMGAIL
+    e_step: EStepConfig = field(default_factory=EStepConfig)
+    m_step: MStepConfig = field(default_factory=MStepConfig)
+    b_step: BStepConfig = field(default_factory=BStepConfig)
+    networks: NetworkConfig = field(default_factory=NetworkConfig)
+    reward: RewardConfig = field(default_factory=RewardConfig)
+    rollout: RolloutConfig = field(default_factory=RolloutConfig)
+    choose_intentions: bool = False
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.choose_intentions and not (
+            self.e_step.prior.estimated and self.algo.learns_posterior
+        ):
             raise ValueError(
                 "choosing the number of intentions needs a posterior and the mixture prior: "
                 "an algo other than gail, and prior mixture"
             )
 
-    def replace(self, **changes) -> Config:
-        return dataclasses.replace(self, **changes)
+    def resolved(self, env) -> MethodConfig:
+        """Fills the env-dependent rollout sizes from ``env``."""
+        defaults = rollout_defaults(env.name, env.episode_length)
+        rollout = RolloutConfig(
+            num_envs=self.rollout.num_envs or defaults["num_envs"],
+            rollout_length=self.rollout.rollout_length or defaults["rollout_length"],
+        )
+        return self.replace(rollout=rollout)
 
-    def with_settings(self, settings: Sequence[str]) -> Config:
+    @property
+    def reseeds(self) -> bool:
+        """Whether emptied intentions are re-seeded: with a posterior, unless turned off."""
+        return self.e_step.reseed and self.algo.learns_posterior
+
+
+@dataclass(frozen=True)
+class RunSchedule(_Layer):
+    """What only the host reads: the iterations in all, the evaluation cadence (every
+    ``eval_every`` and each of the last 10), iterations per compiled call, seeds vmapped
+    together on a device (None: 1 on CPU, all on accelerators; it changes the floating point,
+    so a resumed run keeps it), and iterations between checkpoints and snapshots (0: none)."""
+
+    PREFIX = ("schedule",)
+    iterations: int = 400
+    eval_every: int = 10
+    chunk_size: int = 10
+    seed_batch: int | None = None
+    checkpoint_every: int = 50
+    snapshot_every: int = 50
+
+
+@dataclass(frozen=True)
+class RunConfig(_Layer):
+    """Everything that shapes one run: the method, the host's schedule, and Info/IntentionGAIL's
+    lambda, which the compiled program takes as data (``training.RunData``)."""
+
+    method: MethodConfig = field(default_factory=MethodConfig)
+    schedule: RunSchedule = field(default_factory=RunSchedule)
+    info_weight: float = 1.0
+
+    def resolved(self, env) -> RunConfig:
+        return self.replace(method=self.method.resolved(env))
+
+    def program_key(self) -> MethodConfig:
+        """What identifies the compiled update (with the env): the method config."""
+        return self.method
+
+    def with_settings(self, settings: Sequence[str]) -> RunConfig:
         """A copy with ``KEY=VALUE`` settings applied, e.g. ``["discriminator_steps=5",
-        "trpo.cg_damping=0"]`` (``run --set``): any hyper-parameter, typed like its default."""
+        "trpo.cg_damping=0"]`` (``run --set``): any hyper-parameter by its flat key or its
+        path in the layers (``method.m_step.steps=5``), typed like its default."""
         config = self
         for setting in settings:
             key, sep, text = setting.partition("=")
-            if not sep or not key.strip():
+            key = key.strip()
+            if not sep or not key:
                 raise ValueError(f"a setting is KEY=VALUE, e.g. trpo.max_kl=0.02; got '{setting}'")
-            config = _with_setting(config, key.strip().split("."), text.strip(), key.strip())
+            config = _with_setting(config, _path_of(key), text.strip(), key)
         return config
 
-    def resolved(self, env) -> Config:
-        """Fills the env-dependent defaults from ``env``."""
-        defaults = rollout_defaults(env.name, env.episode_length)
-        return self.replace(
-            num_envs=self.num_envs or defaults["num_envs"],
-            rollout_length=self.rollout_length or defaults["rollout_length"],
-        )
+    def with_values(self, **values) -> RunConfig:
+        """A copy with settings given by their flat keys as values (``algo="gail",
+        discriminator_steps=5``)."""
+        config = self
+        for key, value in values.items():
+            if key not in SETTINGS:
+                raise ValueError(f"unknown setting '{key}'; choose one of {', '.join(SETTINGS)}")
+            config = _replaced(config, SETTINGS[key].path, value)
+        return config
 
-    def program_key(self) -> Config:
-        """This config with the fields that do not shape the compiled update cleared: the host's
-        schedule (iterations, evaluation cadence, chunks) and what is passed as data (the info
-        weight, see ``training.RunData``)."""
-        return self.replace(iterations=1, eval_every=1, chunk_size=1, info_weight=0.0)
+    def value(self, key: str):
+        """The setting at flat key ``key`` (``"discriminator_steps"``)."""
+        return _walk(self, SETTINGS[key].path)
 
     def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        """The flat dict of every setting by its key, as ``summary.json`` stores it."""
+        flat = {}
+        for key, setting in SETTINGS.items():
+            value = _walk(self, setting.path)
+            if dataclasses.is_dataclass(value):
+                value = dataclasses.asdict(value)
+            elif isinstance(value, enum.Enum):
+                value = value.value
+            flat[key] = value
+        return flat
 
     @classmethod
-    def from_dict(cls, values: dict) -> Config:
-        """Inverse of :meth:`to_dict` (e.g. the ``config`` of a ``summary.json``)."""
+    def from_dict(cls, values: dict) -> RunConfig:
+        """Inverse of :meth:`to_dict` (e.g. the ``config`` of a ``summary.json``, also one
+        written before some settings existed)."""
         values = dict(values)
         # Runs written before the option existed fed the intention as a one-hot input.
         values.setdefault("intention_input", "onehot")
@@ -255,7 +455,57 @@ class Config:
         values.pop("eval_episodes", None)  # runs written before evaluation used num_envs
         values["hidden"] = tuple(values["hidden"])
         values["trpo"] = TRPOConfig(**values["trpo"])
-        return cls(**values)
+        unknown = sorted(set(values) - set(SETTINGS))
+        if unknown:
+            raise TypeError(f"unknown settings {', '.join(unknown)}")
+        layers = {}
+        for key, value in values.items():
+            node = layers
+            *parents, name = SETTINGS[key].path
+            for parent in parents:
+                node = node.setdefault(parent, {})
+            node[name] = value
+        return _build(cls, layers)
+
+
+def _build(cls, layers: dict):
+    """``cls`` from the nested dict ``layers`` of its fields (absent ones: defaults)."""
+    kinds = {f.name: f for f in dataclasses.fields(cls)}
+    built = {}
+    for name, value in layers.items():
+        layer = kinds[name].default_factory
+        if isinstance(value, dict) and isinstance(layer, type) and issubclass(layer, _Layer):
+            value = _build(layer, value)
+        built[name] = value
+    return cls(**built)
+
+
+def _path_of(key: str) -> list[str]:
+    """The layered path of ``--set`` key ``key``: a flat key (``discriminator_steps``,
+    ``trpo.max_kl``) or a path itself (``method.m_step.steps``)."""
+    head, *rest = key.split(".")
+    if head in SETTINGS:
+        return [*SETTINGS[head].path, *rest]
+    if head in ("method", "schedule"):
+        return key.split(".")
+    raise ValueError(
+        f"unknown setting '{key}'; choose one of {', '.join(SETTINGS)} "
+        "(or a path such as method.m_step.steps)"
+    )
+
+
+def _walk(node, path: Sequence[str]):
+    for name in path:
+        node = getattr(node, name)
+    return node
+
+
+def _replaced(node, path: Sequence[str], value):
+    """``node`` (a frozen dataclass) with the field at ``path`` set to ``value``."""
+    name, *rest = path
+    if rest:
+        value = _replaced(getattr(node, name), rest, value)
+    return dataclasses.replace(node, **{name: value})
 
 
 def _with_setting(node, path: list[str], text: str, key: str):
@@ -275,7 +525,7 @@ def _with_setting(node, path: list[str], text: str, key: str):
 
 def _parse_setting(text: str, current, key: str):
     """``text`` as a value of the type of ``current`` (the default it replaces)."""
-    if isinstance(current, str):
+    if isinstance(current, str):  # an option's name; its domain checks it
         return text
     if dataclasses.is_dataclass(current):
         raise ValueError(f"'{key}' has fields: set one of them, e.g. {key}.<field>=...")

@@ -23,6 +23,7 @@ from flax import struct
 
 from emgail_jax.method.algorithms import Algorithm
 from emgail_jax.method.batches import NormalizedBatch
+from emgail_jax.method.config import MStepConfig
 from emgail_jax.method.optim import Learner, minimize
 
 
@@ -35,6 +36,7 @@ def expert_logits(apply: Callable, params, obs, actions, conditions: jax.Array) 
 def discriminator_loss(
     apply: Callable,
     params,
+    *,
     expert_obs: jax.Array,
     expert_actions: jax.Array,
     expert_weights: jax.Array,
@@ -132,17 +134,12 @@ class MStep:
     metrics: dict
 
 
-def make_m_step(
-    apply: Callable,
-    optimizer: optax.GradientTransformation,
-    steps: int,
-    gradient_penalty: float = 0.0,
-):
+def make_m_step(apply: Callable, optimizer: optax.GradientTransformation, config: MStepConfig):
     """``m_step(discriminator, batch, gamma, algorithm) -> MStep`` (Algorithm 1, M-step): the
     discriminator (a :class:`Learner`) learns the expert pairs of ``batch`` (a
     :class:`NormalizedBatch`), weighted over intentions by ``gamma [N, K]`` as ``algorithm``
-    says (eq. 19 or 22), against the policy samples under their own intention; ``steps``
-    full-batch steps, with the gradient penalty of weight ``gradient_penalty``."""
+    says (eq. 19 or 22), against the policy samples under their own intention; ``config.steps``
+    full-batch steps, with the gradient penalty of weight ``config.gradient_penalty``."""
 
     def m_step(
         discriminator: Learner, batch: NormalizedBatch, gamma: jax.Array, algorithm: Algorithm
@@ -154,7 +151,7 @@ def make_m_step(
             apply,
             optimizer,
             discriminator,
-            steps,
+            config.steps,
             expert_obs=batch.expert_obs,
             expert_actions=batch.expert_actions,
             expert_weights=algorithm.expert_weights(gamma),
@@ -162,7 +159,7 @@ def make_m_step(
             policy_obs=batch.obs,
             policy_actions=batch.executed,
             policy_conditions=algorithm.discriminator_condition(own_intention, k),
-            gradient_penalty=gradient_penalty,
+            gradient_penalty=config.gradient_penalty,
         )
         return MStep(trained, metrics)
 
@@ -174,6 +171,7 @@ def learned_reward(
     params,
     algorithm: Algorithm,
     num_intentions: int,
+    *,
     obs: jax.Array,
     executed: jax.Array,
     intention: jax.Array,

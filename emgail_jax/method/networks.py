@@ -51,6 +51,7 @@ def conditioned_mlp(
     x: jax.Array,
     condition: jax.Array,
     heads: bool,
+    *,
     final_scale: float = 1.0,
     intention_major: bool = False,
 ) -> jax.Array:
@@ -123,7 +124,9 @@ class ValueNet(ScalarNet):
     @nn.compact
     def __call__(self, obs, condition, time, intention_major: bool = False) -> jax.Array:
         x = jnp.concatenate([obs, time[..., None]], -1)
-        value = conditioned_mlp(self.hidden, 1, x, condition, self.heads, 1.0, intention_major)
+        value = conditioned_mlp(
+            self.hidden, 1, x, condition, self.heads, intention_major=intention_major
+        )
         return value[..., 0]
 
 
@@ -133,7 +136,9 @@ class Discriminator(ScalarNet):
     @nn.compact
     def __call__(self, obs, action, condition, intention_major: bool = False) -> jax.Array:
         x = jnp.concatenate([obs, action], -1)
-        logit = conditioned_mlp(self.hidden, 1, x, condition, self.heads, 1.0, intention_major)
+        logit = conditioned_mlp(
+            self.hidden, 1, x, condition, self.heads, intention_major=intention_major
+        )
         return logit[..., 0]
 
 
@@ -159,6 +164,7 @@ def policy_action(
     normalizer: obs_norm.RunningStats,
     obs: jax.Array,
     condition: jax.Array,
+    *,
     obs_clip: float,
     key: jax.Array | None = None,
     explore: bool | jax.Array = False,

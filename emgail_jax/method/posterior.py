@@ -17,11 +17,8 @@ import optax
 from flax import struct
 
 from emgail_jax.method.batches import DemonstrationPairs, NormalizedBatch
-from emgail_jax.method.config import Config
+from emgail_jax.method.config import EStepConfig, ResponsibilityMode, RewardFrom
 from emgail_jax.method.optim import Learner, minimize
-
-# The E-step modes that give every pair its whole demonstration's posterior.
-TRAJECTORY_MODES = ("trajectory", "trajectory-centered")
 
 
 def posterior_loss(
@@ -52,6 +49,7 @@ def posterior_update(
     obs: jax.Array,
     actions: jax.Array,
     intentions: jax.Array,
+    *,
     steps: int,
     weights: jax.Array | None = None,
 ) -> tuple[Learner, dict]:
@@ -144,16 +142,16 @@ def expert_responsibilities(
     params,
     obs: jax.Array,
     actions: jax.Array,
+    *,
     episode: jax.Array,
     episodes: int,
-    mode: str,
+    mode: ResponsibilityMode,
     labels: jax.Array | None = None,
     weights: jax.Array | None = None,
 ) -> Responsibilities:
     """The E-step's responsibilities of the expert pairs ``obs [N, D]`` (normalised),
-    ``actions [N, A]`` (executed) under the posterior ``params``; ``mode`` is ``"pair"``
-    (eq. 18), ``"trajectory"`` or ``"trajectory-centered"`` (see
-    :func:`trajectory_responsibilities`) or ``"labels"``: the
+    ``actions [N, A]`` (executed) under the posterior ``params``; ``mode`` is per pair
+    (eq. 18), per demonstration (see :func:`trajectory_responsibilities`) or the oracle: the
     hidden ``labels [N]`` themselves, an oracle E-step that bounds what any E-step can give
     (not the paper's method; the pair labels are still the posterior's, for eq. 29).
 
@@ -165,20 +163,14 @@ def expert_responsibilities(
     log_prior = None if weights is None else jnp.log(weights)
     log_joint = log_p if log_prior is None else log_p + log_prior  # log w_i P(i | s, a) + c
     pair_labels = jnp.argmax(log_joint, -1)
-    if mode == "labels":
+    if mode.oracle:
         if labels is None:
             raise ValueError("the labels E-step needs demonstrations with hidden labels")
         gamma = jax.nn.one_hot(labels, log_p.shape[-1])
         return Responsibilities(gamma, pair_labels, labels, log_joint)
-    if mode in TRAJECTORY_MODES:
-        centered = mode != "trajectory"
-        gamma = trajectory_responsibilities(log_p, episode, episodes, centered, log_prior)
+    if mode.per_demonstration:
+        gamma = trajectory_responsibilities(log_p, episode, episodes, mode.centered, log_prior)
         return Responsibilities(gamma, pair_labels, jnp.argmax(gamma, -1), log_joint)
-    if mode != "pair":
-        raise ValueError(
-            f"unknown responsibilities mode '{mode}': choose trajectory, "
-            f"trajectory-centered, pair or labels"
-        )
     gamma = jnp.exp(log_p) if log_prior is None else jax.nn.softmax(log_joint, -1)
     return Responsibilities(gamma, pair_labels, pair_labels, log_joint)
 
@@ -207,7 +199,13 @@ def mixture_weights(gamma: jax.Array) -> jax.Array:
     return weights / weights.sum()
 
 
-def make_e_step(apply: Callable, optimizer: optax.GradientTransformation, config: Config):
+def make_e_step(
+    apply: Callable,
+    optimizer: optax.GradientTransformation,
+    config: EStepConfig,
+    *,
+    reward_from: RewardFrom = RewardFrom.UPDATED,
+):
     """``e_step(posterior, batch, demos, weights) -> EStep`` (Algorithm 1, E-step).
 
     The posterior ``posterior`` (a :class:`Learner`, or None for GAIL) learns P(i | s, a) on
@@ -215,12 +213,12 @@ def make_e_step(apply: Callable, optimizer: optax.GradientTransformation, config
     intention whose policy made it (eq. 16); gamma is then the posterior of the expert pairs
     in ``config.responsibilities``' mode (eq. 18, or per demonstration). Info/IntentionGAIL's
     reward term, the samples' own log-posterior, comes from the updated posterior or the
-    previous one (``config.reward_from``). With ``config.prior == "mixture"`` gamma also
+    previous one (``reward_from``). With the mixture prior (``config.prior``) gamma also
     weighs each intention by ``weights [K]``, and the E-step re-estimates them from gamma (EM
     for a mixture's weights); under the uniform prior they pass through unchanged. Without a
     posterior: uniform gamma, zero log-posterior.
     """
-    mixture = config.prior == "mixture"
+    mixture = config.prior.estimated
 
     def e_step(
         posterior: Learner | None,
@@ -238,7 +236,14 @@ def make_e_step(apply: Callable, optimizer: optax.GradientTransformation, config
         obs, actions = flat(batch.obs), flat(batch.executed)
         intentions = own_intention.reshape(-1)
         train = lambda learner, obs, actions, intentions, weights=None: posterior_update(
-            apply, optimizer, learner, obs, actions, intentions, config.posterior_steps, weights
+            apply,
+            optimizer,
+            learner,
+            obs,
+            actions,
+            intentions,
+            steps=config.steps,
+            weights=weights,
         )
         trained, metrics = train(posterior, obs, actions, intentions)
         if lesson is not None:
@@ -257,16 +262,16 @@ def make_e_step(apply: Callable, optimizer: optax.GradientTransformation, config
             trained.params,
             batch.expert_obs,
             batch.expert_actions,
-            demos.episode,
-            demos.episodes,
-            config.responsibilities,
-            demos.labels if demos.has_labels else None,
-            weights if mixture else None,
+            episode=demos.episode,
+            episodes=demos.episodes,
+            mode=config.responsibilities,
+            labels=demos.labels if demos.has_labels else None,
+            weights=weights if mixture else None,
         )
         if mixture:
             weights = mixture_weights(responsibilities.gamma)
             metrics = {**metrics, "posterior/intention_weights": weights}
-        rewarding = trained if config.reward_from == "updated" else posterior
+        rewarding = reward_from.choose(updated=trained, previous=posterior)
         own = own_log_posterior(apply, rewarding.params, batch.obs, batch.executed, own_intention)
         chex.assert_shape(responsibilities.gamma, (demos.episode.shape[0], k))
         gamma = responsibilities.gamma

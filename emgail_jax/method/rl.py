@@ -28,7 +28,7 @@ from flax import struct
 
 import envs
 from emgail_jax.method import normalizer as obs_norm
-from emgail_jax.method.config import Config
+from emgail_jax.method.config import MethodConfig
 from emgail_jax.method.networks import GaussianPolicy, ValueNet
 from emgail_jax.method.optim import Learner
 from emgail_jax.method.rollout import batch_reset, episode_returns
@@ -55,7 +55,7 @@ class RLState:
 
 
 def make_rl_train(
-    config: Config, env: envs.Env, reward_fn: RewardFn = true_reward, eval_episodes: int = 5
+    config: MethodConfig, env: envs.Env, reward_fn: RewardFn = true_reward, eval_episodes: int = 5
 ):
     """Builds ``init(key) -> RLState``, ``update(state, intention, reward_data=None) -> (state,
     metrics)`` and ``policy(state, deterministic) -> (obs, key) -> action``: the trainer
@@ -64,8 +64,12 @@ def make_rl_train(
     config = config.resolved(env)
     train_env = envs.wrap_for_training(env)
     eval_env = envs.EpisodeWrapper(env)
-    policy_net = GaussianPolicy(env.action_size, config.hidden, config.init_log_std)
-    stages = PolicyStages.create(policy_net, ValueNet(config.hidden), unconditioned, config, env)
+    policy_net = GaussianPolicy(
+        env.action_size, config.networks.hidden, config.networks.init_log_std
+    )
+    stages = PolicyStages.create(
+        policy_net, ValueNet(config.networks.hidden), unconditioned, config, env
+    )
 
     def init(key: jax.Array) -> RLState:
         key_policy, key_value, key_env, key_next = jax.random.split(key, 4)
@@ -74,7 +78,7 @@ def make_rl_train(
             policy=policy,
             value=value,
             normalizer=obs_norm.RunningStats.create(env.observation_size),
-            env_state=batch_reset(train_env, key_env, (1, config.num_envs)),
+            env_state=batch_reset(train_env, key_env, (1, config.rollout.num_envs)),
             key=key_next,
             iteration=jnp.zeros((), jnp.int32),
         )

@@ -33,7 +33,7 @@ import envs
 from emgail_jax.method import normalizer as obs_norm
 from emgail_jax.method.b_step import BStep, PolicySamples, make_b_step
 from emgail_jax.method.batches import LearningBatch
-from emgail_jax.method.config import Config
+from emgail_jax.method.config import MethodConfig
 from emgail_jax.method.networks import GaussianPolicy, ValueNet, policy_action
 from emgail_jax.method.optim import Learner
 from emgail_jax.method.rollout import Policy, Transitions, rollout, time_major
@@ -65,7 +65,7 @@ class PolicyStages:
     value: ValueNet
     value_optimizer: optax.GradientTransformation
     condition: Condition
-    config: Config  # resolved for the env
+    config: MethodConfig  # resolved for the env
     observation_size: int
     episode_length: int
 
@@ -74,14 +74,16 @@ class PolicyStages:
         cls, policy: GaussianPolicy, value: ValueNet, condition: Condition, config, env: envs.Env
     ) -> PolicyStages:
         """The stages of ``policy`` and ``value`` on ``env``; ``config`` resolved for it."""
-        optimizer = optax.adam(config.value_learning_rate)
+        optimizer = optax.adam(config.b_step.value_learning_rate)
         return cls(
             policy, value, optimizer, condition, config, env.observation_size, env.episode_length
         )
 
     @property
     def b_step(self) -> Callable:
-        return make_b_step(self.policy.apply, self.value.apply, self.value_optimizer, self.config)
+        return make_b_step(
+            self.policy.apply, self.value.apply, self.value_optimizer, self.config.b_step
+        )
 
     def init(self, key_policy: jax.Array, key_value: jax.Array) -> tuple[Any, Learner]:
         """Fresh policy parameters and a fresh value :class:`Learner`."""
@@ -103,9 +105,9 @@ class PolicyStages:
                 normalizer,
                 obs,
                 self.condition(intention_rows(obs.shape[:-1])),
-                self.config.obs_clip,
-                None if explore is False else key,
-                explore,
+                obs_clip=self.config.networks.obs_clip,
+                key=None if explore is False else key,
+                explore=explore,
                 intention_major=True,
             )
 
@@ -116,7 +118,7 @@ class PolicyStages:
     ) -> tuple[envs.State, Transitions]:
         """Step 1: ``rollout_length`` steps of the auto-resetting ``env`` from ``env_state``
         with ``policy`` (:func:`~emgail_jax.method.rollout.rollout`)."""
-        return rollout(env, policy, env_state, key, self.config.rollout_length)
+        return rollout(env, policy, env_state, key, self.config.rollout.rollout_length)
 
     def improve(
         self, state, batch: LearningBatch, normalizer: obs_norm.RunningStats, reward, key
@@ -127,7 +129,7 @@ class PolicyStages:
         rows = intention_rows((k, t * b))
         samples = PolicySamples.of(
             batch,
-            lambda x: obs_norm.normalize(normalizer, x, self.config.obs_clip),
+            lambda x: obs_norm.normalize(normalizer, x, self.config.networks.obs_clip),
             time_major(self.condition(rows), t),
             self.condition(intention_rows((k, b))),
         )

@@ -47,7 +47,7 @@ from emgail_jax.method import normalizer as obs_norm
 from emgail_jax.method.algorithms import Algorithm, make_algorithm
 from emgail_jax.method.batches import DemonstrationPairs, NormalizedBatch
 from emgail_jax.method.choosing import holds_demonstrations
-from emgail_jax.method.config import Config
+from emgail_jax.method.config import MethodConfig, ResponsibilityMode
 from emgail_jax.method.discriminator import expert_logits, learned_reward, make_m_step
 from emgail_jax.method.metrics import cluster_accuracy, normalized_erd
 from emgail_jax.method.networks import (
@@ -58,7 +58,6 @@ from emgail_jax.method.networks import (
 )
 from emgail_jax.method.optim import Learner
 from emgail_jax.method.posterior import (
-    TRAJECTORY_MODES,
     EStep,
     Lesson,
     Responsibilities,
@@ -126,8 +125,8 @@ class RunData:
     info_weight: jax.Array  # [] Info/IntentionGAIL's lambda (eq. 23)
 
     @classmethod
-    def create(cls, demos: DemonstrationPairs, env: envs.Env, config: Config) -> RunData:
-        return cls(demos, env.data(), np.float32(config.info_weight))
+    def create(cls, demos: DemonstrationPairs, env: envs.Env, info_weight: float) -> RunData:
+        return cls(demos, env.data(), np.float32(info_weight))
 
 
 @dataclass(frozen=True)
@@ -138,21 +137,22 @@ class Networks:
     posterior: Posterior
 
 
-def make_networks(config: Config, env: envs.Env) -> Networks:
-    heads = config.intention_input == "heads"
+def make_networks(config: MethodConfig, env: envs.Env) -> Networks:
+    shape = config.networks
+    heads = shape.intention_input.heads
     return Networks(
-        policy=GaussianPolicy(env.action_size, config.hidden, config.init_log_std, heads),
-        value=ValueNet(config.hidden, heads),
-        discriminator=Discriminator(config.hidden, heads),
-        posterior=Posterior(env.num_intentions, config.hidden),
+        policy=GaussianPolicy(env.action_size, shape.hidden, shape.init_log_std, heads),
+        value=ValueNet(shape.hidden, heads),
+        discriminator=Discriminator(shape.hidden, heads),
+        posterior=Posterior(env.num_intentions, shape.hidden),
     )
 
 
-def make_policy_stages(config: Config, env: envs.Env, networks: Networks) -> PolicyStages:
+def make_policy_stages(config: MethodConfig, env: envs.Env, networks: Networks) -> PolicyStages:
     """The skeleton's policy side for ``networks``: row k of the ``[K, B]`` layout acts as
     intention k (GAIL's single policy ignores the row)."""
     # Only the policy's conditioning is read, which no algorithm's data changes.
-    algorithm = make_algorithm(config.algo, reward_form=config.reward_form)
+    algorithm = make_algorithm(config.algo, reward_form=config.reward.form)
     condition = lambda intentions: algorithm.policy_condition(intentions, env.num_intentions)
     return PolicyStages.create(networks.policy, networks.value, condition, config, env)
 
@@ -166,7 +166,7 @@ def clustering_metrics(
     e_step: Responsibilities | None,
     demos: DemonstrationPairs,
     k: int,
-    mode: str,
+    mode: ResponsibilityMode,
     in_use: jax.Array | None = None,
 ) -> dict:
     """The clustering accuracy of eq. 29 (the posterior's argmax on every expert pair) and, when
@@ -175,7 +175,7 @@ def clustering_metrics(
     ``k`` learned intentions, of which ``in_use [K]`` (None: all) are kept: each pair and
     demonstration is then labelled with its most likely kept intention."""
     names = ["eval/cluster_accuracy"]
-    if mode in TRAJECTORY_MODES and e_step is not None:
+    if mode.per_demonstration and e_step is not None:
         names.append("eval/trajectory_cluster_accuracy")
     if e_step is None or not demos.has_labels:
         return {name: jnp.float32(jnp.nan) for name in names}
@@ -189,21 +189,21 @@ def clustering_metrics(
 
 
 def responsibilities_of(
-    networks: Networks, config: Config, state: TrainState, demos: DemonstrationPairs
+    networks: Networks, config: MethodConfig, state: TrainState, demos: DemonstrationPairs
 ) -> Responsibilities:
     """The E-step's responsibilities of ``demos`` under one seed's ``state`` (its posterior,
     observation statistics and mixture weights), computed as training computes them."""
-    expert_obs = obs_norm.normalize(state.normalizer, demos.observations, config.obs_clip)
+    expert_obs = obs_norm.normalize(state.normalizer, demos.observations, config.networks.obs_clip)
     return expert_responsibilities(
         networks.posterior.apply,
         state.posterior.params,
         expert_obs,
         demos.actions,
-        demos.episode,
-        demos.episodes,
-        config.responsibilities,
-        demos.labels if demos.has_labels else None,
-        state.intention_weights if config.prior == "mixture" else None,
+        episode=demos.episode,
+        episodes=demos.episodes,
+        mode=config.e_step.responsibilities,
+        labels=demos.labels if demos.has_labels else None,
+        weights=state.intention_weights if config.e_step.prior.estimated else None,
     )
 
 
@@ -248,14 +248,14 @@ def no_evaluation(k: int, learned: int | None = None) -> dict:
     return metrics
 
 
-def evaluation_phases(config: Config, env: envs.Env) -> int:
+def evaluation_phases(config: MethodConfig, env: envs.Env) -> int:
     """Rollouts of ``rollout_length`` steps that cover one evaluation episode."""
-    return math.ceil(env.episode_length / config.rollout_length)
+    return math.ceil(env.episode_length / config.rollout.rollout_length)
 
 
-def algorithm_of(config: Config, data: RunData) -> Algorithm:
+def algorithm_of(config: MethodConfig, data: RunData) -> Algorithm:
     """The run's algorithm, with Info/IntentionGAIL's lambda from the run's data."""
-    return make_algorithm(config.algo, data.info_weight, config.reward_form)
+    return make_algorithm(config.algo, data.info_weight, config.reward.form)
 
 
 class Optimizers(NamedTuple):
@@ -263,16 +263,16 @@ class Optimizers(NamedTuple):
     posterior: optax.GradientTransformation
 
 
-def make_optimizers(config: Config) -> Optimizers:
+def make_optimizers(config: MethodConfig) -> Optimizers:
     return Optimizers(
-        discriminator=optax.adam(config.discriminator_learning_rate),
-        posterior=optax.adam(config.posterior_learning_rate),
+        discriminator=optax.adam(config.m_step.learning_rate),
+        posterior=optax.adam(config.e_step.learning_rate),
     )
 
 
-def make_init(config: Config, env: envs.Env, networks: Networks, optimizers: Optimizers):
+def make_init(config: MethodConfig, env: envs.Env, networks: Networks, optimizers: Optimizers):
     """``init(key, data) -> TrainState``: fresh networks and ``[K, B]`` reset training envs."""
-    k, b = env.num_intentions, config.num_envs
+    k, b = env.num_intentions, config.rollout.num_envs
     stages = make_policy_stages(config, env, networks)
 
     def init(key: jax.Array, data: RunData) -> TrainState:
@@ -306,9 +306,7 @@ def make_init(config: Config, env: envs.Env, networks: Networks, optimizers: Opt
             env_state=batch_reset(training_env(env, data), keys["env"], (k, b)),
             key=keys["next"],
             iteration=jnp.zeros((), jnp.int32),
-            reseeding=(
-                Reseeding.create(k, data.demos.episodes) if reseeds(config, algorithm) else None
-            ),
+            reseeding=(Reseeding.create(k, data.demos.episodes) if config.reseeds else None),
         )
 
     return init
@@ -323,18 +321,13 @@ def lesson_of(memory: Reseeding, demos: DemonstrationPairs) -> Lesson:
     )
 
 
-def reseeds(config: Config, algorithm: Algorithm) -> bool:
-    """Whether the run re-seeds emptied intentions: with a posterior, unless turned off."""
-    return config.reseed and algorithm.learns_posterior
-
-
-def make_collect(config: Config, env: envs.Env, stages: PolicyStages):
+def make_collect(config: MethodConfig, env: envs.Env, stages: PolicyStages):
     """``collect(state, key, evaluating, data) -> (end_state, transitions, evaluation
     metrics)``: the skeleton's step 1 and, when ``evaluating`` (5.), the deterministic
     evaluation episodes, phases of one loop whose body steps the env once. ``evaluating`` is a
     bool scalar, not batched over seeds, so that the evaluation phases are really skipped; the
     ERD is matched to the learned intentions in use (:func:`kept_intentions`)."""
-    k, b, t = env.num_intentions, config.num_envs, config.rollout_length
+    k, b, t = env.num_intentions, config.rollout.num_envs, config.rollout.rollout_length
     eval_phases = evaluation_phases(config, env)
 
     def collect(state: TrainState, key, evaluating, data: RunData):
@@ -381,7 +374,7 @@ def make_collect(config: Config, env: envs.Env, stages: PolicyStages):
     return collect
 
 
-def kept_intentions(config: Config, state: TrainState, data: RunData) -> jax.Array | None:
+def kept_intentions(config: MethodConfig, state: TrainState, data: RunData) -> jax.Array | None:
     """``[K]`` the learned intentions holding demonstrations when K is chosen from the data,
     from the weights the iteration starts with (the policies evaluated are the state's); None
     when K is given. The seeds' consensus decides the run's K at the end."""
@@ -409,12 +402,13 @@ def normalized_batch(
     ).check()
 
 
-def make_reseed(config: Config, networks: Networks, k: int):
+def make_reseed(config: MethodConfig, networks: Networks, k: int):
     """``reseed(memory, e, discriminator, seen, demos, algorithm) -> (memory, e)``: the
     E-step's gamma (and mixture weights) with an emptied intention re-seeded
     (:mod:`emgail_jax.method.reseeding`); the demonstrations it takes are those the
     discriminator of their intention (before this M-step) tells best from its policy."""
-    rule = ReseedingRule(config.reseed_patience, config.reseed_window, config.reseed_attempts)
+    e_config = config.e_step
+    rule = ReseedingRule(e_config.reseed_patience, e_config.reseed_window, e_config.reseed_attempts)
 
     def reseed(memory: Reseeding, e: EStep, discriminator: Learner, seen, demos, algorithm):
         def scores(holder: jax.Array) -> jax.Array:
@@ -443,7 +437,7 @@ def make_reseed(config: Config, networks: Networks, k: int):
             "reseed/target": memory.target,
         }
         weights = e.weights
-        if config.prior == "mixture":
+        if config.e_step.prior.estimated:
             weights = mixture_weights(gamma)
             metrics["posterior/intention_weights"] = weights
         return count_down(memory), e.replace(gamma=gamma, weights=weights, metrics=metrics)
@@ -457,7 +451,7 @@ class LearnedRewardStage:
     re-seeding of emptied intentions, the M-step) and the learned reward of every sample under
     its own intention, on which step 4 improves the policy."""
 
-    config: Config
+    config: MethodConfig
     env: envs.Env
     networks: Networks
     e_step: Callable  # (posterior, seen, demos, weights, lesson=None) -> EStep
@@ -465,14 +459,16 @@ class LearnedRewardStage:
     reseed: Callable  # see make_reseed
 
     @classmethod
-    def create(cls, config: Config, env: envs.Env, networks: Networks, optimizers: Optimizers):
-        m_step = make_m_step(
-            networks.discriminator.apply,
-            optimizers.discriminator,
-            config.discriminator_steps,
-            config.discriminator_gradient_penalty,
+    def create(
+        cls, config: MethodConfig, env: envs.Env, networks: Networks, optimizers: Optimizers
+    ):
+        m_step = make_m_step(networks.discriminator.apply, optimizers.discriminator, config.m_step)
+        e_step = make_e_step(
+            networks.posterior.apply,
+            optimizers.posterior,
+            config.e_step,
+            reward_from=config.reward.source,
         )
-        e_step = make_e_step(networks.posterior.apply, optimizers.posterior, config)
         reseed = make_reseed(config, networks, env.num_intentions)
         return cls(config, env, networks, e_step, m_step, reseed)
 
@@ -485,17 +481,17 @@ class LearnedRewardStage:
             discriminator.params,
             algorithm,
             k,
-            seen.obs,
-            seen.executed,
-            intention_rows((k, m)),
-            own_log_posterior,
+            obs=seen.obs,
+            executed=seen.executed,
+            intention=intention_rows((k, m)),
+            own_log_posterior=own_log_posterior,
             intention_major=True,
         )
 
     def __call__(self, state: TrainState, transitions, normalizer, evaluating, data) -> Rewarded:
         config, demos = self.config, data.demos
         algorithm = algorithm_of(config, data)
-        seen = normalized_batch(normalizer, transitions, demos, self.env, config.obs_clip)
+        seen = normalized_batch(normalizer, transitions, demos, self.env, config.networks.obs_clip)
         reseeding = state.reseeding
         # EM-GAIL's M-step sees a re-seeding in gamma; Info/IntentionGAIL's D(s, a) ignores
         # gamma, so its posterior learns the held demonstrations instead.
@@ -505,12 +501,14 @@ class LearnedRewardStage:
         if reseeding is not None:
             reseeding, e = self.reseed(reseeding, e, state.discriminator, seen, demos, algorithm)
         m = self.m_step(state.discriminator, seen, e.gamma, algorithm)
-        rewarding = m.discriminator if config.reward_from == "updated" else state.discriminator
+        rewarding = config.reward.source.choose(
+            updated=m.discriminator, previous=state.discriminator
+        )
         reward = self.pseudo_reward(rewarding, algorithm, seen, e.own_log_posterior)
         in_use = kept_intentions(config, state, data)
         k = self.env.num_intentions
         clustering = clustering_metrics(
-            e.responsibilities, demos, k, config.responsibilities, in_use
+            e.responsibilities, demos, k, config.e_step.responsibilities, in_use
         )
         metrics = {**clustering, **e.metrics, **m.metrics, "train/pseudo_reward": reward.mean()}
         if in_use is not None:
@@ -524,7 +522,7 @@ class LearnedRewardStage:
         return Rewarded(time_major(reward, transitions.obs.shape[0]), learned, metrics)
 
 
-def make_train(config: Config, env: envs.Env) -> Trainer:
+def make_train(config: MethodConfig, env: envs.Env) -> Trainer:
     """Builds ``init(key, data) -> TrainState`` and
     ``update(state, evaluating, data) -> (state, metrics)`` (see the module docstring): the
     trainer skeleton (:mod:`~emgail_jax.method.skeleton`) with the E-step, the M-step and the

@@ -23,6 +23,7 @@ def fit_value(
     inputs: tuple[jax.Array, ...],
     targets: jax.Array,
     key: jax.Array,
+    *,
     epochs: int,
     minibatches: int,
 ):

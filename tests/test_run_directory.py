@@ -1,0 +1,61 @@
+"""A run's directory: where a new run goes, and what a new run may replace."""
+
+import os
+
+import pytest
+
+from emgail_jax.host import run_lock
+from emgail_jax.host.run_directory import (
+    OUTPUTS,
+    create_output,
+    default_output,
+    prepare_output,
+    writing,
+)
+from emgail_jax.host.run_spec import RunError
+
+
+def test_default_output_never_takes_an_earlier_run(tmp_path):
+    root = str(tmp_path)
+    assert default_output("driver", "gail", root) == f"{root}/driver-gail"
+    os.makedirs(f"{root}/driver-gail")
+    os.makedirs(f"{root}/driver-gail-2")
+    assert default_output("driver", "gail", root) == f"{root}/driver-gail-3"
+
+
+def test_create_output_refuses_a_file(tmp_path):
+    path = tmp_path / "a-file"
+    path.write_text("")
+    with pytest.raises(RunError, match="is a file"):
+        create_output(str(path))
+    create_output(str(tmp_path / "new" / "run"))
+    assert (tmp_path / "new" / "run").is_dir()
+
+
+def test_a_refused_new_run_leaves_no_directory(tmp_path):
+    out = tmp_path / "run"
+    with pytest.raises(RuntimeError), writing(str(out), new=True):
+        assert (out / run_lock.LOCK_NAME).exists()
+        raise RuntimeError("refused")
+    assert not out.exists()
+    with writing(str(out), new=True):
+        (out / "summary.json").write_text("{}")
+    assert (out / "summary.json").exists()  # a run that wrote something keeps its directory
+
+
+def test_writing_an_existing_run_needs_its_summary(tmp_path):
+    with pytest.raises(RunError, match="not a run directory"), writing(str(tmp_path / "x"), False):
+        pass
+
+
+def test_prepare_output_replaces_a_run_only_when_told(tmp_path):
+    out = tmp_path / "run"
+    (out / "checkpoints").mkdir(parents=True)
+    (out / "metrics.csv").write_text("iteration\n")
+    (out / "notes.txt").write_text("mine")
+    with pytest.raises(RunError, match=r"already holds a run \(metrics.csv, checkpoints\)"):
+        prepare_output(str(out), overwrite=False)
+    assert (out / "metrics.csv").exists()
+    prepare_output(str(out), overwrite=True)
+    assert not any((out / name).exists() for name in OUTPUTS)
+    assert (out / "notes.txt").read_text() == "mine"  # not a run's output: kept
