@@ -129,7 +129,8 @@ def rollout(env, stages, state):
     )
 
 
-@pytest.mark.parametrize("jit", [False, True])
+# Op by op, TRPO and the value fit take about half a minute.
+@pytest.mark.parametrize("jit", [pytest.param(False, marks=pytest.mark.slow), True])
 def test_improve_is_the_b_step_on_the_normalised_rollout(env, stages, state, rollout, jit):
     end, transitions = rollout
     batch = LearningBatch.of(transitions, end, env.episode_length)
