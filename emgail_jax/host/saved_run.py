@@ -111,7 +111,7 @@ class SavedRun:
     def intentions_in_use(self, seed: int = 0) -> np.ndarray | None:
         """``[K]`` bool, the learned intentions ``seed`` keeps when K is chosen from the data
         (``--intentions auto``), decided by all the run's seeds together as training decided
-        at its end (:func:`~emgail_jax.host.final_results.kept_intentions`): the run's final
+        at its end (:func:`~emgail_jax.host.results_pipeline.kept_intentions`): the run's final
         results say, and for a snapshot (or a summary without them) they are decided anew
         from its state; None when K was given."""
         if not self.config.method.choose_intentions:
