@@ -358,6 +358,7 @@ def test_unequal_shares_writes_the_asked_episodes(tmp_path, capsys):
     assert "has 5 episodes, not 9" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # a supervised classifier trained per step of the reacher's demonstrations
 def test_posterior_ceiling_scores_the_demonstrations_by_step(capsys):
     """The supervised posterior on a few fresh reacher episodes: an accuracy for the whole set
     and for each shown step, all of them fractions."""

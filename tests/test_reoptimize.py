@@ -135,6 +135,7 @@ def test_demonstrations_reward_weights_pairs_by_their_responsibilities(saved):
         np.testing.assert_allclose(earned[i], expected, rtol=1e-5)
 
 
+@pytest.mark.slow  # consolidation, then a fresh re-optimisation (the plain one runs always)
 def test_a_consolidated_reward_in_the_logit_form(tiny_run, reoptimized):
     first, _ = reoptimized
     args = [str(tiny_run), "--iterations", "2", "--consolidate", "5", "--reward-form", "logit"]

@@ -71,6 +71,7 @@ def _assert_same_results(cell: str, ray_out: pathlib.Path, local_out: pathlib.Pa
     assert finals[0]["erd"]  # there is something to compare
 
 
+@pytest.mark.slow  # a Ray cluster of two nodes started and a sweep run twice: 40 s of the suite
 def test_sweep_on_a_two_node_ray_cluster_equals_the_local_engine(tmp_path):
     """Two tiny cells at once, one a node (a CPU each, a cell reserving its seed's one): the
     cells' runs and the report are the local engine's."""
