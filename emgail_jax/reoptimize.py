@@ -37,6 +37,7 @@ import time
 import numpy as np
 
 from emgail_jax.host import jax_setup
+from emgail_jax.host.schedule import FINAL_WINDOW  # the iterations averaged, as training's
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,7 +66,6 @@ RL_FIELDS = (
     "value_epochs",
     "value_minibatches",
 )
-FINAL_WINDOW = 10  # iterations averaged for the final numbers, as training's
 SUCCESS_EPISODES = 10  # the experts' bars are defined over 10 deterministic episodes
 
 

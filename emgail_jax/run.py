@@ -25,8 +25,6 @@ from emgail_jax.host.run_directory import default_output, prepare_output, writin
 from emgail_jax.host.run_spec import DEFAULT_RANDOM_EPISODES, RunError, RunSpec, read_summary
 from emgail_jax.host.summary_table import print_summary
 
-DEFAULT_CHECKPOINT_EVERY = 50
-DEFAULT_SNAPSHOT_EVERY = 50
 DEFAULT_SEEDS = 4
 
 
@@ -43,7 +41,7 @@ def run_options() -> tuple[str, ...]:
 def _parser() -> tuple[argparse.ArgumentParser, tuple[str, ...]]:
     """The command's parser, and the ``dest`` of its run-defining options."""
     from emgail_jax.method.algorithms import NAMES
-    from emgail_jax.method.config import INTENTION_INPUTS, PRIORS, RESPONSIBILITIES
+    from emgail_jax.method.config import INTENTION_INPUTS, PRIORS, RESPONSIBILITIES, RunSchedule
 
     parser = argparse.ArgumentParser(
         prog="python -m emgail_jax.run", description=__doc__.split("\n")[0]
@@ -139,13 +137,13 @@ def _parser() -> tuple[argparse.ArgumentParser, tuple[str, ...]]:
     parser.add_argument(
         "--checkpoint-every",
         type=int,
-        help=f"iterations between checkpoints (default {DEFAULT_CHECKPOINT_EVERY})",
+        help=f"iterations between checkpoints (default {RunSchedule.checkpoint_every})",
     )
     parser.add_argument(
         "--snapshot-every",
         type=int,
         help="iterations between snapshots of the learned networks, all kept (default "
-        f"{DEFAULT_SNAPSHOT_EVERY}; 0: none)",
+        f"{RunSchedule.snapshot_every}; 0: none)",
     )
     parser.add_argument("--overwrite", action="store_true", help="replace an earlier run")
     parser.add_argument(
