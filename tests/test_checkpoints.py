@@ -5,6 +5,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from flax import struct
 from jax.sharding import NamedSharding, PartitionSpec
 
 from emgail_jax.host import checkpoints
@@ -64,3 +65,30 @@ def test_a_checkpoint_of_another_structure_is_a_clear_error_and_stays(tmp_path):
     resized = {**state, "params": np.zeros((3, 5), np.float32)}
     with pytest.raises(checkpoints.CheckpointError, match="another structure"):
         checkpoints.restore(str(tmp_path), resized)
+
+
+@struct.dataclass
+class _Before:
+    params: jax.Array
+    physics: dict
+    step: jax.Array
+
+
+@struct.dataclass
+class _After(_Before):
+    added: dict | None = None  # a field a newer version added, None when its option is off
+
+
+def test_a_state_written_before_an_empty_field_existed_restores_into_it(tmp_path):
+    """A field holding no arrays (None) changes the tree but not the layout: a checkpoint
+    written without it restores, every leaf by its path (as runs from before re-seeding do)."""
+    state, _ = _state()
+    checkpoints.save(str(tmp_path), 4, jax.device_get(_Before(**state)), {"erd": np.zeros(2)})
+    restored, _, iteration = checkpoints.restore(str(tmp_path), _After(**state))
+    assert iteration == 4 and isinstance(restored, _After) and restored.added is None
+    for saved, loaded in zip(jax.tree.leaves(state), jax.tree.leaves(restored), strict=True):
+        assert loaded.shape == saved.shape and loaded.dtype == saved.dtype
+        np.testing.assert_array_equal(loaded, saved)
+    with pytest.raises(checkpoints.CheckpointError, match="another structure"):
+        grown = _After(**state, added={"weights": np.zeros(3, np.float32)})
+        checkpoints.restore(str(tmp_path), grown)

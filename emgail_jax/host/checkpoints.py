@@ -25,6 +25,7 @@ import hashlib
 import os
 import shutil
 import threading
+import types
 
 import jax
 import numpy as np
@@ -147,6 +148,36 @@ def save(run_dir: str, iteration: int, state, history: dict[str, np.ndarray]) ->
         ) from None
 
 
+def _restore_state(manager, iteration: int, target_state, same_layout: bool):
+    """The checkpoint's state, history and meta. A state written before a field that holds no
+    arrays (None: an option off) existed has the same layout but not the same tree: with
+    ``same_layout`` known, its leaves are then read by their paths into ``target_state``."""
+    every = dict(history=ocp.args.StandardRestore(), meta=ocp.args.JsonRestore())
+    try:
+        state = ocp.args.StandardRestore(_without_empty(target_state))
+        return manager.restore(iteration, args=ocp.args.Composite(state=state, **every))
+    except Exception as error:  # orbax's type for a mismatch varies
+        if not (same_layout and "tree structures do not match" in str(error)):
+            raise
+    state = ocp.args.StandardRestore()
+    restored = manager.restore(iteration, args=ocp.args.Composite(state=state, **every))
+    raw = restored.state
+
+    def at(path, template):
+        if _is_empty(template):
+            return None
+        node = raw
+        for entry in path:  # a field, a dict key or a sequence index
+            for kind in ("name", "key", "idx"):
+                if hasattr(entry, kind):
+                    node = node[getattr(entry, kind)]
+                    break
+        return node
+
+    by_path = jax.tree_util.tree_map_with_path(at, target_state)
+    return types.SimpleNamespace(state=by_path, history=restored.history, meta=restored.meta)
+
+
 def latest_iteration(run_dir: str) -> int | None:
     if not os.path.isdir(directory(run_dir)):
         return None
@@ -176,14 +207,7 @@ def restore(run_dir: str, target_state, iteration: int | None = None):
             meta = manager.restore(iteration, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))
             if meta["meta"].get("layout", layout(target_state)) != layout(target_state):
                 raise another_structure
-            restored = manager.restore(
-                iteration,
-                args=ocp.args.Composite(
-                    state=ocp.args.StandardRestore(_without_empty(target_state)),
-                    history=ocp.args.StandardRestore(),
-                    meta=ocp.args.JsonRestore(),
-                ),
-            )
+            restored = _restore_state(manager, iteration, target_state, "layout" in meta["meta"])
     except CheckpointError:
         raise
     except Exception as error:  # orbax raises many types for damaged or foreign files
