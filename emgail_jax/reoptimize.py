@@ -1,12 +1,13 @@
 """Is the learned reward a reward? Train fresh policies on it and measure their ERD (paper §5.2).
 
-    python -m emgail_jax.reoptimize RUN_DIR [--seed S] [--snapshot ITER] [--iterations N]
-        [--gamma G] [--no-baseline] [--cache DIR] [--out PATH]
+    python -m emgail_jax.reoptimize RUN_DIR [--seed S] [--snapshot ITER] [--ensemble N]
+        [--iterations N] [--gamma G] [--no-baseline] [--cache DIR] [--out PATH]
 
 For every run seed (or ``--seed S`` alone) and every learned intention, a new policy is trained
 from scratch with TRPO on the frozen pseudo-reward R_i(s, a) of that seed (the run's final
-networks, or those of the snapshot of ``--snapshot ITER``), never seeing the true reward; the
-seeds' and intentions' policies are vmapped in one program. Their deterministic episodes (as
+networks, or those of the snapshot of ``--snapshot ITER``; with ``--ensemble N`` the mean of
+R_i over the last N snapshots up to them), never seeing the true reward; the seeds' and
+intentions' policies are vmapped in one program. Their deterministic episodes (as
 many per iteration as training evaluates, ``num_envs``) are scored under the true rewards; the
 ERD matches each true intention to the learned one the run itself matched it to (its jointly
 trained policies' matching at that iteration), one matching for every number reported. Each
@@ -201,11 +202,11 @@ def run_matching(run, seed: int, iteration: int) -> np.ndarray:
     return matchings[chosen - 1]
 
 
-def demonstrations_reward(run, seed: int, parameters=None) -> np.ndarray:
+def demonstrations_reward(run, seed: int, parameters=None, reward_function=None) -> np.ndarray:
     """``[K]``: learned intention i's reward per step on the demonstration pairs, weighted by
     the run's responsibilities gamma_i (every pair alike without a posterior); NaN for an
     intention the run assigned no demonstration to. ``parameters`` replace the seed's reward
-    parameters (a consolidated reward)."""
+    parameters (a consolidated reward), read by ``reward_function`` (default the run's)."""
     pairs = run.demonstration_pairs
     k = run.num_intentions
     if run.algorithm.learns_posterior:
@@ -213,7 +214,8 @@ def demonstrations_reward(run, seed: int, parameters=None) -> np.ndarray:
     else:
         gamma = np.ones((pairs.observations.shape[0], k))
     parameters = parameters or run.reward_parameters(seed)
-    reward = lambda obs, action, i: run.reward_function()(parameters, obs, action, i)
+    learned = reward_function or run.reward_function()
+    reward = lambda obs, action, i: learned(parameters, obs, action, i)
     per_pair = np.stack(
         [np.asarray(reward(pairs.observations, pairs.actions, i)) for i in range(k)], -1
     )  # [N, K]
@@ -223,21 +225,28 @@ def demonstrations_reward(run, seed: int, parameters=None) -> np.ndarray:
 
 
 def reoptimize(
-    run, seeds: list[int], budget: Budget, progress: bool = True, parameters=None
+    run,
+    seeds: list[int],
+    budget: Budget,
+    progress: bool = True,
+    parameters=None,
+    reward_function=None,
 ) -> dict:
     """Trains one policy per learned intention on each of ``seeds``' frozen rewards of ``run``
     (all seeds vmapped in one program) and scores them; ``parameters`` (one per seed) replace
-    the run's :meth:`~emgail_jax.host.saved_run.SavedRun.reward_parameters`."""
+    the run's :meth:`~emgail_jax.host.saved_run.SavedRun.reward_parameters`, read by
+    ``reward_function`` (default the run's
+    :meth:`~emgail_jax.host.saved_run.SavedRun.reward_function`)."""
     import jax
 
     k = run.num_intentions
-    learned = run.reward_function()
+    learned = reward_function or run.reward_function()
     reward_fn = lambda obs, action, true, intention, parameters: learned(
         parameters, obs, action, intention
     )
     trainer = _fresh_trainer(run, budget, reward_fn)
     per_seed_parameters = parameters or [run.reward_parameters(seed) for seed in seeds]
-    parameters = jax.tree.map(lambda *x: np.stack(x), *per_seed_parameters)
+    parameters = stacked(per_seed_parameters)
     # Each seed's policies take their keys from the run's seed, one per learned intention.
     keys = np.stack(
         [jax.random.split(jax.random.PRNGKey(run.spec.first_seed + s + 1000), k) for s in seeds]
@@ -252,7 +261,7 @@ def reoptimize(
         result["success"] = success(run.problem.env, trainer, states, matching)
         result["learned_reward_per_step"] = {  # learned intentions' order
             "fresh_policies": fresh.earned[row, -FINAL_WINDOW:].mean(0),
-            "demonstrations": demonstrations_reward(run, seed, per_seed_parameters[row]),
+            "demonstrations": demonstrations_reward(run, seed, per_seed_parameters[row], learned),
         }
         per_seed.append(result)
     erds = [r["erd"] for r in per_seed]
@@ -404,6 +413,14 @@ def parse_args(argv=None) -> argparse.Namespace:
         help="with --consolidate: the refit's gradient penalty (default 0: none)",
     )
     parser.add_argument(
+        "--ensemble",
+        type=int,
+        default=0,
+        metavar="N",
+        help="the reward is the mean of R_i over the last N snapshots up to the networks "
+        "re-optimised (default 0: those networks' alone)",
+    )
+    parser.add_argument(
         "--reward-form",
         default=None,
         choices=REWARD_FORMS,
@@ -425,11 +442,23 @@ def _check_options(args: argparse.Namespace) -> None:
         raise RunError("--consolidate must be 0 (none) or more steps")
     if args.consolidate_penalty < 0 or (args.consolidate_penalty and not args.consolidate):
         raise RunError("--consolidate-penalty is a weight >= 0 and goes with --consolidate")
+    if args.ensemble < 0 or (args.ensemble and args.consolidate):
+        raise RunError("--ensemble is a number of snapshots >= 0, and not with --consolidate")
+
+
+@dataclasses.dataclass
+class Chosen:
+    """The reward the command line asks for: ``parameters`` (one per seed; None: the run's),
+    read by ``function`` (None: the run's), and what was done to get them (``result`` keys)."""
+
+    parameters: list | None = None
+    function: object = None
+    details: dict = dataclasses.field(default_factory=dict)
 
 
 def _opened(args: argparse.Namespace):
-    """``(run, seeds, reward parameters or None, consolidation or None)`` of the command line:
-    the saved run with the reward form asked for, and its consolidated rewards if asked."""
+    """``(run, seeds, Chosen)`` of the command line: the saved run with the reward form asked
+    for, and its consolidated or ensemble rewards if asked."""
     from emgail_jax.host.saved_run import SavedRun
     from emgail_jax.method.algorithms import make_algorithm
 
@@ -440,10 +469,55 @@ def _opened(args: argparse.Namespace):
     if args.reward_form is not None:
         config = run.config
         run.algorithm = make_algorithm(config.method.algo, config.info_weight, args.reward_form)
-    if not args.consolidate:
-        return run, seeds, None, None
-    parameters, consolidation = consolidated(run, seeds, args.consolidate, args.consolidate_penalty)
-    return run, seeds, parameters, consolidation
+    chosen = Chosen(details={"consolidation": None, "ensemble": None})
+    if args.consolidate:
+        chosen.parameters, chosen.details["consolidation"] = consolidated(
+            run, seeds, args.consolidate, args.consolidate_penalty
+        )
+    if args.ensemble:
+        chosen.parameters, iterations = ensemble_parameters(run, seeds, args.ensemble)
+        chosen.function = ensemble_reward(run.reward_function())
+        chosen.details["ensemble"] = iterations
+    return run, seeds, chosen
+
+
+def ensemble_parameters(run, seeds: list[int], size: int) -> tuple[list, list[int]]:
+    """Each seed's reward parameters of the last ``size`` snapshots up to the networks ``run``
+    holds, stacked ``[size, ...]``, and those snapshots' iterations."""
+    from emgail_jax.host import checkpoints
+
+    last = run.snapshot or run.iteration
+    kept = [i for i in checkpoints.snapshot_iterations(run.run_dir) if i <= last]
+    if len(kept) < size:
+        raise checkpoints.CheckpointError(
+            f"--ensemble {size} needs {size} snapshots up to iteration {last}; "
+            f"'{run.run_dir}' kept {len(kept)} (run --snapshot-every)"
+        )
+    iterations = kept[-size:]
+    runs = [
+        dataclasses.replace(run, state=checkpoints.restore_snapshot(run.run_dir, i, run.state))
+        for i in iterations
+    ]
+    return [stacked([r.reward_parameters(seed) for r in runs]) for seed in seeds], iterations
+
+
+def stacked(trees: list):
+    """The pytrees ``trees`` (of equal structure) as one, a new leading axis on every leaf."""
+    import jax
+
+    return jax.tree.map(lambda *x: np.stack(x), *trees)
+
+
+def ensemble_reward(reward_function):
+    """``reward_function(parameters, obs, action, intention)`` averaged over ``parameters``
+    stacked ``[N, ...]`` (:func:`ensemble_parameters`)."""
+    import jax
+
+    def mean_reward(parameters, obs, action, intention):
+        every = jax.vmap(reward_function, (0, None, None, None))(parameters, obs, action, intention)
+        return every.mean(0)
+
+    return mean_reward
 
 
 def main(argv=None) -> int:
@@ -457,15 +531,22 @@ def main(argv=None) -> int:
     from emgail_jax.host.run_spec import RunError
 
     try:
-        run, seeds, parameters, consolidation = _opened(args)
+        run, seeds, chosen = _opened(args)
     except (RunError, CheckpointError, envs.EnvError, DemonstrationError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     budget = default_budget(run)
     budget = Budget(args.iterations or budget.iterations, args.gamma or budget.gamma)
-    result = reoptimize(run, seeds, budget, progress=not args.quiet, parameters=parameters)
+    result = reoptimize(
+        run,
+        seeds,
+        budget,
+        progress=not args.quiet,
+        parameters=chosen.parameters,
+        reward_function=chosen.function,
+    )
     result["reward_form"] = run.algorithm.reward_form
-    result["consolidation"] = consolidation
+    result.update(chosen.details)
     result["baseline"] = None
     if args.baseline:
         cache = args.cache or default_cache()
@@ -478,7 +559,7 @@ def main(argv=None) -> int:
 
 
 def default_name(args) -> str:
-    """``reoptimize[-snapshot-ITER][-consolidated-STEPS][-FORM].json``"""
+    """``reoptimize[-snapshot-ITER][-consolidated-STEPS][-ensemble-N][-FORM].json``"""
     parts = ["reoptimize"]
     if args.snapshot is not None:
         parts.append(f"snapshot-{args.snapshot}")
@@ -486,6 +567,8 @@ def default_name(args) -> str:
         parts.append(f"consolidated-{args.consolidate}")
     if args.consolidate_penalty:
         parts.append(f"penalty-{args.consolidate_penalty:g}")
+    if args.ensemble:
+        parts.append(f"ensemble-{args.ensemble}")
     if args.reward_form:
         parts.append(args.reward_form)
     return "-".join(parts) + ".json"

@@ -108,6 +108,12 @@ def test_a_snapshot_is_reoptimised_on_its_own_networks(tiny_run, reoptimized):
         (["--gamma", "0"], "--gamma must be in (0, 1]"),
         (["--iterations", "0"], "--iterations must be at least 1"),
         (["--consolidate", "-1"], "--consolidate must be 0 (none) or more steps"),
+        (["--ensemble", "3"], "--ensemble 3 needs 3 snapshots up to iteration 4;"),
+        (
+            ["--ensemble", "2", "--snapshot", "2"],
+            "--ensemble 2 needs 2 snapshots up to iteration 2;",
+        ),
+        (["--ensemble", "2", "--consolidate", "5"], "not with --consolidate"),
     ],
 )
 def test_bad_input_gives_one_line_and_exit_code_2(tiny_run, capsys, extra, message):
@@ -133,6 +139,34 @@ def test_demonstrations_reward_weights_pairs_by_their_responsibilities(saved):
         per_pair = np.asarray(reward(expert.observations, expert.actions, i))
         expected = (gamma[:, i] * per_pair).sum() / gamma[:, i].sum()
         np.testing.assert_allclose(earned[i], expected, rtol=1e-5)
+
+
+def test_an_ensemble_reward_is_the_mean_of_the_snapshots_rewards(tiny_run, saved):
+    from emgail_jax.host.saved_run import SavedRun
+
+    parameters, iterations = reoptimize.ensemble_parameters(saved, [1], 2)
+    assert iterations == [2, 4]
+    ensemble = reoptimize.ensemble_reward(saved.reward_function())
+    pairs = saved.demonstration_pairs
+    earlier = SavedRun.open(str(tiny_run), snapshot=2)
+    for i in range(2):
+        every = [r.reward(1)(pairs.observations, pairs.actions, i) for r in (earlier, saved)]
+        assert not np.allclose(every[0], every[1])  # two discriminators
+        mean = ensemble(parameters[0], pairs.observations, pairs.actions, i)
+        np.testing.assert_allclose(mean, np.mean(every, 0), rtol=1e-5)
+    _, last = reoptimize.ensemble_parameters(saved, [1], 1)
+    assert last == [4]
+
+
+@pytest.mark.slow  # an ensemble's re-optimisation (the plain one runs always)
+def test_an_ensemble_reward_is_reoptimised(tiny_run, reoptimized):
+    first, _ = reoptimized
+    args = [str(tiny_run), "--iterations", "2", "--ensemble", "2", "--no-baseline", "--quiet"]
+    assert reoptimize.main(args) == 0
+    result = json.loads((tiny_run / "reoptimize-ensemble-2.json").read_text())
+    assert result["ensemble"] == [2, 4] and result["consolidation"] is None
+    earned = [r["learned_reward_per_step"]["demonstrations"] for r in result["per_seed"]]
+    assert earned != [r["learned_reward_per_step"]["demonstrations"] for r in first["per_seed"]]
 
 
 @pytest.mark.slow  # consolidation, then a fresh re-optimisation (the plain one runs always)
