@@ -457,3 +457,27 @@ def test_an_intention_emptied_by_the_posterior_is_re_seeded(env, expert):
     assert [int(m["reseed/target"]) for m in history] == [-1, 1, 1, -1]
     assert [int(m["reseed/reseedings"]) for m in history] == [0, 1, 1, 1]
     assert int(state.reseeding.taken.sum()) == 2  # half of intention 0's demonstrations
+
+
+@pytest.mark.parametrize("algo", ["emgail", "infogail", "gail"])
+def test_a_replay_changes_only_the_m_steps_negatives(env, expert, emgail, gail, algo):
+    """With ``discriminator_replay`` the state carries the rollouts of the last R iterations
+    (raw, intention-major) and the M-step sees more negatives; the E-step and every key are
+    the run's without it. Off, the state holds no replay."""
+    config = CONFIG.with_values(algo=algo, discriminator_replay=3)
+    state0, [(state1, metrics), *_], _ = _train(config, env, expert, 1)
+    replay = state1.replay
+    assert replay.obs.shape == (3, K, B * T, env.observation_size)
+    assert int(replay.pushed) == 1 and not np.any(replay.obs[1:])
+    # Slot 0 is the first rollout, time-major per intention: the envs' starts lead it.
+    np.testing.assert_array_equal(replay.obs[0][:, :B], state0.env_state.obs)
+    without = {"emgail": emgail, "gail": gail}.get(algo)
+    if without is None:  # Info/IntentionGAIL's run without a replay is not trained here
+        return
+    _, [(plain, plain_metrics), *_], _ = without
+    assert plain.replay is None
+    np.testing.assert_array_equal(state1.key, plain.key)
+    if algo != "gail":
+        for a, b in zip(_leaves(state1.posterior), _leaves(plain.posterior), strict=True):
+            np.testing.assert_array_equal(a, b)
+    assert metrics["discriminator/loss"] != plain_metrics["discriminator/loss"]

@@ -181,6 +181,7 @@ SETTINGS: dict[str, Setting] = {
     "discriminator_gradient_penalty": _at(
         "method", "m_step", "gradient_penalty", domain=NON_NEGATIVE
     ),
+    "discriminator_replay": _at("method", "m_step", "replay", domain=_integers(0)),
     "posterior_learning_rate": _at("method", "e_step", "learning_rate", domain=POSITIVE),
     "posterior_steps": _at("method", "e_step", "steps", domain=COUNT),
     "reward_from": _at("method", "reward", "source", domain=_one_of(RewardFrom)),
@@ -288,13 +289,16 @@ class EStepConfig(_Layer):
 
 @dataclass(frozen=True)
 class MStepConfig(_Layer):
-    """The M-step (:mod:`emgail_jax.method.discriminator`): full-batch Adam steps and the
-    weight of a zero-centred gradient penalty on the logit (0: none)."""
+    """The M-step (:mod:`emgail_jax.method.discriminator`): full-batch Adam steps, the
+    weight of a zero-centred gradient penalty on the logit (0: none), and the iterations of
+    past policy samples replayed as further negatives (:mod:`emgail_jax.method.replay`; 0:
+    none)."""
 
     PREFIX = ("method", "m_step")
     learning_rate: float = 1e-3
     steps: int = 10
     gradient_penalty: float = 0.0
+    replay: int = 0
 
 
 @dataclass(frozen=True)

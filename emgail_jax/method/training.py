@@ -14,7 +14,8 @@ stage is steps 2-3 and the learned reward (:class:`LearnedRewardStage`, which re
 2. E-step (:mod:`emgail_jax.method.posterior`): the posterior learns P(i | s, a) on those samples;
    gamma = P on the expert pairs;
 3. M-step (:mod:`emgail_jax.method.discriminator`): the discriminator learns expert (weighted by
-   gamma) against policy samples;
+   gamma) against policy samples (with ``discriminator_replay``, past iterations' too:
+   :mod:`emgail_jax.method.replay`);
 4. B-step (:mod:`emgail_jax.method.b_step`): the samples are relabelled with the learned reward, GAE
    computes advantages, TRPO updates the policy, and the value baseline is refitted;
 5. metrics: the clustering accuracy of the E-step and, when ``evaluating``, deterministic
@@ -65,6 +66,7 @@ from emgail_jax.method.posterior import (
     make_e_step,
     mixture_weights,
 )
+from emgail_jax.method.replay import Replay, with_replay
 from emgail_jax.method.reseeding import (
     Reseeding,
     ReseedingRule,
@@ -102,6 +104,8 @@ class TrainState:
     # The re-seeding of emptied intentions; None without a posterior or with `--reseed off`
     # (a state of the layout runs had before the option).
     reseeding: Reseeding | None = None
+    # The M-step's replay of past policy samples; None without `discriminator_replay`.
+    replay: Replay | None = None
 
     def network_parameters(self) -> dict[str, Any]:
         """The parameters of each of the four networks (None for GAIL's posterior)."""
@@ -307,9 +311,27 @@ def make_init(config: MethodConfig, env: envs.Env, networks: Networks, optimizer
             key=keys["next"],
             iteration=jnp.zeros((), jnp.int32),
             reseeding=(Reseeding.create(k, data.demos.episodes) if config.reseeds else None),
+            replay=replay_of(config, env, key),
         )
 
     return init
+
+
+def replay_of(config: MethodConfig, env: envs.Env, key: jax.Array) -> Replay | None:
+    """An empty replay of ``config.m_step.replay`` iterations (None: none), its key folded
+    from the seed's ``key`` so that no other key of the run changes."""
+    if not config.m_step.replay:
+        return None
+    rollout = config.rollout
+    samples = rollout.num_envs * rollout.rollout_length  # per intention and iteration
+    return Replay.create(
+        config.m_step.replay,
+        env.num_intentions,
+        samples,
+        env.observation_size,
+        env.action_size,
+        jax.random.fold_in(key, 1),
+    )
 
 
 def lesson_of(memory: Reseeding, demos: DemonstrationPairs) -> Lesson:
@@ -500,7 +522,12 @@ class LearnedRewardStage:
         e = self.e_step(state.posterior, seen, demos, state.intention_weights, lesson)
         if reseeding is not None:
             reseeding, e = self.reseed(reseeding, e, state.discriminator, seen, demos, algorithm)
-        m = self.m_step(state.discriminator, seen, e.gamma, algorithm)
+        replay, negatives = state.replay, seen
+        if replay is not None:
+            normalize = lambda x: obs_norm.normalize(normalizer, x, config.networks.obs_clip)
+            raw = intention_major(transitions.obs)
+            replay, negatives = with_replay(replay, seen, raw, normalize)
+        m = self.m_step(state.discriminator, negatives, e.gamma, algorithm)
         rewarding = config.reward.source.choose(
             updated=m.discriminator, previous=state.discriminator
         )
@@ -518,6 +545,7 @@ class LearnedRewardStage:
             posterior=e.posterior,
             intention_weights=e.weights,
             reseeding=reseeding,
+            replay=replay,
         )
         return Rewarded(time_major(reward, transitions.obs.shape[0]), learned, metrics)
 

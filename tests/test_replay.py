@@ -1,0 +1,74 @@
+"""The M-step's replay of past policy samples: a ring of the last R iterations, drawn per
+intention from the filled slots only."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from emgail_jax.method.batches import NormalizedBatch
+from emgail_jax.method.normalizer import RunningStats
+from emgail_jax.method.replay import Replay, with_replay
+
+R, K, M, D, A = 3, 2, 4, 2, 1
+
+
+def _samples(iteration: int):
+    """``[K, M, D]``, ``[K, M, A]`` whose values name the iteration, intention and sample."""
+    k, m = np.meshgrid(np.arange(K), np.arange(M), indexing="ij")
+    code = 100 * iteration + 10 * k + m
+    obs = np.stack([code, -code], -1).astype(np.float32)
+    return jnp.asarray(obs), jnp.asarray(code[..., None], jnp.float32)
+
+
+def _replay(pushed: int) -> Replay:
+    replay = Replay.create(R, K, M, D, A, jax.random.PRNGKey(0))
+    for iteration in range(1, pushed + 1):
+        replay = replay.push(*_samples(iteration))
+    return replay
+
+
+def test_push_fills_the_oldest_slot():
+    replay = _replay(4)  # iterations 1, 2, 3, then 4 over 1
+    assert int(replay.pushed) == 4
+    for slot, iteration in enumerate((4, 2, 3)):
+        obs, executed = _samples(iteration)
+        np.testing.assert_array_equal(replay.obs[slot], obs)
+        np.testing.assert_array_equal(replay.executed[slot], executed)
+
+
+def test_draws_come_from_filled_slots_under_their_own_intention():
+    replay = _replay(2)
+    replay_after, obs, executed = replay.draw(500)
+    assert obs.shape == (K, 500, D) and executed.shape == (K, 500, A)
+    code = np.asarray(executed[..., 0]).astype(int)
+    assert set(np.unique(code // 100)) == {1, 2}  # never the empty third slot
+    np.testing.assert_array_equal(
+        code // 10 % 10, np.broadcast_to(np.arange(K)[:, None], code.shape)
+    )
+    np.testing.assert_array_equal(obs[..., 0], executed[..., 0])  # pairs stay pairs
+    assert len(np.unique(code % 10)) == M
+    _, again, _ = replay_after.draw(500)
+    assert not np.array_equal(again, obs)  # the key moves on
+
+
+def test_with_replay_appends_as_many_normalised_draws():
+    replay = _replay(1)
+    obs, executed = _samples(2)
+    stats = RunningStats.create(D)
+    stats = stats.replace(mean=jnp.full(D, 1.0))
+    normalize = lambda x: x - stats.mean
+    seen = NormalizedBatch(
+        normalizer=stats,
+        obs=normalize(obs),
+        executed=executed,
+        expert_obs=jnp.zeros((3, D)),
+        expert_actions=jnp.zeros((3, A)),
+    )
+    replay, negatives = with_replay(replay, seen, obs, normalize)
+    assert int(replay.pushed) == 2
+    assert negatives.obs.shape == (K, 2 * M, D) and negatives.executed.shape == (K, 2 * M, A)
+    np.testing.assert_array_equal(negatives.obs[:, :M], seen.obs)
+    drawn = np.asarray(negatives.executed[:, M:, 0]).astype(int)
+    np.testing.assert_array_equal(negatives.obs[:, M:, 0], drawn - 1.0)  # normalised when drawn
+    assert set(np.unique(drawn // 100)) <= {1, 2}
+    np.testing.assert_array_equal(negatives.expert_obs, seen.expert_obs)
