@@ -157,6 +157,7 @@ class MjxEnv(Env):
       episode_steps: episode length T.
       unroll_frame_skip: unroll the frame-skip loop (longer compile; faster for some envs).
       reset_noise, reset_velocity_normal: gym's reset noise (see :meth:`reset`).
+      position_dims: the leading qpos entries the observation leaves out (see :meth:`replay`).
     """
 
     xml: ClassVar[str]
@@ -166,6 +167,11 @@ class MjxEnv(Env):
     unroll_frame_skip: ClassVar[bool] = False
     reset_noise: ClassVar[float] = 0.1
     reset_velocity_normal: ClassVar[bool] = False
+    # The observation is qpos[position_dims:] then qvel (velocities possibly clipped, angles
+    # possibly wrapped): the root's position it leaves out, on which the dynamics do not
+    # depend. None where the observation is not of that form (the reacher's).
+    position_dims: ClassVar[int | None] = None
+    obs_max_velocity: ClassVar[float] = math.inf  # the observation's clip of qvel
 
     def __init__(
         self,
@@ -238,6 +244,60 @@ class MjxEnv(Env):
         """The executed (clipped) action and the physics one env step later."""
         action = self.clip_action(action)
         return action, self.physics_step(state.physics, action)
+
+    def replay(
+        self, observations: jax.Array, actions: jax.Array, steps: jax.Array, fits: int = 4
+    ) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """Every pair of one episode of ``steps`` pairs (padded to ``observations [T, D]`` and
+        ``actions [T, A]``) stepped once from the state its observation stands for: ``(next
+        observations [T, D], rewards [T, K], done [T])``.
+
+        The left-out position is 0 (the dynamics and rewards do not depend on it), and the
+        solver starts warm from the previous pair's step, as the episode did (the first pair
+        from zero, as after a reset). A velocity the observation clipped is fitted, where the
+        next observation is recorded (every pair but the last), to the position that
+        observation records: ``fits`` corrections, each by the position's gap over ``dt`` (a
+        joint moves about ``dt`` times its velocity in a step), kept beyond the clip. What the
+        observation cannot give back (a clipped velocity of the last pair, the last bits of the
+        position's effect and of the warm start) leaves the replay approximate:
+        docs/environments.md measures it on the shipped demonstrations. Needs one qpos entry
+        per qvel entry (no free or ball joints), as the envs that set ``position_dims`` have.
+        """
+        if self.position_dims is None or self.mj_model.nq != self.mj_model.nv:
+            raise EnvError(f"'{self.name}' observations do not give back the env's state")
+        skip, nq = self.position_dims, self.mj_model.nq
+        positions = lambda obs: obs[: nq - skip]
+        velocities = lambda obs: obs[nq - skip :]
+
+        def step_from(obs, qvel, warm_start, action):
+            qpos = jnp.concatenate([jnp.zeros(skip, obs.dtype), positions(obs)])
+            physics = self.physics_reset(qpos, qvel).replace(qacc_warmstart=warm_start)
+            return self.step(self.initial_state(physics), action)
+
+        def replay_pair(warm_start, pair):
+            obs, action, next_obs, has_next = pair
+            clipped_qvel = velocities(obs)
+            clipped = (jnp.abs(clipped_qvel) >= self.obs_max_velocity) & has_next
+            clipped = clipped & (jnp.arange(nq) >= skip)  # the root's has no recorded position
+
+            def fit(_, qvel):
+                after = step_from(obs, qvel, warm_start, action)
+                gap = jnp.concatenate([jnp.zeros(skip), positions(after.obs - next_obs)])
+                direction = jnp.sign(clipped_qvel)
+                beyond = jnp.maximum(direction * (qvel - gap / self.dt), self.obs_max_velocity)
+                return jnp.where(clipped, direction * beyond, qvel)
+
+            clips = math.isfinite(self.obs_max_velocity)  # else nothing to fit
+            qvel = jax.lax.fori_loop(0, fits, fit, clipped_qvel) if fits and clips else clipped_qvel
+            after = step_from(obs, qvel, warm_start, action)
+            return after.physics.qacc_warmstart, (after.obs, after.reward, after.done)
+
+        t = jnp.arange(len(observations))
+        next_observations = jnp.roll(observations, -1, axis=0)
+        pairs = (observations, actions, next_observations, t + 1 < steps)
+        warm_start = jnp.zeros(self.mj_model.nv, observations.dtype)
+        _, replayed = jax.lax.scan(replay_pair, warm_start, pairs)
+        return replayed
 
     # ---- the task ------------------------------------------------------------------------
 

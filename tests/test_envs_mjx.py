@@ -288,3 +288,39 @@ def test_wrapped_hopper_falls_and_starts_a_new_episode():
     assert int(state.info["steps"]) == 0
     assert float(state.obs[0]) == pytest.approx(1.25, abs=0.01)
     assert env.unwrapped.is_healthy(state.physics.qpos, state.physics.qvel) == 1.0
+
+
+# ---- replaying recorded pairs ---------------------------------------------------------------
+
+
+def test_hopper_replay_gives_back_an_episodes_steps(compiled):
+    """An episode stepped by the env (its root far from 0, its foot spinning beyond the
+    observation's clip all along), then replayed pair by pair from its observations alone:
+    the same next observations and rewards, the clipped velocity fitted to the next pair's
+    positions (all but the last pair, which has no next one)."""
+    c = compiled("hopper")
+    env = c.env
+    physics = c.reset(jax.random.PRNGKey(8)).physics
+    start = env.initial_state(
+        physics.replace(qpos=physics.qpos.at[0].set(3.0), qvel=physics.qvel.at[5].set(14.0))
+    )
+    assert float(jnp.abs(start.obs[-1])) == env.obs_max_velocity  # the observation clipped it
+    actions = jax.random.uniform(jax.random.PRNGKey(9), (6, 3), minval=-1.0, maxval=1.0)
+    states = [start]
+    for action in actions:
+        states.append(c.step(states[-1], action))
+    observations = jnp.stack([s.obs for s in states])  # [T + 1, D]
+    rewards = np.stack([s.reward for s in states[1:]])  # [T, K]
+    padded = lambda x: jnp.concatenate([x, x[:2]])  # two pairs of padding after the episode
+    next_obs, replayed, done = jax.jit(env.replay)(padded(observations[:-1]), padded(actions), 6)
+    np.testing.assert_allclose(next_obs[:5], observations[1:6], atol=1e-4)
+    np.testing.assert_allclose(replayed[:5], rewards[:5], atol=5e-4)
+    assert not done[:6].any()
+    # The last pair's clipped velocity has nothing to be fitted to: its step is off.
+    assert np.abs(replayed[5] - rewards[5]).max() > 10 * np.abs(replayed[:5] - rewards[:5]).max()
+
+
+def test_an_observation_without_the_state_is_not_replayed():
+    reacher = envs.make("reacher")
+    with pytest.raises(envs.EnvError, match="do not give back"):
+        reacher.replay(jnp.zeros((2, 26)), jnp.zeros((2, 2)), 2)
