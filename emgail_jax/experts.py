@@ -471,29 +471,37 @@ def add_rewards(env, root: str) -> int:
     except demonstration_files.DemonstrationError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
-    if demos.rewards is not None and demos.final_observations is not None:
-        print(f"error: {path} already carries rewards and final_observations", file=sys.stderr)
+    if demos.rewards is not None or demos.final_observations is not None:
+        print(f"error: {path} already carries rewards or final_observations", file=sys.stderr)
         return 2
-    if demos.intentions is None or env.position_dims is None:
-        why = "has no intention labels" if env.position_dims else "cannot be replayed"
+    if env.position_dims is None:
         print(
-            f"error: {path} {why}: its pairs' own rewards cannot be found by replaying them "
-            f"(`python -m emgail_jax.experts --env {env.name} --demos-only` rewrites the file)",
+            f"error: {env.name}'s observations do not give back its state, so {path} cannot be "
+            f"replayed; `python -m emgail_jax.experts --env {env.name} --demos-only` rewrites "
+            "it from the experts with both arrays",
             file=sys.stderr,
+        )
+        return 2
+    if demos.intentions is None:
+        print(
+            f"error: {path} has no intentions, which say whose reward a pair earns", file=sys.stderr
         )
         return 2
     rewards, finals, check = replayed_rewards(env, demos)
     print_replay_check(env.name, check)
-    if check.worst_return_gap > REPLAY_RETURN_TOLERANCE or not check.terminations_matched:
-        print(
-            f"error: the replay does not reproduce {path} (returns up to "
-            f"{check.worst_return_gap:.2%} from the stored ones, more than "
-            f"{REPLAY_RETURN_TOLERANCE:.0%}, or other terminations); nothing written",
-            file=sys.stderr,
+    if check.worst_return_gap > REPLAY_RETURN_TOLERANCE:
+        why = (
+            f"its returns are up to {check.worst_return_gap:.2%} from the stored ones, more "
+            f"than {REPLAY_RETURN_TOLERANCE:.0%}"
         )
-        return 2
-    replayed = dataclasses.replace(demos, rewards=rewards, final_observations=finals)
-    demonstration_files.save(replayed, path)
+    elif not check.terminations_matched:
+        why = "its terminations differ from the recording's"
+    else:
+        demonstration_files.add_arrays(path, rewards=rewards, final_observations=finals)
+        print(f"added rewards [{len(rewards)}], final_observations {list(finals.shape)} to {path}")
+        return 0
+    print(f"error: the replay does not reproduce {path}: {why}; nothing written", file=sys.stderr)
+    return 2
     print(f"added rewards [{len(rewards)}] and final_observations {list(finals.shape)} to {path}")
     return 0
 

@@ -164,13 +164,33 @@ def test_added_rewards_are_the_recorded_ones(tmp_path, capsys):
             added["final_observations"], recorded.final_observations, atol=1e-5
         )
     assert experts.main(["--env", "swimmer", "--add-rewards", "--out", str(good)]) == 2
-    assert "already carries rewards" in capsys.readouterr().err
+    assert "already carries rewards or final_observations" in capsys.readouterr().err
     off, _ = _swimmer_file(tmp_path / "off", scale_returns=1.05)
     unchanged = pathlib.Path(off).read_bytes()
     assert experts.main(["--env", "swimmer", "--add-rewards", "--out", str(tmp_path / "off")]) == 2
     error = capsys.readouterr().err.strip()
     assert error.startswith("error: the replay does not reproduce") and "\n" not in error
     assert pathlib.Path(off).read_bytes() == unchanged
+
+
+def test_files_the_replay_cannot_serve_are_refused_in_one_line(tmp_path, capsys):
+    def refused(env_name, directory, **arrays):
+        directory.mkdir()
+        if arrays:
+            np.savez(directory / f"{env_name}.npz", **arrays)
+        argv = ["--env", env_name, "--add-rewards", "--out", str(directory)]
+        assert experts.main(argv) == 2
+        error = capsys.readouterr().err.strip()
+        assert error.startswith("error: ") and "\n" not in error
+        return error
+
+    with np.load(shipped_demos_path("reacher")) as shipped:
+        reacher = {k: shipped[k] for k in ("observations", "actions", "episode_starts")}
+    assert "do not give back its state" in refused("reacher", tmp_path / "reacher", **reacher)
+    with np.load(shipped_demos_path("swimmer")) as shipped:
+        unlabelled = {k: shipped[k] for k in ("observations", "actions", "episode_starts")}
+    assert "has no intentions" in refused("swimmer", tmp_path / "swimmer", **unlabelled)
+    assert "does not exist" in refused("hopper", tmp_path / "empty")
 
 
 # The swimmer in every run; the other envs' replays (40-70 s each) with `make test-slow`.
