@@ -18,6 +18,7 @@ Writes the same numbers to ``RUN_DIR/evaluation.json`` and figures to ``RUN_DIR/
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import os
 import sys
@@ -30,7 +31,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 import envs
-from emgail_jax.host import jax_setup, records
+from emgail_jax.host import jax_setup, records, run_lock
 from emgail_jax.host.checkpoints import CheckpointError
 from emgail_jax.host.demonstration_files import DemonstrationError
 from emgail_jax.host.run_spec import RunError
@@ -293,13 +294,21 @@ def main(argv=None) -> int:
     jax_setup.setup(host_devices=1)
     matplotlib.use("Agg")
 
-    try:
-        run = SavedRun.open(args.run_dir)
-        run.seed_state(args.seed)
-    except (RunError, CheckpointError, envs.EnvError, DemonstrationError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    with contextlib.ExitStack() as held:
+        try:
+            held.enter_context(run_lock.reading(args.run_dir))  # no live run writes it
+            run = SavedRun.open(args.run_dir)
+            run.seed_state(args.seed)
+        except (RunError, CheckpointError, envs.EnvError, DemonstrationError) as error:
+            print(f"error: {error}", file=sys.stderr)
+            return 2
+        evaluate_run(run, args)
+    return 0
 
+
+def evaluate_run(run: SavedRun, args: argparse.Namespace) -> None:
+    """The command's work on the opened run: every seed's deterministic episodes scored,
+    ``evaluation.json`` and the figures written."""
     env = run.problem.env
     print(f"{run.spec.algo} on {env.name} (K={run.num_intentions}), iteration {run.iteration}, "
           f"{args.episodes} deterministic episodes per learned intention")  # fmt: skip
@@ -326,7 +335,6 @@ def main(argv=None) -> int:
     written = [evaluation_path, *figures]
     for path in written:
         print(f"wrote {path}")
-    return 0
 
 
 if __name__ == "__main__":

@@ -73,8 +73,13 @@ def checkpoint_dir(env_name: str, root: str | None = None) -> str:
 
 
 def _config(spec: ExpertSpec):
-    from emgail_jax.method.config import BStepConfig, MethodConfig, NetworkConfig, RolloutConfig
-    from emgail_jax.method.trpo import TRPOConfig
+    from emgail_jax.method.config import (
+        BStepConfig,
+        MethodConfig,
+        NetworkConfig,
+        RolloutConfig,
+        TRPOConfig,
+    )
 
     return MethodConfig(
         rollout=RolloutConfig(num_envs=spec.num_envs, rollout_length=spec.rollout_length),

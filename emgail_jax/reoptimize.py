@@ -27,6 +27,7 @@ far from the experts have optimised a reward that pays off the demonstrations' s
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import hashlib
 import json
@@ -370,7 +371,7 @@ def print_result(run, result: dict) -> None:
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    from emgail_jax.method.algorithms import REWARD_FORMS
+    from emgail_jax.method.config import REWARD_FORMS
 
     parser = argparse.ArgumentParser(
         prog="python -m emgail_jax.reoptimize", description=__doc__.split("\n")[0]
@@ -451,16 +452,25 @@ def main(argv=None) -> int:
     jax_setup.setup(host_devices=1)
 
     import envs
-    from emgail_jax.host import records
+    from emgail_jax.host import run_lock
     from emgail_jax.host.checkpoints import CheckpointError
     from emgail_jax.host.demonstration_files import DemonstrationError
     from emgail_jax.host.run_spec import RunError
 
-    try:
-        run, seeds, parameters, consolidation = _opened(args)
-    except (RunError, CheckpointError, envs.EnvError, DemonstrationError) as error:
-        print(f"error: {error}", file=sys.stderr)
-        return 2
+    with contextlib.ExitStack() as held:
+        try:
+            held.enter_context(run_lock.reading(args.run_dir))  # no live run writes it
+            opened = _opened(args)
+        except (RunError, CheckpointError, envs.EnvError, DemonstrationError) as error:
+            print(f"error: {error}", file=sys.stderr)
+            return 2
+        return _reoptimized(args, *opened)
+
+
+def _reoptimized(args: argparse.Namespace, run, seeds: list[int], parameters, consolidation) -> int:
+    """The rest of :func:`main`: the fresh agents trained, scored and written."""
+    from emgail_jax.host import records
+
     budget = default_budget(run)
     budget = Budget(args.iterations or budget.iterations, args.gamma or budget.gamma)
     result = reoptimize(run, seeds, budget, progress=not args.quiet, parameters=parameters)

@@ -40,8 +40,13 @@ def run_options() -> tuple[str, ...]:
 
 def _parser() -> tuple[argparse.ArgumentParser, tuple[str, ...]]:
     """The command's parser, and the ``dest`` of its run-defining options."""
-    from emgail_jax.method.algorithms import NAMES
-    from emgail_jax.method.config import INTENTION_INPUTS, PRIORS, RESPONSIBILITIES, RunSchedule
+    from emgail_jax.method.config import (
+        INTENTION_INPUTS,
+        NAMES,
+        PRIORS,
+        RESPONSIBILITIES,
+        RunSchedule,
+    )
 
     parser = argparse.ArgumentParser(
         prog="python -m emgail_jax.run", description=__doc__.split("\n")[0]
@@ -261,7 +266,7 @@ def _learned_intentions(args: argparse.Namespace, env: str) -> tuple[int | None,
     """``(K learned or None for the env's default, whether K is chosen from the data)``; auto
     starts from ``--max-intentions``, by default all the env has."""
     import envs
-    from emgail_jax.method.algorithms import AlgorithmName
+    from emgail_jax.method.config import AlgorithmName
 
     choosing = args.intentions == "auto"
     if args.max_intentions is not None and not choosing:
@@ -454,7 +459,7 @@ def _write_error(error: OSError) -> str:
 
 
 def _failed(line: str, code: int) -> int:
-    print(line, file=sys.stderr)
+    sys.stderr.write(f"{line}\n")  # one write: other processes' logs may write at once
     jax_setup.report_failure(line.removeprefix("error: "))
     return code
 

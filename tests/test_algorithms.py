@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from emgail_jax.method.algorithms import NAMES, imitation_reward, make_algorithm
+from emgail_jax.method.config import RewardForm
 from emgail_jax.method.discriminator import discriminator_loss
 
 LOG2 = math.log(2.0)
@@ -196,6 +197,12 @@ def test_imitation_reward_is_minus_log_one_minus_d():
     expected = -np.log(1.0 - 1.0 / (1.0 + np.exp(-logits)))
     np.testing.assert_allclose(imitation_reward(jnp.asarray(logits)), expected, rtol=1e-5)
     assert float(imitation_reward(jnp.array(0.0))) == pytest.approx(math.log(2.0))
+
+
+def test_the_logit_form_is_the_logit_and_the_gail_form_its_softplus():
+    logit = jnp.array([-1.0, 2.0])
+    assert imitation_reward(logit, RewardForm.LOGIT).tolist() == logit.tolist()
+    assert imitation_reward(logit, "gail").tolist() == pytest.approx([0.3132617, 2.1269280])
 
 
 def test_imitation_reward_finite_at_extreme_logits():

@@ -7,14 +7,13 @@ import json
 import os
 import types
 
-import jax.numpy as jnp
 import pytest
 
 import envs
-from emgail_jax.method.algorithms import AlgorithmName, RewardForm
 from emgail_jax.method.config import (
     DOMAINS,
     SETTINGS,
+    AlgorithmName,
     BStepConfig,
     EStepConfig,
     IntentionInput,
@@ -25,9 +24,9 @@ from emgail_jax.method.config import (
     RunConfig,
     RunSchedule,
     SettingError,
+    TRPOConfig,
     rollout_defaults,
 )
-from emgail_jax.method.trpo import TRPOConfig
 
 RUNS = os.path.join(os.path.dirname(__file__), "..", "results", "runs")
 
@@ -150,9 +149,6 @@ def test_the_options_behaviour_is_their_properties():
     assert RewardFrom.UPDATED.choose(updated=1, previous=2) == 1
     assert RewardFrom.PREVIOUS.choose(updated=1, previous=2) == 2
     assert [name.learns_posterior for name in AlgorithmName] == [True, True, False]
-    logit = jnp.array([-1.0, 2.0])
-    assert RewardForm.LOGIT.of(logit).tolist() == logit.tolist()
-    assert RewardForm.GAIL.of(logit).tolist() == pytest.approx([0.3132617, 2.1269280])
 
 
 def test_to_dict_is_the_flat_namespace_json_serialisable_and_complete():

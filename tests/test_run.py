@@ -7,8 +7,7 @@ import numpy as np
 import pytest
 
 from emgail_jax import run
-from emgail_jax.method.algorithms import AlgorithmName
-from emgail_jax.method.config import Prior
+from emgail_jax.method.config import AlgorithmName, Prior
 
 SEEDS, ITERATIONS = 2, 2
 TINY = [

@@ -7,6 +7,7 @@ import contextlib
 import dataclasses
 import os
 import socket
+import subprocess
 import sys
 import threading
 import time
@@ -112,6 +113,7 @@ def setup(
     import jax
 
     if distributed is not None:
+        _translate_fatal_logs(distributed)
         jax.distributed.initialize(
             distributed.coordinator,
             distributed.num_processes,
@@ -132,6 +134,24 @@ def setup(
         jax.config.update("jax_compilation_cache_dir", cache_dir)
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
         jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+
+
+def _translate_fatal_logs(distributed: Distributed) -> None:
+    """Routes this process's stderr through :mod:`emgail_jax.host.fatal_log`, so that the
+    jax.distributed client's abort, when the coordination service is lost, ends with the run's
+    one-line error instead of a C++ stack trace. The filter ends when this process does."""
+    from emgail_jax.host import fatal_log
+
+    global _STDERR
+    read, write = os.pipe()
+    command = [sys.executable, fatal_log.__file__, distributed.coordinator]
+    subprocess.Popen(
+        [*command, str(distributed.process_id)], stdin=read, stdout=_STDERR, stderr=_STDERR
+    )
+    os.close(read)
+    sys.stderr.flush()
+    os.dup2(write, 2)
+    _STDERR = write  # this process's own last words pass the filter too, which then knows them
 
 
 class _PeerWatch:
@@ -187,13 +207,19 @@ class _PeerWatch:
         has ended (at once); elsewhere, those the service misses heartbeats of."""
         me, count = self.distributed.process_id, self.distributed.num_processes
         try:
-            live = self.client.get_live_nodes(list(range(count)))
             if len(self.neighbours) < count - 1:
                 self.neighbours = self._neighbours()
         except Exception:  # the service itself is gone, and with it process 0
             return [0]
         ended = [i for i, pid in self.neighbours.items() if not _running(pid)]
-        return ended + [i for i in range(count) if i not in (me, *ended) and i not in live]
+        if ended:
+            # Asked first: the service's answer waits until it has declared the dead dead.
+            return ended
+        try:
+            live = self.client.get_live_nodes(list(range(count)))
+        except Exception:
+            return [0]
+        return [i for i in range(count) if i != me and i not in live]
 
     def _neighbours(self) -> dict[int, int]:
         host, me = socket.gethostname(), self.distributed.process_id

@@ -18,35 +18,22 @@ reward of (s, a, i)       -log(1 - D(s,a,i))  -log(1 - D(s,a))    -log(1 - D(s,a
 from __future__ import annotations
 
 import dataclasses
-import enum
 from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
 
-
-class RewardForm(enum.StrEnum):
-    """The B-step reward of a discriminator logit f (``--set reward_form=...``)."""
-
-    GAIL = "gail"  # -log(1 - D) = softplus(f), the paper's
-    LOGIT = "logit"  # log D - log(1 - D) = f, AIRL's form
-
-    def of(self, logit: jax.Array) -> jax.Array:
-        """The reward of a pair the discriminator scores ``logit``, high where D takes it for
-        the expert's. GAIL's is positive everywhere, so where episodes can end early it also
-        pays for staying alive; the logit is negative where D rejects the pair, so survival
-        alone earns nothing."""
-        if self is RewardForm.LOGIT:
-            return logit
-        return jax.nn.softplus(logit)
-
-
-REWARD_FORMS = tuple(form.value for form in RewardForm)
+from emgail_jax.method.config import NAMES, AlgorithmName, RewardForm
 
 
 def imitation_reward(logit: jax.Array, form: RewardForm | str = RewardForm.GAIL) -> jax.Array:
-    """:meth:`RewardForm.of` for a form given by its name."""
-    return RewardForm(form).of(logit)
+    """The reward of a pair the discriminator scores ``logit``, high where D takes it for the
+    expert's. GAIL's is positive everywhere, so where episodes can end early it also pays for
+    staying alive; the logit is negative where D rejects the pair, so survival alone earns
+    nothing."""
+    if RewardForm(form) is RewardForm.LOGIT:
+        return logit
+    return jax.nn.softplus(logit)
 
 
 @dataclass(frozen=True)
@@ -83,7 +70,7 @@ class Algorithm:
     def pseudo_reward(self, logit: jax.Array, posterior_log_prob: jax.Array) -> jax.Array:
         """The B-step reward of a policy sample from its discriminator logit (under its own
         condition) and log P(i | s, a) of the intention that generated it."""
-        reward = self.reward_form.of(logit)
+        reward = imitation_reward(logit, self.reward_form)
         if self.info_reward:
             reward = reward + self.info_weight * posterior_log_prob
         return reward
@@ -94,25 +81,6 @@ def _condition(intentions: jax.Array, num_intentions: int, conditional: bool) ->
         return jax.nn.one_hot(intentions, num_intentions)
     return jnp.zeros((*jnp.shape(intentions), 0))
 
-
-class AlgorithmName(enum.StrEnum):
-    """``--algo``: which of the three algorithms a run trains (:data:`ALGORITHMS`)."""
-
-    EMGAIL = "emgail"
-    INFOGAIL = "infogail"
-    GAIL = "gail"
-
-    @property
-    def algorithm(self) -> Algorithm:
-        """Its choices (Info/IntentionGAIL's lambda unset: see :func:`make_algorithm`)."""
-        return ALGORITHMS[self]
-
-    @property
-    def learns_posterior(self) -> bool:
-        return self.algorithm.learns_posterior
-
-
-NAMES = tuple(name.value for name in AlgorithmName)
 
 ALGORITHMS = {
     AlgorithmName.EMGAIL: Algorithm(

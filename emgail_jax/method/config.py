@@ -20,8 +20,49 @@ import numbers
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from emgail_jax.method.algorithms import AlgorithmName, RewardForm
-from emgail_jax.method.trpo import TRPOConfig
+
+class AlgorithmName(enum.StrEnum):
+    """``--algo``: which of the three algorithms a run trains."""
+
+    EMGAIL = "emgail"
+    INFOGAIL = "infogail"
+    GAIL = "gail"
+
+    @property
+    def algorithm(self):
+        """Its choices, the paper's table (:data:`emgail_jax.method.algorithms.ALGORITHMS`;
+        Info/IntentionGAIL's lambda unset: see ``make_algorithm``)."""
+        # Imported here: the table's functions need JAX, and this module must not import it
+        # (a command refused at its options ends before JAX starts).
+        from emgail_jax.method.algorithms import ALGORITHMS
+
+        return ALGORITHMS[self]
+
+    @property
+    def learns_posterior(self) -> bool:
+        return self.algorithm.learns_posterior
+
+
+class RewardForm(enum.StrEnum):
+    """The B-step reward of a discriminator logit f (``--set reward_form=...``;
+    ``algorithms.imitation_reward`` computes it)."""
+
+    GAIL = "gail"  # -log(1 - D) = softplus(f), the paper's
+    LOGIT = "logit"  # log D - log(1 - D) = f, AIRL's form
+
+
+@dataclass(frozen=True)
+class TRPOConfig:
+    """The B-step's TRPO (:mod:`emgail_jax.method.trpo`)."""
+
+    max_kl: float = 0.01
+    cg_iterations: int = 10
+    cg_damping: float = 0.1
+    line_search_steps: int = 10
+    line_search_decay: float = 0.5
+    # Accept a step only if the surrogate improves by at least this fraction of the linear
+    # prediction (and by more than zero).
+    accept_ratio: float = 0.1
 
 
 class IntentionInput(enum.StrEnum):
@@ -85,6 +126,8 @@ def _values(options: type[enum.Enum]) -> tuple[str, ...]:
     return tuple(option.value for option in options)
 
 
+NAMES = _values(AlgorithmName)
+REWARD_FORMS = _values(RewardForm)
 INTENTION_INPUTS = _values(IntentionInput)
 RESPONSIBILITIES = _values(ResponsibilityMode)
 REWARD_FROM = _values(RewardFrom)

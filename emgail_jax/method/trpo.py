@@ -9,24 +9,13 @@ that really improves the surrogate while staying within ``max_kl``.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 
 import distrax
 import jax
 import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
 
-
-@dataclass(frozen=True)
-class TRPOConfig:
-    max_kl: float = 0.01
-    cg_iterations: int = 10
-    cg_damping: float = 0.1
-    line_search_steps: int = 10
-    line_search_decay: float = 0.5
-    # Accept a step only if the surrogate improves by at least this fraction of the linear
-    # prediction (and by more than zero).
-    accept_ratio: float = 0.1
+from emgail_jax.method.config import TRPOConfig
 
 
 def fisher_vector_product(
