@@ -21,6 +21,7 @@ import io
 import math
 import pathlib
 import sys
+from collections.abc import Sequence
 from typing import Any, ClassVar
 
 import jax
@@ -84,6 +85,74 @@ class Solver:
             if bit is None:
                 raise EnvError(f"unknown MuJoCo disable flag '{flag}'")
             model.opt.disableflags |= int(bit)
+
+
+@dataclasses.dataclass(frozen=True)
+class Dynamics:
+    """A variant of an env's physics, each entry a factor on the model's own value: the test
+    of a learned reward in changed dynamics (``reoptimize --env-set KEY=VALUE``).
+
+    Keys: ``mass.BODY`` (one body's mass and inertia, its geoms' density scaled), ``gravity``,
+    ``friction`` (every geom's sliding friction) and ``viscosity`` (the medium's; only where the
+    model has one, the swimmer). Applied to the model's spec before it is compiled, so that the
+    derived statistics the solver uses (``stat.meaninertia``) follow.
+    """
+
+    factors: tuple[tuple[str, float], ...] = ()  # (key, factor), in the order given
+
+    KEYS: ClassVar[tuple[str, ...]] = ("mass.BODY", "gravity", "friction", "viscosity")
+
+    @classmethod
+    def parse(cls, settings: Sequence[str]) -> Dynamics:
+        """From ``KEY=FACTOR`` strings; an unknown key or a factor that is not a positive
+        number is an :class:`EnvError` naming what to give."""
+        factors = []
+        for setting in settings:
+            key, _, text = setting.partition("=")
+            if not (key in cls.KEYS[1:] or (key.startswith("mass.") and len(key) > 5)):
+                raise EnvError(
+                    f"unknown dynamics key '{key}' in '{setting}': use {', '.join(cls.KEYS)}"
+                )
+            try:
+                factor = float(text)
+            except ValueError:
+                factor = math.nan
+            if not (math.isfinite(factor) and factor > 0):
+                raise EnvError(f"'{setting}': the factor must be a positive number (KEY=FACTOR)")
+            factors.append((key, factor))
+        return cls(tuple(factors))
+
+    def as_settings(self) -> list[str]:
+        return [f"{key}={factor:g}" for key, factor in self.factors]
+
+    def apply(self, spec: mujoco.MjSpec) -> None:
+        for key, factor in self.factors:
+            if key.startswith("mass."):
+                self._scale_body(spec, key.removeprefix("mass."), factor)
+            elif key == "gravity":
+                spec.option.gravity = np.asarray(spec.option.gravity) * factor
+            elif key == "friction":
+                for geom in spec.geoms:
+                    geom.friction = np.asarray(geom.friction) * [factor, 1.0, 1.0]
+            elif spec.option.viscosity == 0:
+                raise EnvError("this env's model has no viscosity to scale (its medium is empty)")
+            else:
+                spec.option.viscosity *= factor
+
+    @staticmethod
+    def _scale_body(spec: mujoco.MjSpec, name: str, factor: float) -> None:
+        body = spec.body(name)
+        if body is None or name == "world":
+            names = [b.name for b in spec.bodies if b.name and b.name != "world"]
+            raise EnvError(f"no body '{name}' in this env's model; its bodies: {', '.join(names)}")
+        if body.explicitinertial:
+            body.mass *= factor
+            body.inertia = np.asarray(body.inertia) * factor
+        for geom in body.geoms:
+            if math.isnan(geom.mass):
+                geom.density *= factor
+            else:
+                geom.mass *= factor
 
 
 def mujoco_default_solver() -> Solver:
@@ -178,12 +247,14 @@ class MjxEnv(Env):
         intentions: int | None = None,
         solver_iterations: int | None = None,
         ls_iterations: int | None = None,
+        dynamics: Sequence[str] = (),
     ):
         super().__init__(intentions)
         overrides = {"iterations": solver_iterations, "ls_iterations": ls_iterations}
         self.solver = dataclasses.replace(
             self.default_solver, **{k: int(v) for k, v in overrides.items() if v is not None}
         )
+        self.dynamics = Dynamics.parse(dynamics)
         self.mj_model = self.native_model(self.solver)
         self.mjx_model = mjx.put_model(self.mj_model, impl="jax")
         self._mjx_model_one_iteration = self.mjx_model.replace(
@@ -201,6 +272,10 @@ class MjxEnv(Env):
         spec = mujoco.MjSpec.from_file(str(brax_asset(self.xml)))
         self.edit_spec(spec)
         model = compile_spec(spec)
+        if self.dynamics.factors:
+            # On the spec as compiled (its total mass already set), so each factor is exact.
+            self.dynamics.apply(spec)
+            model = spec.compile()
         (solver or self.solver).apply(model)
         return model
 
@@ -215,10 +290,13 @@ class MjxEnv(Env):
         return self.episode_steps
 
     def options(self) -> dict[str, Any]:
-        return {
+        options = {
             "solver_iterations": self.solver.iterations,
             "ls_iterations": self.solver.ls_iterations,
         }
+        if self.dynamics.factors:  # the envs' own dynamics add nothing to a run's summary
+            options["dynamics"] = self.dynamics.as_settings()
+        return options
 
     def reset(self, key: jax.Array) -> State:
         """Gym's reset: ``qpos0`` plus uniform noise in ±``reset_noise``, zero velocity plus

@@ -324,3 +324,52 @@ def test_an_observation_without_the_state_is_not_replayed():
     reacher = envs.make("reacher")
     with pytest.raises(envs.EnvError, match="do not give back"):
         reacher.replay(jnp.zeros((2, 26)), jnp.zeros((2, 2)), 2)
+
+
+def test_dynamics_scale_exactly_what_they_name():
+    plain = envs.make("hopper").mj_model
+    varied = envs.make("hopper", dynamics=["mass.torso=1.5", "gravity=0.8", "friction=0.5"])
+    model, torso = varied.mj_model, plain.body("torso").id
+    assert model.body_mass[torso] == pytest.approx(1.5 * plain.body_mass[torso])
+    np.testing.assert_allclose(model.body_inertia[torso], 1.5 * plain.body_inertia[torso])
+    others = np.arange(plain.nbody) != torso
+    np.testing.assert_array_equal(model.body_mass[others], plain.body_mass[others])
+    np.testing.assert_allclose(model.opt.gravity, 0.8 * plain.opt.gravity)
+    np.testing.assert_allclose(model.geom_friction[:, 0], 0.5 * plain.geom_friction[:, 0])
+    np.testing.assert_array_equal(model.geom_friction[:, 1:], plain.geom_friction[:, 1:])
+    assert model.stat.meaninertia > plain.stat.meaninertia  # the solver's statistics follow
+    assert varied.options()["dynamics"] == ["mass.torso=1.5", "gravity=0.8", "friction=0.5"]
+    assert "dynamics" not in envs.make("hopper").options()  # a run's summary is unchanged
+
+
+def test_dynamics_keep_a_total_mass_the_model_sets():
+    # halfcheetah's XML fixes its total mass; one body's factor still applies exactly.
+    plain = envs.make("halfcheetah").mj_model
+    model = envs.make("halfcheetah", dynamics=["mass.torso=2"]).mj_model
+    torso = plain.body("torso").id
+    assert model.body_mass[torso] == pytest.approx(2 * plain.body_mass[torso])
+    assert model.body_mass.sum() == pytest.approx(plain.body_mass.sum() + plain.body_mass[torso])
+
+
+def test_the_swimmers_viscosity_changes_its_motion():
+    plain, thick = envs.make("swimmer"), envs.make("swimmer", dynamics=["viscosity=3"])
+    assert thick.mj_model.opt.viscosity == pytest.approx(3 * plain.mj_model.opt.viscosity)
+    key, action = jax.random.PRNGKey(0), jnp.ones(plain.action_size)
+    states = [env.step(env.reset(key), action) for env in (plain, thick)]
+    assert not np.allclose(states[0].obs, states[1].obs)
+
+
+@pytest.mark.parametrize(
+    "env, setting, message",
+    [
+        ("hopper", "viscosity=2", "has no viscosity"),
+        ("hopper", "mass.nose=2", "its bodies: torso, thigh, leg, foot"),
+        ("hopper", "gravity=-1", "must be a positive number"),
+        ("hopper", "gravity", "must be a positive number"),
+        ("swimmer", "wind=2", "use mass.BODY, gravity, friction, viscosity"),
+    ],
+)
+def test_dynamics_out_of_their_domain_are_refused_in_one_line(env, setting, message):
+    with pytest.raises(envs.EnvError, match=message) as error:
+        envs.make(env, dynamics=[setting])
+    assert "\n" not in str(error.value)
