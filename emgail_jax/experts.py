@@ -4,6 +4,7 @@ demonstrations they write (format: README, "Demonstrations format").
     python -m emgail_jax.experts --env ENV               # train, checkpoint, score, write demos
     python -m emgail_jax.experts --env ENV --evaluate    # score the shipped experts only
     python -m emgail_jax.experts --env ENV --demos-only  # rewrite the demos from the checkpoint
+    python -m emgail_jax.experts --env ENV --add-rewards  # rewards, final obs by replaying pairs
     python -m emgail_jax.experts --env ENV --export-minari [--out DIR]  # the demos as Minari
 
 Training vmaps the intentions and runs ``--seeds`` independent seeds of each (sharded over the
@@ -13,7 +14,10 @@ normaliser are saved with orbax under ``emgail_jax/data/experts/ENV`` (a few ten
 ``meta.json`` (training settings, returns, quality). The demonstrations are the experts'
 deterministic (mean-action) episodes: 5 x 500 = 2500 pairs per intention (reacher 30 x 50),
 with the hidden labels, each expert's mean true return, every pair's reward and every episode's
-final observation, in ``emgail_jax/data/ENV.npz``. ``--export-minari`` writes them as Minari
+final observation, in ``emgail_jax/data/ENV.npz``. ``--add-rewards`` adds the last two to an
+``ENV.npz`` without them, every other array unchanged, by replaying each pair one step from its
+observation (hopper's and halfcheetah's shipped demonstrations, which the experts no longer
+reproduce on this CPU; accuracy: docs/environments.md). ``--export-minari`` writes them as Minari
 datasets, one per intention (``emgail_jax.host.minari_datasets``), under ``--out`` (default: the
 local Minari datasets directory, ``MINARI_DATASETS_PATH`` or ``~/.minari/datasets``).
 """
@@ -375,6 +379,138 @@ def _train_and_save(env, spec: ExpertSpec, args, root: str, meta: dict, *, only,
     return experts, meta
 
 
+# A replay whose returns differ more than this from the stored expert returns is not written.
+REPLAY_RETURN_TOLERANCE = 0.01
+
+
+@dataclasses.dataclass(frozen=True)
+class ReplayCheck:
+    """How exact the replay of a set of demonstrations is (docs/environments.md)."""
+
+    inside_pairs: int  # pairs whose next observation is recorded (all but each episode's last)
+    next_observation_error: tuple[float, float]  # max and mean |replayed - recorded| over them
+    unclipped_pairs: int  # of those, the pairs neither of whose observations is at the clip
+    unclipped_error: tuple[float, float]  # max and mean over the unclipped pairs
+    at_velocity_clip: int  # observations with a velocity at the observation's clip
+    last_pairs_at_clip: int  # of those, the episodes' last pairs (their final observation)
+    terminations_matched: bool  # the replay ends the episodes that ended early, and no other
+    replayed_returns: np.ndarray  # [K] the mean episode return of the replayed rewards
+    expert_returns: np.ndarray | None  # [K] the stored ones
+
+    @property
+    def worst_return_gap(self) -> float:
+        """The largest relative gap of a replayed return from its stored one (0 if none)."""
+        if self.expert_returns is None:
+            return 0.0
+        gap = np.abs(self.replayed_returns - self.expert_returns) / np.abs(self.expert_returns)
+        return float(gap.max())
+
+
+def replayed_rewards(env, demos):
+    """``(rewards [N], final_observations [E, D], check)``: each pair's reward under its own
+    intention and each episode's final observation, from a one-step replay of every pair
+    (``method.demonstrations.replay``) in ``env`` (rewarding every labelled intention), and
+    how well the replay reproduces what is recorded."""
+    from emgail_jax.method import demonstrations
+
+    replay = demonstrations.replay(env, demos)
+    rewards = replay.rewards[np.arange(len(demos)), demos.intentions].astype(np.float32)
+    last = np.append(demos.episode_starts[1:], True)  # [N] the last pair of its episode
+    finals = replay.next_observations[last].astype(np.float32)
+    error = np.abs(replay.next_observations[:-1] - demos.observations[1:])[~last[:-1]]
+    velocities = demos.observations[:, env.mj_model.nq - env.position_dims :]
+    clipped = np.any(np.abs(velocities) >= env.obs_max_velocity, axis=1)
+    unclipped = ~(clipped[:-1] | clipped[1:])[~last[:-1]]
+    ended_early = np.diff([*np.flatnonzero(demos.episode_starts), len(demos)])
+    ended_early = ended_early < env.episode_length
+    returns = [
+        demonstrations.mean_episode_return(rewards[own], demos.episode_starts[own])
+        for own in (demos.intentions == i for i in range(demos.num_intentions))
+    ]
+    spread = lambda e: (float(e.max()), float(e.mean())) if e.size else (0.0, 0.0)
+    check = ReplayCheck(
+        inside_pairs=len(error),
+        next_observation_error=spread(error),
+        unclipped_pairs=int(unclipped.sum()),
+        unclipped_error=spread(error[unclipped]),
+        at_velocity_clip=int(clipped.sum()),
+        last_pairs_at_clip=int(clipped[last].sum()),
+        terminations_matched=bool(replay.done[last][ended_early].all())
+        and not replay.done[~last].any(),
+        replayed_returns=np.array(returns, np.float32),
+        expert_returns=demos.expert_returns,
+    )
+    return rewards, finals, check
+
+
+def print_replay_check(env_name: str, check: ReplayCheck) -> None:
+    print(
+        f"{env_name}: replayed {check.inside_pairs} pairs against their recorded next "
+        f"observation: max |error| {check.next_observation_error[0]:.3g}, mean "
+        f"{check.next_observation_error[1]:.3g}; {check.unclipped_pairs} pairs with no velocity "
+        f"at the clip: max {check.unclipped_error[0]:.3g}, mean {check.unclipped_error[1]:.3g}"
+    )
+    print(
+        f"{env_name}: {check.at_velocity_clip} observations with a velocity at the clip "
+        f"({check.last_pairs_at_clip} of them an episode's last); terminations "
+        f"{'as recorded' if check.terminations_matched else 'NOT as recorded'}"
+    )
+    stored = check.expert_returns
+    for i, replayed in enumerate(check.replayed_returns):
+        line = f"{env_name}: intention {i} mean return replayed {replayed:.4f}"
+        if stored is not None:
+            gap = (replayed - stored[i]) / abs(stored[i])
+            line += f", stored {stored[i]:.4f} ({gap:+.2e})"
+        print(line)
+
+
+def add_rewards(env, root: str) -> int:
+    """Adds ``rewards`` and ``final_observations`` to ``ROOT/ENV.npz`` from a one-step replay of
+    every pair, every other array unchanged; writes nothing when the replayed returns are more
+    than :data:`REPLAY_RETURN_TOLERANCE` from the stored ones."""
+    from emgail_jax.host import demonstration_files
+
+    path = os.path.join(root, f"{env.name}.npz")
+    try:
+        demos = demonstration_files.load(path, env)
+    except demonstration_files.DemonstrationError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    if demos.rewards is not None or demos.final_observations is not None:
+        print(f"error: {path} already carries rewards or final_observations", file=sys.stderr)
+        return 2
+    if env.position_dims is None:
+        print(
+            f"error: {env.name}'s observations do not give back its state, so {path} cannot be "
+            f"replayed; `python -m emgail_jax.experts --env {env.name} --demos-only` rewrites "
+            "it from the experts with both arrays",
+            file=sys.stderr,
+        )
+        return 2
+    if demos.intentions is None:
+        print(
+            f"error: {path} has no intentions, which say whose reward a pair earns", file=sys.stderr
+        )
+        return 2
+    rewards, finals, check = replayed_rewards(env, demos)
+    print_replay_check(env.name, check)
+    if check.worst_return_gap > REPLAY_RETURN_TOLERANCE:
+        why = (
+            f"its returns are up to {check.worst_return_gap:.2%} from the stored ones, more "
+            f"than {REPLAY_RETURN_TOLERANCE:.0%}"
+        )
+    elif not check.terminations_matched:
+        why = "its terminations differ from the recording's"
+    else:
+        demonstration_files.add_arrays(path, rewards=rewards, final_observations=finals)
+        print(f"added rewards [{len(rewards)}], final_observations {list(finals.shape)} to {path}")
+        return 0
+    print(f"error: the replay does not reproduce {path}: {why}; nothing written", file=sys.stderr)
+    return 2
+    print(f"added rewards [{len(rewards)}] and final_observations {list(finals.shape)} to {path}")
+    return 0
+
+
 def export_minari(env, out: str | None) -> int:
     """Writes the shipped demonstrations of ``env`` as Minari datasets under ``out``."""
     from emgail_jax.host import demonstration_files, minari_datasets
@@ -403,7 +539,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument(
         "--out",
         default=None,
-        help="data root (default: the package's data); with --export-minari the Minari "
+        help="data root (default: the package's data; --add-rewards rewrites its ENV.npz); "
+        "with --export-minari the Minari "
         "datasets directory (default: MINARI_DATASETS_PATH, else ~/.minari/datasets)",
     )
     parser.add_argument(
@@ -415,6 +552,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     what = parser.add_mutually_exclusive_group()
     what.add_argument("--evaluate", action="store_true", help="only score the saved experts")
     what.add_argument("--demos-only", action="store_true", help="rewrite demos from the checkpoint")
+    what.add_argument(
+        "--add-rewards",
+        action="store_true",
+        help="add each pair's reward and each episode's final observation to ENV.npz by "
+        "replaying every pair one step (hopper, halfcheetah); every other array unchanged",
+    )
     what.add_argument(
         "--export-minari",
         action="store_true",
@@ -437,6 +580,8 @@ def main(argv=None) -> int:
     env = envs.make(args.env)
     if args.export_minari:
         return export_minari(env, args.out)
+    if args.add_rewards:
+        return add_rewards(env, os.path.abspath(args.out or data_dir()))
     spec = SPECS[args.env]
     if args.iterations:
         spec = dataclasses.replace(spec, iterations=args.iterations)

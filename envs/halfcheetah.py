@@ -52,6 +52,7 @@ class HalfCheetahEnv(MjxEnv):
     ctrl_cost = 0.1
     flip_weight = 1.0
     flip_move_weight = 3.0
+    position_dims = 1
     reset_noise = 0.1
     reset_velocity_normal = True
 

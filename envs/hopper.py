@@ -46,12 +46,13 @@ class HopperEnv(MjxEnv):
 
     ctrl_cost = 1e-3
     healthy_reward = 1.0
+    position_dims = 1
     reset_noise = 5e-3
     init_height = 1.25
     healthy_min_height = 0.7
     healthy_max_pitch = 0.2
     healthy_max_state = 100.0
-    obs_max_velocity = 10.0
+    obs_max_velocity = 10.0  # gym's
 
     def edit_spec(self, spec: mujoco.MjSpec) -> None:
         spec.joint("rootz").ref = self.init_height

@@ -21,6 +21,7 @@ import io
 import math
 import pathlib
 import sys
+from collections.abc import Sequence
 from typing import Any, ClassVar
 
 import jax
@@ -84,6 +85,74 @@ class Solver:
             if bit is None:
                 raise EnvError(f"unknown MuJoCo disable flag '{flag}'")
             model.opt.disableflags |= int(bit)
+
+
+@dataclasses.dataclass(frozen=True)
+class Dynamics:
+    """A variant of an env's physics, each entry a factor on the model's own value: the test
+    of a learned reward in changed dynamics (``reoptimize --env-set KEY=VALUE``).
+
+    Keys: ``mass.BODY`` (one body's mass and inertia, its geoms' density scaled), ``gravity``,
+    ``friction`` (every geom's sliding friction) and ``viscosity`` (the medium's; only where the
+    model has one, the swimmer). Applied to the model's spec before it is compiled, so that the
+    derived statistics the solver uses (``stat.meaninertia``) follow.
+    """
+
+    factors: tuple[tuple[str, float], ...] = ()  # (key, factor), in the order given
+
+    KEYS: ClassVar[tuple[str, ...]] = ("mass.BODY", "gravity", "friction", "viscosity")
+
+    @classmethod
+    def parse(cls, settings: Sequence[str]) -> Dynamics:
+        """From ``KEY=FACTOR`` strings; an unknown key or a factor that is not a positive
+        number is an :class:`EnvError` naming what to give."""
+        factors = []
+        for setting in settings:
+            key, _, text = setting.partition("=")
+            if not (key in cls.KEYS[1:] or (key.startswith("mass.") and len(key) > 5)):
+                raise EnvError(
+                    f"unknown dynamics key '{key}' in '{setting}': use {', '.join(cls.KEYS)}"
+                )
+            try:
+                factor = float(text)
+            except ValueError:
+                factor = math.nan
+            if not (math.isfinite(factor) and factor > 0):
+                raise EnvError(f"'{setting}': the factor must be a positive number (KEY=FACTOR)")
+            factors.append((key, factor))
+        return cls(tuple(factors))
+
+    def as_settings(self) -> list[str]:
+        return [f"{key}={factor:g}" for key, factor in self.factors]
+
+    def apply(self, spec: mujoco.MjSpec) -> None:
+        for key, factor in self.factors:
+            if key.startswith("mass."):
+                self._scale_body(spec, key.removeprefix("mass."), factor)
+            elif key == "gravity":
+                spec.option.gravity = np.asarray(spec.option.gravity) * factor
+            elif key == "friction":
+                for geom in spec.geoms:
+                    geom.friction = np.asarray(geom.friction) * [factor, 1.0, 1.0]
+            elif spec.option.viscosity == 0:
+                raise EnvError("this env's model has no viscosity to scale (its medium is empty)")
+            else:
+                spec.option.viscosity *= factor
+
+    @staticmethod
+    def _scale_body(spec: mujoco.MjSpec, name: str, factor: float) -> None:
+        body = spec.body(name)
+        if body is None or name == "world":
+            names = [b.name for b in spec.bodies if b.name and b.name != "world"]
+            raise EnvError(f"no body '{name}' in this env's model; its bodies: {', '.join(names)}")
+        if body.explicitinertial:
+            body.mass *= factor
+            body.inertia = np.asarray(body.inertia) * factor
+        for geom in body.geoms:
+            if math.isnan(geom.mass):
+                geom.density *= factor
+            else:
+                geom.mass *= factor
 
 
 def mujoco_default_solver() -> Solver:
@@ -157,6 +226,7 @@ class MjxEnv(Env):
       episode_steps: episode length T.
       unroll_frame_skip: unroll the frame-skip loop (longer compile; faster for some envs).
       reset_noise, reset_velocity_normal: gym's reset noise (see :meth:`reset`).
+      position_dims: the leading qpos entries the observation leaves out (see :meth:`replay`).
     """
 
     xml: ClassVar[str]
@@ -166,18 +236,25 @@ class MjxEnv(Env):
     unroll_frame_skip: ClassVar[bool] = False
     reset_noise: ClassVar[float] = 0.1
     reset_velocity_normal: ClassVar[bool] = False
+    # The observation is qpos[position_dims:] then qvel (velocities possibly clipped, angles
+    # possibly wrapped): the root's position it leaves out, on which the dynamics do not
+    # depend. None where the observation is not of that form (the reacher's).
+    position_dims: ClassVar[int | None] = None
+    obs_max_velocity: ClassVar[float] = math.inf  # the observation's clip of qvel
 
     def __init__(
         self,
         intentions: int | None = None,
         solver_iterations: int | None = None,
         ls_iterations: int | None = None,
+        dynamics: Sequence[str] = (),
     ):
         super().__init__(intentions)
         overrides = {"iterations": solver_iterations, "ls_iterations": ls_iterations}
         self.solver = dataclasses.replace(
             self.default_solver, **{k: int(v) for k, v in overrides.items() if v is not None}
         )
+        self.dynamics = Dynamics.parse(dynamics)
         self.mj_model = self.native_model(self.solver)
         self.mjx_model = mjx.put_model(self.mj_model, impl="jax")
         self._mjx_model_one_iteration = self.mjx_model.replace(
@@ -195,6 +272,10 @@ class MjxEnv(Env):
         spec = mujoco.MjSpec.from_file(str(brax_asset(self.xml)))
         self.edit_spec(spec)
         model = compile_spec(spec)
+        if self.dynamics.factors:
+            # On the spec as compiled (its total mass already set), so each factor is exact.
+            self.dynamics.apply(spec)
+            model = spec.compile()
         (solver or self.solver).apply(model)
         return model
 
@@ -209,10 +290,13 @@ class MjxEnv(Env):
         return self.episode_steps
 
     def options(self) -> dict[str, Any]:
-        return {
+        options = {
             "solver_iterations": self.solver.iterations,
             "ls_iterations": self.solver.ls_iterations,
         }
+        if self.dynamics.factors:  # the envs' own dynamics add nothing to a run's summary
+            options["dynamics"] = self.dynamics.as_settings()
+        return options
 
     def reset(self, key: jax.Array) -> State:
         """Gym's reset: ``qpos0`` plus uniform noise in ±``reset_noise``, zero velocity plus
@@ -238,6 +322,60 @@ class MjxEnv(Env):
         """The executed (clipped) action and the physics one env step later."""
         action = self.clip_action(action)
         return action, self.physics_step(state.physics, action)
+
+    def replay(
+        self, observations: jax.Array, actions: jax.Array, steps: jax.Array, fits: int = 4
+    ) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """Every pair of one episode of ``steps`` pairs (padded to ``observations [T, D]`` and
+        ``actions [T, A]``) stepped once from the state its observation stands for: ``(next
+        observations [T, D], rewards [T, K], done [T])``.
+
+        The left-out position is 0 (the dynamics and rewards do not depend on it), and the
+        solver starts warm from the previous pair's step, as the episode did (the first pair
+        from zero, as after a reset). A velocity the observation clipped is fitted, where the
+        next observation is recorded (every pair but the last), to the position that
+        observation records: ``fits`` corrections, each by the position's gap over ``dt`` (a
+        joint moves about ``dt`` times its velocity in a step), kept beyond the clip. What the
+        observation cannot give back (a clipped velocity of the last pair, the last bits of the
+        position's effect and of the warm start) leaves the replay approximate:
+        docs/environments.md measures it on the shipped demonstrations. Needs one qpos entry
+        per qvel entry (no free or ball joints), as the envs that set ``position_dims`` have.
+        """
+        if self.position_dims is None or self.mj_model.nq != self.mj_model.nv:
+            raise EnvError(f"'{self.name}' observations do not give back the env's state")
+        skip, nq = self.position_dims, self.mj_model.nq
+        positions = lambda obs: obs[: nq - skip]
+        velocities = lambda obs: obs[nq - skip :]
+
+        def step_from(obs, qvel, warm_start, action):
+            qpos = jnp.concatenate([jnp.zeros(skip, obs.dtype), positions(obs)])
+            physics = self.physics_reset(qpos, qvel).replace(qacc_warmstart=warm_start)
+            return self.step(self.initial_state(physics), action)
+
+        def replay_pair(warm_start, pair):
+            obs, action, next_obs, has_next = pair
+            clipped_qvel = velocities(obs)
+            clipped = (jnp.abs(clipped_qvel) >= self.obs_max_velocity) & has_next
+            clipped = clipped & (jnp.arange(nq) >= skip)  # the root's has no recorded position
+
+            def fit(_, qvel):
+                after = step_from(obs, qvel, warm_start, action)
+                gap = jnp.concatenate([jnp.zeros(skip), positions(after.obs - next_obs)])
+                direction = jnp.sign(clipped_qvel)
+                beyond = jnp.maximum(direction * (qvel - gap / self.dt), self.obs_max_velocity)
+                return jnp.where(clipped, direction * beyond, qvel)
+
+            clips = math.isfinite(self.obs_max_velocity)  # else nothing to fit
+            qvel = jax.lax.fori_loop(0, fits, fit, clipped_qvel) if fits and clips else clipped_qvel
+            after = step_from(obs, qvel, warm_start, action)
+            return after.physics.qacc_warmstart, (after.obs, after.reward, after.done)
+
+        t = jnp.arange(len(observations))
+        next_observations = jnp.roll(observations, -1, axis=0)
+        pairs = (observations, actions, next_observations, t + 1 < steps)
+        warm_start = jnp.zeros(self.mj_model.nv, observations.dtype)
+        _, replayed = jax.lax.scan(replay_pair, warm_start, pairs)
+        return replayed
 
     # ---- the task ------------------------------------------------------------------------
 

@@ -31,6 +31,7 @@ resolve it badly (docs/environments.md).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import jax
 import jax.numpy as jnp
@@ -66,8 +67,9 @@ class ReacherEnv(MjxEnv):
         intentions: int | None = None,
         solver_iterations: int | None = None,
         ls_iterations: int | None = None,
+        dynamics: Sequence[str] = (),
     ):
-        super().__init__(intentions, solver_iterations, ls_iterations)
+        super().__init__(intentions, solver_iterations, ls_iterations, dynamics)
         self.fingertip_id = self.mj_model.body("fingertip").id
 
     def edit_spec(self, spec: mujoco.MjSpec) -> None:

@@ -39,6 +39,7 @@ class SwimmerEnv(MjxEnv):
     )
 
     ctrl_cost = 1e-4
+    position_dims = 2
     reset_noise = 0.1
 
     @property

@@ -36,6 +36,27 @@ def test_optional_keys_may_be_absent(tmp_path):
     assert loaded.num_intentions is None
 
 
+def test_added_arrays_leave_the_stored_ones_as_they_were(tmp_path):
+    """Even arrays that loading would cast (float64 observations, int64 labels) keep their
+    dtype and bytes."""
+    path = str(tmp_path / "d.npz")
+    stored = {
+        "observations": np.linspace(0, 1, 12).reshape(4, 3),
+        "actions": np.ones((4, 1), np.float32),
+        "episode_starts": np.array([True, False, True, False]),
+        "intentions": np.array([0, 0, 1, 1]),
+    }
+    np.savez(path, **stored)
+    demonstration_files.add_arrays(path, rewards=np.arange(4, dtype=np.float32))
+    with np.load(path) as written:
+        assert written.files == [*stored, "rewards"]
+        for name, values in stored.items():
+            assert written[name].dtype == values.dtype
+            assert written[name].tobytes() == values.tobytes()
+        np.testing.assert_array_equal(written["rewards"], np.arange(4))
+    assert not list(tmp_path.glob("*.tmp.npz"))
+
+
 # ---- load rejects bad files with a message naming the problem ------------------------------
 
 

@@ -288,3 +288,88 @@ def test_wrapped_hopper_falls_and_starts_a_new_episode():
     assert int(state.info["steps"]) == 0
     assert float(state.obs[0]) == pytest.approx(1.25, abs=0.01)
     assert env.unwrapped.is_healthy(state.physics.qpos, state.physics.qvel) == 1.0
+
+
+# ---- replaying recorded pairs ---------------------------------------------------------------
+
+
+def test_hopper_replay_gives_back_an_episodes_steps(compiled):
+    """An episode stepped by the env (its root far from 0, its foot spinning beyond the
+    observation's clip all along), then replayed pair by pair from its observations alone:
+    the same next observations and rewards, the clipped velocity fitted to the next pair's
+    positions (all but the last pair, which has no next one)."""
+    c = compiled("hopper")
+    env = c.env
+    physics = c.reset(jax.random.PRNGKey(8)).physics
+    start = env.initial_state(
+        physics.replace(qpos=physics.qpos.at[0].set(3.0), qvel=physics.qvel.at[5].set(14.0))
+    )
+    assert float(jnp.abs(start.obs[-1])) == env.obs_max_velocity  # the observation clipped it
+    actions = jax.random.uniform(jax.random.PRNGKey(9), (6, 3), minval=-1.0, maxval=1.0)
+    states = [start]
+    for action in actions:
+        states.append(c.step(states[-1], action))
+    observations = jnp.stack([s.obs for s in states])  # [T + 1, D]
+    rewards = np.stack([s.reward for s in states[1:]])  # [T, K]
+    padded = lambda x: jnp.concatenate([x, x[:2]])  # two pairs of padding after the episode
+    next_obs, replayed, done = jax.jit(env.replay)(padded(observations[:-1]), padded(actions), 6)
+    np.testing.assert_allclose(next_obs[:5], observations[1:6], atol=1e-4)
+    np.testing.assert_allclose(replayed[:5], rewards[:5], atol=5e-4)
+    assert not done[:6].any()
+    # The last pair's clipped velocity has nothing to be fitted to: its step is off.
+    assert np.abs(replayed[5] - rewards[5]).max() > 10 * np.abs(replayed[:5] - rewards[:5]).max()
+
+
+def test_an_observation_without_the_state_is_not_replayed():
+    reacher = envs.make("reacher")
+    with pytest.raises(envs.EnvError, match="do not give back"):
+        reacher.replay(jnp.zeros((2, 26)), jnp.zeros((2, 2)), 2)
+
+
+def test_dynamics_scale_exactly_what_they_name():
+    plain = envs.make("hopper").mj_model
+    varied = envs.make("hopper", dynamics=["mass.torso=1.5", "gravity=0.8", "friction=0.5"])
+    model, torso = varied.mj_model, plain.body("torso").id
+    assert model.body_mass[torso] == pytest.approx(1.5 * plain.body_mass[torso])
+    np.testing.assert_allclose(model.body_inertia[torso], 1.5 * plain.body_inertia[torso])
+    others = np.arange(plain.nbody) != torso
+    np.testing.assert_array_equal(model.body_mass[others], plain.body_mass[others])
+    np.testing.assert_allclose(model.opt.gravity, 0.8 * plain.opt.gravity)
+    np.testing.assert_allclose(model.geom_friction[:, 0], 0.5 * plain.geom_friction[:, 0])
+    np.testing.assert_array_equal(model.geom_friction[:, 1:], plain.geom_friction[:, 1:])
+    assert model.stat.meaninertia > plain.stat.meaninertia  # the solver's statistics follow
+    assert varied.options()["dynamics"] == ["mass.torso=1.5", "gravity=0.8", "friction=0.5"]
+    assert "dynamics" not in envs.make("hopper").options()  # a run's summary is unchanged
+
+
+def test_dynamics_keep_a_total_mass_the_model_sets():
+    # halfcheetah's XML fixes its total mass; one body's factor still applies exactly.
+    plain = envs.make("halfcheetah").mj_model
+    model = envs.make("halfcheetah", dynamics=["mass.torso=2"]).mj_model
+    torso = plain.body("torso").id
+    assert model.body_mass[torso] == pytest.approx(2 * plain.body_mass[torso])
+    assert model.body_mass.sum() == pytest.approx(plain.body_mass.sum() + plain.body_mass[torso])
+
+
+def test_the_swimmers_viscosity_changes_its_motion():
+    plain, thick = envs.make("swimmer"), envs.make("swimmer", dynamics=["viscosity=3"])
+    assert thick.mj_model.opt.viscosity == pytest.approx(3 * plain.mj_model.opt.viscosity)
+    key, action = jax.random.PRNGKey(0), jnp.ones(plain.action_size)
+    states = [env.step(env.reset(key), action) for env in (plain, thick)]
+    assert not np.allclose(states[0].obs, states[1].obs)
+
+
+@pytest.mark.parametrize(
+    "env, setting, message",
+    [
+        ("hopper", "viscosity=2", "has no viscosity"),
+        ("hopper", "mass.nose=2", "its bodies: torso, thigh, leg, foot"),
+        ("hopper", "gravity=-1", "must be a positive number"),
+        ("hopper", "gravity", "must be a positive number"),
+        ("swimmer", "wind=2", "use mass.BODY, gravity, friction, viscosity"),
+    ],
+)
+def test_dynamics_out_of_their_domain_are_refused_in_one_line(env, setting, message):
+    with pytest.raises(envs.EnvError, match=message) as error:
+        envs.make(env, dynamics=[setting])
+    assert "\n" not in str(error.value)

@@ -1,8 +1,10 @@
 """Experts: the training/checkpoint round trip (on the cheap driver) and the shipped experts and
 demonstrations of the MJX envs (their files, and a fresh replay of every expert)."""
 
+import dataclasses
 import json
 import os
+import pathlib
 
 import jax
 import numpy as np
@@ -98,6 +100,14 @@ def test_shipped_demonstrations_match_their_env(name):
     assert np.all(counts <= full) and np.all(counts >= 0.9 * full), counts
     assert demos.episode_starts.sum() == spec.demo_episodes * env.max_intentions
     assert demos.expert_returns.shape == (env.max_intentions,)
+    # Every env's file carries what a Minari dataset needs (hopper's and halfcheetah's from a
+    # replay of their pairs, `experts --add-rewards`), and the rewards sum to the returns.
+    assert demos.final_observations.shape == (demos.episodes, env.observation_size)
+    returns = [
+        demonstrations.mean_episode_return(demos.rewards[own], demos.episode_starts[own])
+        for own in (demos.intentions == i for i in range(env.max_intentions))
+    ]
+    np.testing.assert_allclose(returns, demos.expert_returns, rtol=1e-4)
 
 
 @pytest.mark.parametrize("name", MJX_ENVS)
@@ -112,6 +122,75 @@ def test_shipped_experts_meta_records_their_quality(name):
         demonstration_files.load(shipped_demos_path(name)).expert_returns,
         rtol=1e-6,
     )
+
+
+def _swimmer_file(directory, scale_returns: float = 1.0):
+    """The first demonstration of each swimmer intention, without their rewards and final
+    observations, as ``directory/swimmer.npz`` (their expert returns times ``scale_returns``):
+    ``(path, the demonstrations with them)``."""
+    swimmer = envs.make("swimmer")
+    shipped = demonstration_files.load(shipped_demos_path("swimmer"), swimmer)
+    first = demonstrations.first_episodes(shipped, [1, 1])
+    returns = [
+        demonstrations.mean_episode_return(first.rewards[own], first.episode_starts[own])
+        for own in (first.intentions == i for i in range(2))
+    ]
+    bare = dataclasses.replace(
+        first,
+        expert_returns=np.array(returns, np.float32) * np.float32(scale_returns),
+        rewards=None,
+        final_observations=None,
+    )
+    directory.mkdir()
+    path = str(directory / "swimmer.npz")
+    demonstration_files.save(bare, path)
+    return path, first
+
+
+def test_added_rewards_are_the_recorded_ones(tmp_path, capsys):
+    """Swimmer demonstrations carry their recorded rewards and final observations: stripped of
+    them, ``--add-rewards`` gives them back from a replay, every other array as it was; a
+    second time it is refused, and so is a file whose returns the replay does not give."""
+    good = tmp_path / "good"
+    path, recorded = _swimmer_file(good)
+    with np.load(path) as stripped:
+        before = {k: stripped[k] for k in stripped.files}
+    assert experts.main(["--env", "swimmer", "--add-rewards", "--out", str(good)]) == 0
+    with np.load(path) as added:
+        for name, values in before.items():
+            assert added[name].dtype == values.dtype and np.array_equal(added[name], values)
+        np.testing.assert_allclose(added["rewards"], recorded.rewards, atol=1e-4)
+        np.testing.assert_allclose(
+            added["final_observations"], recorded.final_observations, atol=1e-5
+        )
+    assert experts.main(["--env", "swimmer", "--add-rewards", "--out", str(good)]) == 2
+    assert "already carries rewards or final_observations" in capsys.readouterr().err
+    off, _ = _swimmer_file(tmp_path / "off", scale_returns=1.05)
+    unchanged = pathlib.Path(off).read_bytes()
+    assert experts.main(["--env", "swimmer", "--add-rewards", "--out", str(tmp_path / "off")]) == 2
+    error = capsys.readouterr().err.strip()
+    assert error.startswith("error: the replay does not reproduce") and "\n" not in error
+    assert pathlib.Path(off).read_bytes() == unchanged
+
+
+def test_files_the_replay_cannot_serve_are_refused_in_one_line(tmp_path, capsys):
+    def refused(env_name, directory, **arrays):
+        directory.mkdir()
+        if arrays:
+            np.savez(directory / f"{env_name}.npz", **arrays)
+        argv = ["--env", env_name, "--add-rewards", "--out", str(directory)]
+        assert experts.main(argv) == 2
+        error = capsys.readouterr().err.strip()
+        assert error.startswith("error: ") and "\n" not in error
+        return error
+
+    with np.load(shipped_demos_path("reacher")) as shipped:
+        reacher = {k: shipped[k] for k in ("observations", "actions", "episode_starts")}
+    assert "do not give back its state" in refused("reacher", tmp_path / "reacher", **reacher)
+    with np.load(shipped_demos_path("swimmer")) as shipped:
+        unlabelled = {k: shipped[k] for k in ("observations", "actions", "episode_starts")}
+    assert "has no intentions" in refused("swimmer", tmp_path / "swimmer", **unlabelled)
+    assert "does not exist" in refused("hopper", tmp_path / "empty")
 
 
 # The swimmer in every run; the other envs' replays (40-70 s each) with `make test-slow`.

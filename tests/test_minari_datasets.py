@@ -2,6 +2,7 @@
 intention), the round trip back to the same arrays, datasets written by Minari itself, and the
 refusal of every malformed dataset. Every dataset goes to a temporary MINARI_DATASETS_PATH."""
 
+import dataclasses
 import json
 
 import gymnasium
@@ -243,9 +244,30 @@ def _driver_shaped_swimmer():
     return Other(intentions=2)
 
 
-def test_demonstrations_without_rewards_are_not_exported(datasets_root, capsys):
-    """The shipped hopper demonstrations predate per-step rewards (README)."""
-    assert experts.main(["--env", "hopper", "--export-minari", "--quiet"]) == 2
-    err = capsys.readouterr().err.strip()
-    assert err.startswith("error: ") and "\n" not in err and "--demos-only" in err
-    assert not list(datasets_root.rglob("*.hdf5"))
+def test_the_shipped_hopper_demonstrations_are_exported_and_read_back(tmp_path):
+    """Hopper's rewards and final observations come from a replay (``experts --add-rewards``):
+    the datasets give back the file's pairs, episodes and those arrays; each dataset's expert
+    return is its rewards' mean episode return, within 1e-4 of the file's stored one."""
+    hopper = envs.make("hopper")
+    out = tmp_path / "datasets"
+    assert experts.main(["--env", "hopper", "--export-minari", "--out", str(out)]) == 0
+    shipped = demonstration_files.load(shipped_demos_path("hopper"), hopper)
+    sources = [
+        str(out / minari_datasets.dataset_id("hopper", name)) for name in hopper.intention_names
+    ]
+    back = demonstration_sources.load(sources, hopper)
+    for name in (field for field in FIELDS if field != "expert_returns"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(shipped, name), name)
+    np.testing.assert_allclose(back.expert_returns, shipped.expert_returns, rtol=1e-4)
+    dataset = minari.MinariDataset(f"{sources[0]}/data")
+    episodes = list(dataset)
+    assert len(episodes) == 5 and all(len(e.actions) == hopper.episode_length for e in episodes)
+    assert all(e.truncations[-1] and not e.terminations.any() for e in episodes)
+
+
+def test_demonstrations_without_rewards_are_not_exported(driver, driver_demos, datasets_root):
+    bare = dataclasses.replace(driver_demos, rewards=None, final_observations=None)
+    with pytest.raises(DemonstrationError, match=r"lack: .*--add-rewards") as error:
+        minari_datasets.write(bare, driver, str(datasets_root))
+    assert "\n" not in str(error.value)
+    assert not list(datasets_root.rglob("*"))

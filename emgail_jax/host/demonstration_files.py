@@ -38,7 +38,17 @@ class DemonstrationError(ValueError):
 
 def save(demos: Demonstrations, path: str) -> None:
     """Writes the dataset atomically (a temporary file renamed into place)."""
-    arrays = {k: v for k, v in dataclasses.asdict(demos).items() if v is not None}
+    _write({k: v for k, v in dataclasses.asdict(demos).items() if v is not None}, path)
+
+
+def add_arrays(path: str, **arrays: np.ndarray) -> None:
+    """Adds ``arrays`` to the file at ``path``, atomically, every array it holds kept as stored
+    (dtype and bytes)."""
+    with np.load(path, allow_pickle=False) as stored:
+        _write({**{k: stored[k] for k in stored.files}, **arrays}, path)
+
+
+def _write(arrays: dict[str, np.ndarray], path: str) -> None:
     tmp = f"{path}.tmp.npz"
     np.savez_compressed(tmp, **arrays)
     os.replace(tmp, path)

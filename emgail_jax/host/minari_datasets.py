@@ -215,8 +215,7 @@ def write(demos: Demonstrations, env: envs.Env, root: str) -> list[str]:
         raise DemonstrationError(
             "a Minari dataset holds every step's reward and every episode's final observation, "
             f"which these {env.name} demonstrations lack: `python -m emgail_jax.experts --env "
-            f"{env.name} --demos-only` rewrites them with both from the experts (on another CPU "
-            "than the one that wrote them, they come out other episodes)"
+            f"{env.name} --add-rewards` adds both to an MJX env's demonstrations file"
         )
     names = env.intention_names[: demos.num_intentions]
     ids = [dataset_id(env.name, name) for name in names]

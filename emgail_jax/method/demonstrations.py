@@ -170,3 +170,34 @@ def generate(env: envs.Env, expert: Expert, episodes: int, key: jax.Array) -> De
         rewards=own_reward[keep].astype(np.float32),
         final_observations=finals.reshape(-1, finals.shape[-1]).astype(np.float32),
     )
+
+
+@dataclasses.dataclass(frozen=True)
+class Replay:
+    """Every pair of a set of demonstrations stepped once from the state its observation stands
+    for (:func:`replay`)."""
+
+    next_observations: np.ndarray  # [N, obs_dim]
+    rewards: np.ndarray  # [N, K] every intention's reward of the step
+    done: np.ndarray  # [N] bool, the env ended the episode with the step
+
+
+def replay(env: envs.Env, demos: Demonstrations) -> Replay:
+    """Replays every demonstration pair by pair in the MJX env ``env`` (``MjxEnv.replay``: one
+    step from each pair's observation with its action), the demonstrations padded to its
+    episode length and vmapped."""
+    length = env.episode_length
+    bounds = [*np.flatnonzero(demos.episode_starts), len(demos)]
+    if max(b - a for a, b in itertools.pairwise(bounds)) > length:
+        raise ValueError(f"a demonstration is longer than {env.name}'s episodes ({length} steps)")
+    # Each pair's place in the padded [E, T] grid; the padding repeats pair 0 and is dropped.
+    rows = np.zeros((demos.episodes, length), int)
+    for episode, (a, b) in enumerate(itertools.pairwise(bounds)):
+        rows[episode, : b - a] = np.arange(a, b)
+    steps = jnp.asarray(np.diff(bounds))
+    pairs = jnp.asarray(demos.observations[rows]), jnp.asarray(demos.actions[rows])
+    next_obs, rewards, done = jax.device_get(jax.jit(jax.vmap(env.replay))(*pairs, steps))
+    pair = demos.episode, demos.step_in_episode
+    return Replay(
+        next_observations=next_obs[pair], rewards=rewards[pair], done=done[pair].astype(bool)
+    )
