@@ -1,7 +1,8 @@
 """Is the learned reward a reward? Train fresh policies on it and measure their ERD (paper §5.2).
 
     python -m emgail_jax.reoptimize RUN_DIR [--seed S] [--snapshot ITER] [--ensemble N]
-        [--iterations N] [--gamma G] [--no-baseline] [--cache DIR] [--out PATH]
+        [--iterations N] [--gamma G] [--no-baseline] [--cache DIR] [--env-set KEY=FACTOR ...]
+        [--out PATH]
 
 For every run seed (or ``--seed S`` alone) and every learned intention, a new policy is trained
 from scratch with TRPO on the frozen pseudo-reward R_i(s, a) of that seed (the run's final
@@ -23,6 +24,12 @@ Also the learned reward per step that the fresh policies earn and that the demon
 run assigned to each intention earn: fresh policies that out-earn the demonstrations yet score
 far from the experts have optimised a reward that pays off the demonstrations' support. Writes
 ``RUN_DIR/reoptimize.json`` (``reoptimize-snapshot-ITER.json`` for a snapshot).
+
+``--env-set`` trains and scores the fresh policies in a variant of the env (changed masses,
+gravity, friction or viscosity: docs/environments.md), the test of a reward in dynamics its
+demonstrations never saw. ERD there is normalised by the variant's own references: the
+true-reward baseline trained in the variant with the same budget (0) and random actions in
+the variant (1).
 """
 
 from __future__ import annotations
@@ -330,6 +337,28 @@ def true_reward_baseline(run, budget: Budget, cache: str | None, progress: bool 
     return {**result, "success": found, "meets_bar": [q["meets_bar"] for q in found], "cache": path}
 
 
+def variant_problem(run, settings: list[str]):
+    """The run's problem in a variant of its env (``settings``: ``KEY=FACTOR``); ERD's
+    references then follow the variant (random actions in it; the expert: see
+    :func:`with_expert_returns`)."""
+    import envs
+    from emgail_jax.host.run_spec import RunError
+
+    problem = run.problem
+    options = {**run.spec.env_options, "dynamics": settings}
+    try:
+        env = envs.make(run.spec.env, intentions=problem.env.num_intentions, **options)
+    except envs.EnvError as error:
+        raise RunError(f"--env-set: {error}") from None
+    return dataclasses.replace(problem, env=env)
+
+
+def with_expert_returns(problem, returns):
+    """``problem`` with ``returns [K true]`` as ERD's expert reference (0)."""
+    demos = dataclasses.replace(problem.demos, expert_returns=np.asarray(returns, np.float64))
+    return dataclasses.replace(problem, demos=demos)
+
+
 def print_result(run, result: dict) -> None:
     from rich.console import Console
     from rich.table import Table
@@ -427,6 +456,14 @@ def parse_args(argv=None) -> argparse.Namespace:
         choices=REWARD_FORMS,
         help="the reward the discriminator defines (default: the run's)",
     )
+    parser.add_argument(
+        "--env-set",
+        nargs="+",
+        default=[],
+        metavar="KEY=FACTOR",
+        help="train and score in a variant of the env: mass.BODY, gravity, friction, viscosity "
+        "(factors on the model's values; ERD against the variant's own true-reward baseline)",
+    )
     parser.add_argument("--out", default=None, help="default: RUN_DIR/reoptimize[-...].json")
     parser.add_argument("--quiet", action="store_true")
     return parser.parse_args(argv)
@@ -445,6 +482,10 @@ def _check_options(args: argparse.Namespace) -> None:
         raise RunError("--consolidate-penalty is a weight >= 0 and goes with --consolidate")
     if args.ensemble < 0 or (args.ensemble and args.consolidate):
         raise RunError("--ensemble is a number of snapshots >= 0, and not with --consolidate")
+    if args.env_set and not args.baseline:
+        raise RunError(
+            "--env-set scores against the variant's true-reward baseline: drop --no-baseline"
+        )
 
 
 @dataclasses.dataclass
@@ -465,6 +506,8 @@ def _opened(args: argparse.Namespace):
 
     _check_options(args)
     run = SavedRun.open(args.run_dir, snapshot=args.snapshot)
+    if args.env_set:
+        run.problem = variant_problem(run, args.env_set)
     seeds = list(range(run.spec.seeds)) if args.seed is None else [args.seed]
     run.seed_state(seeds[0])  # checks --seed
     if args.reward_form is not None:
@@ -547,6 +590,12 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
 
     budget = default_budget(run)
     budget = Budget(args.iterations or budget.iterations, args.gamma or budget.gamma)
+    cache = args.cache or default_cache()
+    variant = None
+    if args.env_set:  # the variant's own expert, its true-reward agent, first
+        baseline = true_reward_baseline(run, budget, cache, not args.quiet)
+        variant = {"dynamics": args.env_set, "original_experts_erd": baseline["erd"]}
+        run.problem = with_expert_returns(run.problem, baseline["returns"])
     result = reoptimize(
         run,
         seeds,
@@ -557,9 +606,9 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
     )
     result["reward_form"] = run.algorithm.reward_form
     result.update(chosen.details)
+    result["variant"] = variant
     result["baseline"] = None
     if args.baseline:
-        cache = args.cache or default_cache()
         result["baseline"] = true_reward_baseline(run, budget, cache, not args.quiet)
     path = args.out or os.path.join(args.run_dir, default_name(args))
     records.write_json(path, result)
@@ -569,7 +618,7 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
 
 
 def default_name(args) -> str:
-    """``reoptimize[-snapshot-ITER][-consolidated-STEPS][-ensemble-N][-FORM].json``"""
+    """``reoptimize[-snapshot-ITER][-consolidated-STEPS][-ensemble-N][-FORM][-env-...].json``"""
     parts = ["reoptimize"]
     if args.snapshot is not None:
         parts.append(f"snapshot-{args.snapshot}")
@@ -581,6 +630,8 @@ def default_name(args) -> str:
         parts.append(f"ensemble-{args.ensemble}")
     if args.reward_form:
         parts.append(args.reward_form)
+    if args.env_set:
+        parts.append("env-" + "-".join(args.env_set))
     return "-".join(parts) + ".json"
 
 

@@ -114,6 +114,8 @@ def test_a_snapshot_is_reoptimised_on_its_own_networks(tiny_run, reoptimized):
             "--ensemble 2 needs 2 snapshots up to iteration 2;",
         ),
         (["--ensemble", "2", "--consolidate", "5"], "not with --consolidate"),
+        (["--env-set", "gravity=2"], "--env-set: env 'driver' has no option 'dynamics'"),
+        (["--env-set", "gravity=2", "--no-baseline"], "drop --no-baseline"),
     ],
 )
 def test_bad_input_gives_one_line_and_exit_code_2(tiny_run, capsys, extra, message):
@@ -180,3 +182,25 @@ def test_a_consolidated_reward_in_the_logit_form(tiny_run, reoptimized):
     assert all(c["steps"] == 5 for c in result["consolidation"])
     earned = result["per_seed"][0]["learned_reward_per_step"]["demonstrations"]
     assert earned != first["per_seed"][0]["learned_reward_per_step"]["demonstrations"]
+
+
+@pytest.mark.slow  # a tiny swimmer run and its re-optimisation in a variant: two compiles
+def test_a_variant_is_scored_against_its_own_true_reward_agent(tmp_path):
+    from emgail_jax import run
+
+    out, cache = tmp_path / "swimmer", tmp_path / "cache"
+    tiny = ["--seeds", "1", "--iterations", "2", "--num-envs", "2", "--rollout-length", "20"]
+    options = [*tiny, "--eval-every", "1", "--random-episodes", "2", "--quiet"]
+    assert run.main(["--env", "swimmer", "--intentions", "2", *options, "--out", str(out)]) == 0
+    args = [str(out), "--iterations", "2", "--cache", str(cache), "--quiet"]
+    assert reoptimize.main([*args, "--env-set", "viscosity=2", "mass.mid=1.5"]) == 0
+    result = json.loads((out / "reoptimize-env-viscosity=2-mass.mid=1.5.json").read_text())
+    assert result["variant"]["dynamics"] == ["viscosity=2", "mass.mid=1.5"]
+    baseline = result["baseline"]
+    # The variant's expert is its true-reward agent: the returns ERD is measured from.
+    assert result["expert_returns"] == pytest.approx(baseline["returns"])
+    assert baseline["cache"].endswith(".json") and "swimmer-k2-2it" in baseline["cache"]
+    assert reoptimize.main(args) == 0  # the env as trained: another baseline, other references
+    plain = json.loads((out / "reoptimize.json").read_text())
+    assert plain["variant"] is None and plain["baseline"]["cache"] != baseline["cache"]
+    assert plain["random_returns"] != pytest.approx(result["random_returns"])
