@@ -8,8 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from emgail_jax.method.algorithms import NAMES, imitation_reward, make_algorithm
-from emgail_jax.method.config import RewardForm
+from emgail_jax.method.algorithms import imitation_reward, make_algorithm
+from emgail_jax.method.config import NAMES, RewardForm
 from emgail_jax.method.discriminator import discriminator_loss
 
 LOG2 = math.log(2.0)
