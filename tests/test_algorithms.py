@@ -205,6 +205,16 @@ def test_the_logit_form_is_the_logit_and_the_gail_form_its_softplus():
     assert imitation_reward(logit, "gail").tolist() == pytest.approx([0.3132617, 2.1269280])
 
 
+def test_the_log_d_form_is_log_d_never_positive_and_finite():
+    logits = np.array([-100.0, -3.0, 0.0, 2.0, 100.0])
+    reward = imitation_reward(jnp.asarray(logits), RewardForm.LOG_D)
+    expected = np.log(1.0 / (1.0 + np.exp(-logits[1:4])))
+    np.testing.assert_allclose(reward[1:4], expected, rtol=1e-5)
+    assert float(reward[0]) == pytest.approx(-100.0) and -1e-30 < float(reward[-1]) <= 0.0
+    grad = jax.vmap(jax.grad(lambda f: imitation_reward(f, "log-d")))(jnp.asarray(logits))
+    assert np.all(np.isfinite(grad)) and np.all(np.asarray(grad) >= 0.0)
+
+
 def test_imitation_reward_finite_at_extreme_logits():
     reward = imitation_reward(jnp.array([-100.0, 100.0]))
     grad = jax.vmap(jax.grad(imitation_reward))(jnp.array([-100.0, 100.0]))

@@ -30,9 +30,13 @@ def imitation_reward(logit: jax.Array, form: RewardForm | str = RewardForm.GAIL)
     """The reward of a pair the discriminator scores ``logit``, high where D takes it for the
     expert's. GAIL's is positive everywhere, so where episodes can end early it also pays for
     staying alive; the logit is negative where D rejects the pair, so survival alone earns
-    nothing."""
-    if RewardForm(form) is RewardForm.LOGIT:
+    nothing. log D is bounded above by 0, so no pair, however far from the data D's guess
+    strays, earns more than log 2 above a demonstration the discriminator cannot tell apart."""
+    form = RewardForm(form)
+    if form is RewardForm.LOGIT:
         return logit
+    if form is RewardForm.LOG_D:
+        return -jax.nn.softplus(-logit)
     return jax.nn.softplus(logit)
 
 

@@ -49,6 +49,7 @@ class RewardForm(enum.StrEnum):
 
     GAIL = "gail"  # -log(1 - D) = softplus(f), the paper's
     LOGIT = "logit"  # log D - log(1 - D) = f, AIRL's form
+    LOG_D = "log-d"  # log D = -softplus(-f), never above 0
 
 
 @dataclass(frozen=True)
