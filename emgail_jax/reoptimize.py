@@ -316,7 +316,14 @@ def baseline_key(run, budget: Budget) -> str:
     }
     text = json.dumps(described, sort_keys=True, default=str)
     digest = hashlib.sha256(text.encode()).hexdigest()[:12]
-    return f"{env.name}-k{env.num_intentions}-{budget.iterations}it-g{budget.gamma}-{digest}"
+    prefix = baseline_prefix(env.name, env.num_intentions, budget.iterations)
+    return f"{prefix}g{budget.gamma}-{digest}"
+
+
+def baseline_prefix(env_name: str, intentions: int, iterations: int) -> str:
+    """How the :func:`baseline_key` of every baseline of an env, K and budget iterations
+    begins, whatever its gamma and settings (the sweep looks for one it need not compute)."""
+    return f"{env_name}-k{intentions}-{iterations}it-"
 
 
 def true_reward_baseline(run, budget: Budget, cache: str | None, progress: bool = True) -> dict:
