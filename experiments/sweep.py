@@ -837,9 +837,10 @@ class CellResult:
     accuracy: np.ndarray | None  # [seeds]; None for GAIL
     parameters: int
     seconds_per_iteration: float
-    reoptimized_erd: float | None
+    reoptimized_erd: np.ndarray | None  # [seeds checked], fresh agents on the learned reward
     intentions_chosen: np.ndarray | None = None  # [seeds], --intentions auto
     intentions_held: np.ndarray | None = None  # [seeds], by the weights alone
+    true_reward_erd: float | None = None  # the reward check's true-reward baseline
 
 
 @dataclasses.dataclass(frozen=True)
@@ -895,13 +896,7 @@ def read_cell_result(cell: Cell, run_dir: str) -> CellResult:
     summary = read_summary(run_dir)
     final = FinalResults.from_summary(summary)
     accuracy = final.cluster_accuracy
-    reoptimized = None
-    path = os.path.join(run_dir, "reoptimize.json")
-    if os.path.exists(path):
-        with open(path) as f:
-            check = json.load(f)
-        # Since every seed is re-optimised, "erd" lists them; older files hold one float.
-        reoptimized = check.get("erd_mean", check.get("erd"))
+    check = reward_check(run_dir)
     timings = summary["timings"]
     return CellResult(
         cell=cell,
@@ -909,10 +904,23 @@ def read_cell_result(cell: Cell, run_dir: str) -> CellResult:
         accuracy=None if accuracy is None else np.asarray(accuracy, float),
         parameters=int(summary["parameters"]["total"]),
         seconds_per_iteration=timings["train_time_s"] / timings["iterations"],
-        reoptimized_erd=reoptimized,
+        reoptimized_erd=None if check is None else reoptimized_erds(check),
         intentions_chosen=final.intentions_chosen,
         intentions_held=final.intentions_held,
+        true_reward_erd=None if check is None else true_reward_erd(check),
     )
+
+
+def reoptimized_erds(check: dict) -> np.ndarray:
+    """``[seeds checked]`` a reward check's ERD per seed: its list, or the one float of the
+    files written when the check took seed 0 alone; NaN for a seed without one."""
+    return np.atleast_1d(np.asarray(check.get("erd"), float))
+
+
+def true_reward_erd(check: dict) -> float | None:
+    """The ERD of a reward check's true-reward baseline; None if it has none."""
+    erd = (check.get("baseline") or {}).get("erd")
+    return None if erd is None else float(erd)
 
 
 # ---- tables -------------------------------------------------------------------------------------
@@ -1042,6 +1050,15 @@ def write_table2(out: str, results: Results, seeds: int) -> None:
     _write_text(os.path.join(out, "table2.md"), lines)
 
 
+# fig6.csv: the jointly trained policies' ERD (what the paper's code scored), then the reward
+# check's (the paper's text's ERD, §5.2), after ``seeds`` so that every older column keeps its
+# place.
+FIG6_COLUMNS = (
+    "env", "intentions", "algo", "separability", "erd_mean", "erd_std", "reoptimized_erd",
+    "seeds", "reoptimized_erd_std", "true_reward_erd", "reoptimized_seeds",
+)  # fmt: skip
+
+
 def write_erd_csvs(out: str, results: Results, separability: SeparabilityTable) -> None:
     with open(os.path.join(out, "fig5a.csv"), "w") as f:
         f.write("algo,radius,separability,erd_mean,erd_std,seeds\n")
@@ -1050,17 +1067,25 @@ def write_erd_csvs(out: str, results: Results, separability: SeparabilityTable) 
             sep = (separability.of(cell.data) or {}).get("separability", math.nan)
             f.write(f"{cell.algo},{cell.radius:g},{sep:.4f},{result.erd.mean():.4f},"
                     f"{result.erd.std():.4f},{len(result.erd)}\n")  # fmt: skip
-    with open(os.path.join(out, "fig6.csv"), "w") as f:
-        f.write("env,intentions,algo,separability,erd_mean,erd_std,reoptimized_erd,seeds\n")
+    with open(os.path.join(out, "fig6.csv"), "w", newline="") as f:
+        writer = csv.writer(f, lineterminator="\n")
+        writer.writerow(FIG6_COLUMNS)
         for result in results.where(robotics_default):
             cell = result.cell
             sep = (separability.of(cell.data) or {}).get("separability")
-            reopt = result.reoptimized_erd
-            f.write(
-                f"{cell.env},{cell.intentions},{cell.algo},{'' if sep is None else f'{sep:.4f}'},"
-                f"{result.erd.mean():.4f},{result.erd.std():.4f},"
-                f"{'' if reopt is None else f'{reopt:.4f}'},{len(result.erd)}\n"
-            )
+            checked = np.asarray([] if result.reoptimized_erd is None else result.reoptimized_erd)
+            writer.writerow(
+                [cell.env, cell.intentions, cell.algo, _decimal(sep),
+                 f"{result.erd.mean():.4f}", f"{result.erd.std():.4f}",
+                 _decimal(checked.mean() if len(checked) else None), len(result.erd),
+                 _decimal(checked.std() if len(checked) > 1 else None),
+                 _decimal(result.true_reward_erd), len(checked) or ""]
+            )  # fmt: skip
+
+
+def _decimal(value: float | None) -> str:
+    """A number of a CSV, or empty where there is none."""
+    return "" if value is None or not np.isfinite(value) else f"{value:.4f}"
 
 
 def _write_text(path: str, lines: list[str]) -> None:

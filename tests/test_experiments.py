@@ -297,6 +297,29 @@ def hopper_cells(tmp_path):
     return sweep, sweep.collect(str(out), sweep.all_cells(), 2, 4), out
 
 
+def test_sweep_fig6_csv_sets_the_reward_check_beside_the_joint_erd(hopper_cells):
+    """fig6.csv keeps its columns and appends the reward check's: the mean and std of the
+    re-optimised ERD over the seeds checked, the true-reward baseline and how many seeds; a
+    check of seed 0 alone has no std and no baseline; a cell without a check, empty columns."""
+    sweep, results, out = hopper_cells
+    sweep.write_erd_csvs(str(out), results, sweep.SeparabilityTable({}))
+    lines = (out / "fig6.csv").read_text().splitlines()
+    assert lines[0] == (
+        "env,intentions,algo,separability,erd_mean,erd_std,reoptimized_erd,seeds,"
+        "reoptimized_erd_std,true_reward_erd,reoptimized_seeds"
+    )
+    assert lines[1:] == [
+        "hopper,1,gail,,0.0100,0.0000,,2,,,",
+        "hopper,2,emgail,,0.0100,0.0000,0.6000,2,0.1000,0.0300,2",
+        "hopper,2,infogail,,0.0300,0.0100,,2,,,",
+        "hopper,2,gail,,0.5500,0.0500,1.0000,2,0.1000,0.0300,2",
+        "hopper,3,emgail,,0.0400,0.0100,0.4900,2,,,1",
+        "hopper,3,gail,,0.4000,0.0000,,2,,,",
+    ]
+    rows = list(csv.DictReader((out / "fig6.csv").open()))  # as readers of the columns see it
+    assert [r["reoptimized_erd"] for r in rows if r["algo"] == "emgail"] == ["0.6000", "0.4900"]
+
+
 def test_sweep_a_cell_is_checked_until_every_seed_and_the_baseline_are(hopper_cells):
     """A trained cell whose check is missing or took seed 0 alone has its check to do (and only
     that); one the sweep does not check, or whose check is complete, is done."""
