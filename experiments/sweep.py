@@ -1137,13 +1137,16 @@ def _erd_axis(ax) -> None:
     random on some intention) is marked at the top edge with its value."""
     ax.set_ylim(0, ERD_TOP)
     ax.set_ylabel("normalised ERD")
+    marked = {}  # values marked at one x, each under the one before, so that none hides another
     for line in list(ax.lines):
         for x, y in zip(*line.get_data(), strict=True):
             if y > ERD_TOP:
                 ax.plot(x, ERD_TOP, marker="^", color=line.get_color(), clip_on=False)
+                below = marked[x] = marked.get(x, -1) + 1
                 ax.annotate(
-                    f"{y:.2f}", (x, ERD_TOP), xytext=(-6, -3), textcoords="offset points",
-                    ha="right", va="top", color=line.get_color(), fontsize=8,
+                    f"{y:.2f}", (x, ERD_TOP), xytext=(-6, -3 - 10 * below),
+                    textcoords="offset points", ha="right", va="top", color=line.get_color(),
+                    fontsize=8,
                 )  # fmt: skip
 
 
@@ -1202,8 +1205,18 @@ def draw_erd_against_separability(
     return _save_drawn(fig, out, name, ax, loc="upper left", bbox_to_anchor=(1.02, 1))
 
 
+# Figure 6's line styles: whose ERD a line is (its colour says which algorithm's run).
+ERD_STYLES = {
+    "-": "jointly trained policies",
+    "--": "fresh TRPO on the learned reward (§5.2)",
+    ":": "fresh TRPO on the true reward",
+}
+
+
 def draw_fig6(out: str, results: Results) -> str | None:
-    """ERD against K per env; K = 1 is GAIL on one expert, the start of every line."""
+    """ERD against K per env; K = 1 is GAIL on one expert, the start of every line. Dashed,
+    the reward check of the cells that have one (mean over its seeds); dotted, its true-reward
+    baseline."""
     fig, axes = _pyplot().subplots(1, len(ROBOTICS_INTENTIONS), figsize=(14, 3.5))
     for ax, (env, ks) in zip(axes, ROBOTICS_INTENTIONS.items(), strict=True):
         floor = results.get(env, 1, "gail")
@@ -1213,9 +1226,48 @@ def draw_fig6(out: str, results: Results) -> str | None:
             points += [(k, result.erd) for k, result in found if result is not None]
             if points:
                 _erd_band(ax, points, algo)
+            checked = [(k, r.reoptimized_erd.mean()) for k, r in found if _checked(r)]
+            if checked:
+                ax.plot(*zip(*checked, strict=True), linestyle="--", marker="s",
+                        fillstyle="none", color=COLORS[algo])  # fmt: skip
+        baseline = true_reward_points(results, env, ks)
+        if baseline:
+            ax.plot(*zip(*baseline, strict=True), linestyle=":", marker="d", color="black")
         ax.set(title=env, xlabel="number of intentions", xticks=(1, *ks))
         _erd_axis(ax)
-    return _save_drawn(fig, out, "fig6.png", axes[0])
+    legend = {"handles": _fig6_legend(axes), "loc": "upper left", "bbox_to_anchor": (1.02, 1)}
+    return _save_drawn(fig, out, "fig6.png", axes[-1], **legend)
+
+
+def _checked(result: CellResult | None) -> bool:
+    return result is not None and result.reoptimized_erd is not None
+
+
+def true_reward_points(results: Results, env: str, ks: tuple[int, ...]) -> list[tuple[int, float]]:
+    """``(K, ERD)`` of the env's true-reward baseline at each K a reward check has one (the
+    cells of an env and K read one cached baseline)."""
+    points = []
+    for k in ks:
+        found = [results.get(env, k, algo) for algo in ALGOS]
+        erds = [r.true_reward_erd for r in found if r is not None and r.true_reward_erd is not None]
+        if erds:
+            points.append((k, erds[0]))
+    return points
+
+
+def _fig6_legend(axes) -> list:
+    """Every algorithm drawn, by its colour, then the line styles drawn, by whose ERD."""
+    from matplotlib.lines import Line2D
+
+    lines = [line for ax in axes for line in ax.lines]
+    algorithms = {line.get_label(): line for line in lines if not line.get_label().startswith("_")}
+    drawn = {line.get_linestyle() for line in lines}
+    styles = [
+        Line2D([], [], color="black", linestyle=style, label=text)
+        for style, text in ERD_STYLES.items()
+        if style in drawn
+    ]
+    return [*algorithms.values(), *styles]
 
 
 def draw_figures(out: str, results: Results, separability: SeparabilityTable) -> list[str]:

@@ -397,6 +397,35 @@ def test_sweep_estimates_every_seeds_check_and_each_baseline_once(hopper_cells):
     assert sweep.baseline_computers(hopper, str(out), 4) == {hopper[2]}
 
 
+def test_sweep_fig6_draws_the_reward_check_dashed_and_its_baseline_dotted(
+    hopper_cells, monkeypatch
+):
+    sweep, results, out = hopper_cells
+    drawn = {}
+
+    def keep(fig, out, name):
+        drawn[name] = fig
+        return name
+
+    monkeypatch.setattr(sweep, "_save", keep)
+    assert sweep.draw_fig6(str(out), results) == "fig6.png"
+    axes = drawn["fig6.png"].axes
+    hopper = axes[list(sweep.ROBOTICS_INTENTIONS).index("hopper")]
+    styled = lambda style: [
+        (line.get_color(), line.get_xydata().tolist())
+        for line in hopper.lines
+        if line.get_linestyle() == style
+    ]
+    # The mean over the seeds checked, per algorithm; seed 0 alone where that is all there is.
+    assert styled("--") == [("tab:red", [[2, 0.6], [3, 0.49]]), ("tab:green", [[2, 1.0]])]
+    assert styled(":") == [("black", [[2, 0.03]])]
+    legend = [text.get_text() for text in axes[-1].get_legend().get_texts()]
+    assert legend == [
+        "EM-GAIL", "Info/IntentionGAIL", "GAIL", "jointly trained policies",
+        "fresh TRPO on the learned reward (§5.2)", "fresh TRPO on the true reward",
+    ]  # fmt: skip
+
+
 def test_sweep_cell_status_reads_the_run_directory(tmp_path):
     sweep = _load("sweep")
 
