@@ -15,10 +15,21 @@ trained policies' matching at that iteration), one matching for every number rep
 env's success measure (the experts' bars: velocity, upright, pitch turn, ball reached) is
 reported beside it, over the experts' 10 deterministic episodes.
 
+Every algorithm's run is checked on the reward its own policies were trained on
+(:meth:`~emgail_jax.host.saved_run.SavedRun.reward_function`): EM-GAIL's R_i = -log(1 - D(s, a,
+i)); Info/IntentionGAIL's -log(1 - D(s, a)) + lambda log P(i | s, a), its final posterior
+included (eq. 23); GAIL's one -log(1 - D(s, a)) for the mixed demonstrations, the same for every
+intention, so that its K fresh policies are K agents of that one reward, true intention i scored
+by the one the run matched to i. Every fresh policy has the same budget whatever the algorithm
+(iterations, gamma, ``num_envs`` episodes of ``rollout_length`` steps per iteration: one row of
+the ``[K, num_envs]`` envs, although GAIL's single policy trained on all K rows), so that the
+algorithms' checks compare the rewards alone.
+
 Beside the learned reward, the **true-reward baseline**: the same TRPO, settings and budget on
-the env's true rewards, the floor any learned reward is judged against (computed once per env
-and budget, then read from ``--cache``). The budget is the run's iterations and gamma unless
-:data:`BUDGETS` or the flags say otherwise.
+the env's true rewards, the floor any learned reward is judged against (computed once per env,
+K and budget, then read from ``--cache``; no algorithm enters its key, so one baseline serves
+every algorithm's runs). The budget is the run's iterations and gamma unless :data:`BUDGETS` or
+the flags say otherwise.
 
 Also the learned reward per step that the fresh policies earn and that the demonstrations the
 run assigned to each intention earn: fresh policies that out-earn the demonstrations yet score
@@ -305,7 +316,14 @@ def baseline_key(run, budget: Budget) -> str:
     }
     text = json.dumps(described, sort_keys=True, default=str)
     digest = hashlib.sha256(text.encode()).hexdigest()[:12]
-    return f"{env.name}-k{env.num_intentions}-{budget.iterations}it-g{budget.gamma}-{digest}"
+    prefix = baseline_prefix(env.name, env.num_intentions, budget.iterations)
+    return f"{prefix}g{budget.gamma}-{digest}"
+
+
+def baseline_prefix(env_name: str, intentions: int, iterations: int) -> str:
+    """How the :func:`baseline_key` of every baseline of an env, K and budget iterations
+    begins, whatever its gamma and settings (the sweep looks for one it need not compute)."""
+    return f"{env_name}-k{intentions}-{iterations}it-"
 
 
 def true_reward_baseline(run, budget: Budget, cache: str | None, progress: bool = True) -> dict:

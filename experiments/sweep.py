@@ -14,6 +14,9 @@ fig6, table2, table3) or a part of cell names (``halfcheetah``, ``reacher-2``, `
 From whatever cells are finished it writes ``OUT/table2.md``, ``OUT/table3.md`` and ``.csv``,
 ``OUT/fig5a.csv``, ``OUT/fig6.csv``, ``OUT/separability.csv`` and the figures
 ``fig4a.png`` ... ``fig6.png``; ``--report-only`` writes them without training anything.
+Every EM-GAIL cell of Figure 6, and its GAIL and Info/IntentionGAIL cells at K = 2, also gets the
+paper's reward check (``python -m emgail_jax.reoptimize``: every seed, beside the true-reward
+baseline, which ``OUT/true-reward-baselines`` keeps for every cell of an env and K).
 ``--engine ray`` runs every cell as a Ray task, several at once, on a Ray started here or on the
 cluster at ``--ray-address`` (README, "The sweep on Ray").
 """
@@ -42,6 +45,7 @@ import numpy as np
 
 from emgail_jax.host.final_results import FinalResults
 from emgail_jax.host.run_spec import RunError, read_summary
+from emgail_jax.reoptimize import BUDGETS, baseline_prefix
 
 ROBOTICS_INTENTIONS = {
     "swimmer": (2,),
@@ -183,9 +187,9 @@ class Cell:
 
     @property
     def reoptimized(self) -> bool:
-        """The paper's reward check (§5.2) runs on every default EM-GAIL cell of Table 3."""
-        default_emgail = self.algo == "emgail" and self.variant == Variant.DEFAULT
-        return default_emgail and "table3" in self.groups
+        """The paper's reward check (§5.2) runs on every EM-GAIL cell of Figure 6 and, to
+        compare it with, on GAIL's and Info/IntentionGAIL's at K = 2."""
+        return robotics_many(self) and (self.algo == "emgail" or self.intentions == 2)
 
     @property
     def learned_intentions(self) -> int:
@@ -285,6 +289,7 @@ class Status(enum.StrEnum):
     RESUME = "resume"  # a checkpointed run short of the sweep's iterations
     DAMAGED = "damaged"  # a summary.json that is not a run's, e.g. cut short
     NEW = "new"
+    CHECK = "reward check"  # trained; its reward check is still to do
 
 
 def cell_status(run_dir: str, seeds: int, iterations: int) -> Status:
@@ -309,28 +314,12 @@ def cell_status(run_dir: str, seeds: int, iterations: int) -> Status:
     return Status.RESUME if latest_iteration(run_dir) else Status.NEW
 
 
-def estimate_seconds(cell: Cell, seeds: int, iterations: int, measured: dict) -> float:
-    per_unit, compile_s = measured.get(cell.env, MEASURED_SECONDS[cell.env])
-    seconds = compile_s + per_unit * seeds * iterations * cell.learned_intentions
-    if cell.reoptimized:  # plain TRPO on one seed's K learned rewards, no discriminator
-        seconds += compile_s + 0.5 * per_unit * iterations * cell.intentions
-    return seconds
-
-
-def measured_seconds(runs_dir: str) -> dict:
-    """Per env, from finished cells' own timings: seconds per seed-iteration-intention (the
-    median over cells) and seconds to compile."""
-    units, compiles = {}, {}
-    for name in sorted(os.listdir(runs_dir)) if os.path.isdir(runs_dir) else ():
-        summary = _summary_or_none(os.path.join(runs_dir, name))
-        if not summary or summary.get("status") != "completed":
-            continue
-        timings = summary["timings"]
-        work = timings["iterations"] * summary["seeds"] * summary["intentions"]
-        if work:
-            units.setdefault(summary["env"], []).append(timings["train_time_s"] / work)
-            compiles.setdefault(summary["env"], []).append(timings["compile_time_s"])
-    return {env: (float(np.median(units[env])), float(np.median(compiles[env]))) for env in units}
+def sweep_status(cell: Cell, run_dir: str, seeds: int, iterations: int) -> Status:
+    """:func:`cell_status`, and CHECK for a trained cell whose reward check is still to do."""
+    status = cell_status(run_dir, seeds, iterations)
+    if status == Status.DONE and cell.reoptimized and not reward_check_done(run_dir, seeds):
+        return Status.CHECK
+    return status
 
 
 def run_command(command: list[str], log_path: str) -> int:
@@ -380,7 +369,8 @@ def run_in_process(args: list[str], log_path: str) -> int:
 def train_cell(
     cell: Cell, out: str, seeds: int, iterations: int, settings: tuple[str, ...] = ()
 ) -> None:
-    """Trains, resumes or skips ``cell``, then re-optimises its reward if the paper does."""
+    """Trains, resumes or skips ``cell``, then checks its reward (every seed, beside the
+    true-reward baseline) if the sweep does and has not yet."""
     run_dir = os.path.join(out, "runs", cell.name)
     log_path = cell.log_path(out)
     os.makedirs(os.path.dirname(log_path), exist_ok=True)
@@ -403,9 +393,8 @@ def train_cell(
             code = run_command([*python, "emgail_jax.run", *args, "--quiet"], log_path)
         if code != 0:
             raise SweepError(f"cell {cell.name} failed (exit {code}): see {log_path}")
-    if cell.reoptimized and not os.path.exists(os.path.join(run_dir, "reoptimize.json")):
-        command = [*python, "emgail_jax.reoptimize", run_dir, "--seed", "0", "--quiet"]
-        code = run_command(command, log_path)
+    if cell.reoptimized and not reward_check_done(run_dir, seeds):
+        code = run_command(reward_check_command(run_dir, out), log_path)
         if code != 0:
             raise SweepError(f"re-optimising {cell.name} failed (exit {code}): see {log_path}")
 
@@ -447,6 +436,159 @@ def write_demonstrations(cell: Cell, out: str) -> None:
 
     os.makedirs(os.path.dirname(path), exist_ok=True)
     demonstration_files.save(make_problem(cell.env, cell.intentions).demos, path)
+
+
+# ---- the reward check: python -m emgail_jax.reoptimize ------------------------------------------
+
+BASELINES_DIR = "true-reward-baselines"  # under OUT, which every node of a Ray sweep sees
+
+
+def reward_check_command(run_dir: str, out: str) -> list[str]:
+    """The reward check of the cell in ``run_dir``: every seed re-optimised, beside the
+    true-reward baseline, cached where every cell of the env and K finds it."""
+    cache = os.path.join(out, BASELINES_DIR)
+    return [sys.executable, "-m", "emgail_jax.reoptimize", run_dir, "--cache", cache, "--quiet"]
+
+
+def reward_check(run_dir: str) -> dict | None:
+    """The cell's ``reoptimize.json``, or None where it is missing or unreadable."""
+    try:
+        with open(os.path.join(run_dir, "reoptimize.json")) as f:
+            check = json.load(f)
+    except (OSError, ValueError):
+        return None
+    return check if isinstance(check, dict) else None
+
+
+def checked_seeds(check: dict) -> list[int]:
+    """The run seeds a reward check re-optimised: its ``seeds``, or the one ``run_seed`` of the
+    files written when the check took seed 0 alone."""
+    return list(check.get("seeds", [check.get("run_seed", 0)]))
+
+
+def reward_check_done(run_dir: str, seeds: int) -> bool:
+    """The cell's reward check covers its ``seeds``, took their final networks (a run resumed
+    to more iterations is checked again) and has the true-reward baseline beside them."""
+    check, summary = reward_check(run_dir), _summary_or_none(run_dir)
+    if check is None or summary is None:
+        return False
+    every_seed = set(range(seeds)) <= set(checked_seeds(check))
+    final = check.get("iteration") == summary.get("iterations_done")
+    return every_seed and final and bool(check.get("baseline"))
+
+
+def check_iterations(env: str, iterations: int) -> int:
+    """The fresh policies' TRPO iterations: the run's, unless the env's experts needed more."""
+    return BUDGETS[env].iterations if env in BUDGETS else iterations
+
+
+def baseline_cached(out: str, env: str, intentions: int, iterations: int) -> bool:
+    """A true-reward baseline of the env and K at the sweep's budget is in the cache already."""
+    prefix = baseline_prefix(env, intentions, check_iterations(env, iterations))
+    cache = os.path.join(out, BASELINES_DIR)
+    names = os.listdir(cache) if os.path.isdir(cache) else ()
+    return any(name.startswith(prefix) for name in names)
+
+
+def baseline_computers(cells: list[Cell], out: str, iterations: int) -> set[Cell]:
+    """Of the ``cells`` whose reward check is to do, the first of each env and K whose
+    baseline is not cached: it computes the baseline, the others read it."""
+    first = {}
+    for cell in cells:
+        if cell.reoptimized:
+            first.setdefault((cell.env, cell.intentions), cell)
+    return {
+        cell for (env, k), cell in first.items() if not baseline_cached(out, env, k, iterations)
+    }
+
+
+# ---- time estimates -----------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class Timings:
+    """Per env, seconds per seed-iteration-intention and seconds to compile, of training and
+    of the reward checks' fresh TRPO, from the finished cells' own timings."""
+
+    training: dict[str, tuple[float, float]]
+    checks: dict[str, tuple[float, float]]
+
+    def of_training(self, env: str) -> tuple[float, float]:
+        return self.training.get(env, MEASURED_SECONDS[env])
+
+    def of_checks(self, env: str) -> tuple[float, float]:
+        # Until a check of the env has finished: about training's, since the check runs every
+        # seed on one device and skips only the discriminator and posterior.
+        return self.checks.get(env, self.of_training(env))
+
+
+def training_seconds(cell: Cell, seeds: int, iterations: int, timings: Timings) -> float:
+    per_unit, compile_s = timings.of_training(cell.env)
+    return compile_s + per_unit * seeds * iterations * cell.learned_intentions
+
+
+def check_seconds(
+    cell: Cell, seeds: int, iterations: int, timings: Timings, with_baseline: bool
+) -> float:
+    """The reward check's: fresh TRPO on every seed's K learned rewards in one program, and
+    ``with_baseline`` K more policies on the true rewards in another."""
+    per_unit, compile_s = timings.of_checks(cell.env)
+    rows = seeds + int(with_baseline)
+    work = rows * check_iterations(cell.env, iterations) * cell.intentions
+    return compile_s * (1 + int(with_baseline)) + per_unit * work
+
+
+def estimate_seconds(
+    cell: Cell,
+    status: Status,
+    seeds: int,
+    iterations: int,
+    timings: Timings,
+    with_baseline: bool = True,
+) -> float:
+    """What ``cell`` still needs: its training (unless trained), then its reward check."""
+    seconds = 0.0 if status == Status.CHECK else training_seconds(cell, seeds, iterations, timings)
+    if cell.reoptimized:
+        seconds += check_seconds(cell, seeds, iterations, timings, with_baseline)
+    return seconds
+
+
+def measured_seconds(runs_dir: str) -> Timings:
+    """Per env, from finished cells' own timings and their reward checks': seconds per
+    seed-iteration-intention (the median over cells) and seconds to compile."""
+    found = {"training": {}, "checks": {}}
+    for name in sorted(os.listdir(runs_dir)) if os.path.isdir(runs_dir) else ():
+        run_dir = os.path.join(runs_dir, name)
+        summary = _summary_or_none(run_dir)
+        if not summary or summary.get("status") != "completed":
+            continue
+        timings = {
+            "training": _training_timing(summary),
+            "checks": _check_timing(reward_check(run_dir), summary["intentions"]),
+        }
+        for kind, timing in timings.items():
+            if timing is not None:
+                found[kind].setdefault(summary["env"], []).append(timing)
+    median = lambda per_env: {env: tuple(np.median(t, 0).tolist()) for env, t in per_env.items()}
+    return Timings(median(found["training"]), median(found["checks"]))
+
+
+def _training_timing(summary: dict) -> tuple[float, float] | None:
+    """A finished run's seconds per seed-iteration-intention and to compile."""
+    timings = summary["timings"]
+    work = timings["iterations"] * summary["seeds"] * summary["intentions"]
+    return (timings["train_time_s"] / work, timings["compile_time_s"]) if work else None
+
+
+def _check_timing(check: dict | None, intentions: int) -> tuple[float, float] | None:
+    """A reward check's seconds per seed-iteration-intention and to compile (of the learned
+    rewards' fresh policies; the baseline's are not recorded)."""
+    if check is None or "train_time_s" not in check:
+        return None
+    # Its budget's iterations; the files of seed 0 alone held them as "iterations".
+    iterations = (check.get("budget") or {}).get("iterations", check.get("iterations"))
+    work = len(checked_seeds(check)) * (iterations or 0) * intentions
+    return (check["train_time_s"] / work, check["compile_time_s"]) if work else None
 
 
 # ---- engines: where the cells run ---------------------------------------------------------------
@@ -695,9 +837,10 @@ class CellResult:
     accuracy: np.ndarray | None  # [seeds]; None for GAIL
     parameters: int
     seconds_per_iteration: float
-    reoptimized_erd: float | None
+    reoptimized_erd: np.ndarray | None  # [seeds checked], fresh agents on the learned reward
     intentions_chosen: np.ndarray | None = None  # [seeds], --intentions auto
     intentions_held: np.ndarray | None = None  # [seeds], by the weights alone
+    true_reward_erd: float | None = None  # the reward check's true-reward baseline
 
 
 @dataclasses.dataclass(frozen=True)
@@ -753,13 +896,7 @@ def read_cell_result(cell: Cell, run_dir: str) -> CellResult:
     summary = read_summary(run_dir)
     final = FinalResults.from_summary(summary)
     accuracy = final.cluster_accuracy
-    reoptimized = None
-    path = os.path.join(run_dir, "reoptimize.json")
-    if os.path.exists(path):
-        with open(path) as f:
-            check = json.load(f)
-        # Since every seed is re-optimised, "erd" lists them; older files hold one float.
-        reoptimized = check.get("erd_mean", check.get("erd"))
+    check = reward_check(run_dir)
     timings = summary["timings"]
     return CellResult(
         cell=cell,
@@ -767,10 +904,23 @@ def read_cell_result(cell: Cell, run_dir: str) -> CellResult:
         accuracy=None if accuracy is None else np.asarray(accuracy, float),
         parameters=int(summary["parameters"]["total"]),
         seconds_per_iteration=timings["train_time_s"] / timings["iterations"],
-        reoptimized_erd=reoptimized,
+        reoptimized_erd=None if check is None else reoptimized_erds(check),
         intentions_chosen=final.intentions_chosen,
         intentions_held=final.intentions_held,
+        true_reward_erd=None if check is None else true_reward_erd(check),
     )
+
+
+def reoptimized_erds(check: dict) -> np.ndarray:
+    """``[seeds checked]`` a reward check's ERD per seed: its list, or the one float of the
+    files written when the check took seed 0 alone; NaN for a seed without one."""
+    return np.atleast_1d(np.asarray(check.get("erd"), float))
+
+
+def true_reward_erd(check: dict) -> float | None:
+    """The ERD of a reward check's true-reward baseline; None if it has none."""
+    erd = (check.get("baseline") or {}).get("erd")
+    return None if erd is None else float(erd)
 
 
 # ---- tables -------------------------------------------------------------------------------------
@@ -900,6 +1050,15 @@ def write_table2(out: str, results: Results, seeds: int) -> None:
     _write_text(os.path.join(out, "table2.md"), lines)
 
 
+# fig6.csv: the jointly trained policies' ERD (what the paper's code scored), then the reward
+# check's (the paper's text's ERD, §5.2), after ``seeds`` so that every older column keeps its
+# place.
+FIG6_COLUMNS = (
+    "env", "intentions", "algo", "separability", "erd_mean", "erd_std", "reoptimized_erd",
+    "seeds", "reoptimized_erd_std", "true_reward_erd", "reoptimized_seeds",
+)  # fmt: skip
+
+
 def write_erd_csvs(out: str, results: Results, separability: SeparabilityTable) -> None:
     with open(os.path.join(out, "fig5a.csv"), "w") as f:
         f.write("algo,radius,separability,erd_mean,erd_std,seeds\n")
@@ -908,17 +1067,25 @@ def write_erd_csvs(out: str, results: Results, separability: SeparabilityTable) 
             sep = (separability.of(cell.data) or {}).get("separability", math.nan)
             f.write(f"{cell.algo},{cell.radius:g},{sep:.4f},{result.erd.mean():.4f},"
                     f"{result.erd.std():.4f},{len(result.erd)}\n")  # fmt: skip
-    with open(os.path.join(out, "fig6.csv"), "w") as f:
-        f.write("env,intentions,algo,separability,erd_mean,erd_std,reoptimized_erd,seeds\n")
+    with open(os.path.join(out, "fig6.csv"), "w", newline="") as f:
+        writer = csv.writer(f, lineterminator="\n")
+        writer.writerow(FIG6_COLUMNS)
         for result in results.where(robotics_default):
             cell = result.cell
             sep = (separability.of(cell.data) or {}).get("separability")
-            reopt = result.reoptimized_erd
-            f.write(
-                f"{cell.env},{cell.intentions},{cell.algo},{'' if sep is None else f'{sep:.4f}'},"
-                f"{result.erd.mean():.4f},{result.erd.std():.4f},"
-                f"{'' if reopt is None else f'{reopt:.4f}'},{len(result.erd)}\n"
-            )
+            checked = np.asarray([] if result.reoptimized_erd is None else result.reoptimized_erd)
+            writer.writerow(
+                [cell.env, cell.intentions, cell.algo, _decimal(sep),
+                 f"{result.erd.mean():.4f}", f"{result.erd.std():.4f}",
+                 _decimal(checked.mean() if len(checked) else None), len(result.erd),
+                 _decimal(checked.std() if len(checked) > 1 else None),
+                 _decimal(result.true_reward_erd), len(checked) or ""]
+            )  # fmt: skip
+
+
+def _decimal(value: float | None) -> str:
+    """A number of a CSV, or empty where there is none."""
+    return "" if value is None or not np.isfinite(value) else f"{value:.4f}"
 
 
 def _write_text(path: str, lines: list[str]) -> None:
@@ -970,13 +1137,16 @@ def _erd_axis(ax) -> None:
     random on some intention) is marked at the top edge with its value."""
     ax.set_ylim(0, ERD_TOP)
     ax.set_ylabel("normalised ERD")
+    marked = {}  # values marked at one x, each under the one before, so that none hides another
     for line in list(ax.lines):
         for x, y in zip(*line.get_data(), strict=True):
             if y > ERD_TOP:
                 ax.plot(x, ERD_TOP, marker="^", color=line.get_color(), clip_on=False)
+                below = marked[x] = marked.get(x, -1) + 1
                 ax.annotate(
-                    f"{y:.2f}", (x, ERD_TOP), xytext=(-6, -3), textcoords="offset points",
-                    ha="right", va="top", color=line.get_color(), fontsize=8,
+                    f"{y:.2f}", (x, ERD_TOP), xytext=(-6, -3 - 10 * below),
+                    textcoords="offset points", ha="right", va="top", color=line.get_color(),
+                    fontsize=8,
                 )  # fmt: skip
 
 
@@ -1035,8 +1205,18 @@ def draw_erd_against_separability(
     return _save_drawn(fig, out, name, ax, loc="upper left", bbox_to_anchor=(1.02, 1))
 
 
+# Figure 6's line styles: whose ERD a line is (its colour says which algorithm's run).
+ERD_STYLES = {
+    "-": "jointly trained policies",
+    "--": "fresh TRPO on the learned reward (§5.2)",
+    ":": "fresh TRPO on the true reward",
+}
+
+
 def draw_fig6(out: str, results: Results) -> str | None:
-    """ERD against K per env; K = 1 is GAIL on one expert, the start of every line."""
+    """ERD against K per env; K = 1 is GAIL on one expert, the start of every line. Dashed,
+    the reward check of the cells that have one (mean over its seeds); dotted, its true-reward
+    baseline."""
     fig, axes = _pyplot().subplots(1, len(ROBOTICS_INTENTIONS), figsize=(14, 3.5))
     for ax, (env, ks) in zip(axes, ROBOTICS_INTENTIONS.items(), strict=True):
         floor = results.get(env, 1, "gail")
@@ -1046,9 +1226,48 @@ def draw_fig6(out: str, results: Results) -> str | None:
             points += [(k, result.erd) for k, result in found if result is not None]
             if points:
                 _erd_band(ax, points, algo)
+            checked = [(k, r.reoptimized_erd.mean()) for k, r in found if _checked(r)]
+            if checked:
+                ax.plot(*zip(*checked, strict=True), linestyle="--", marker="s",
+                        fillstyle="none", color=COLORS[algo])  # fmt: skip
+        baseline = true_reward_points(results, env, ks)
+        if baseline:
+            ax.plot(*zip(*baseline, strict=True), linestyle=":", marker="d", color="black")
         ax.set(title=env, xlabel="number of intentions", xticks=(1, *ks))
         _erd_axis(ax)
-    return _save_drawn(fig, out, "fig6.png", axes[0])
+    legend = {"handles": _fig6_legend(axes), "loc": "upper left", "bbox_to_anchor": (1.02, 1)}
+    return _save_drawn(fig, out, "fig6.png", axes[-1], **legend)
+
+
+def _checked(result: CellResult | None) -> bool:
+    return result is not None and result.reoptimized_erd is not None
+
+
+def true_reward_points(results: Results, env: str, ks: tuple[int, ...]) -> list[tuple[int, float]]:
+    """``(K, ERD)`` of the env's true-reward baseline at each K a reward check has one (the
+    cells of an env and K read one cached baseline)."""
+    points = []
+    for k in ks:
+        found = [results.get(env, k, algo) for algo in ALGOS]
+        erds = [r.true_reward_erd for r in found if r is not None and r.true_reward_erd is not None]
+        if erds:
+            points.append((k, erds[0]))
+    return points
+
+
+def _fig6_legend(axes) -> list:
+    """Every algorithm drawn, by its colour, then the line styles drawn, by whose ERD."""
+    from matplotlib.lines import Line2D
+
+    lines = [line for ax in axes for line in ax.lines]
+    algorithms = {line.get_label(): line for line in lines if not line.get_label().startswith("_")}
+    drawn = {line.get_linestyle() for line in lines}
+    styles = [
+        Line2D([], [], color="black", linestyle=style, label=text)
+        for style, text in ERD_STYLES.items()
+        if style in drawn
+    ]
+    return [*algorithms.values(), *styles]
 
 
 def draw_figures(out: str, results: Results, separability: SeparabilityTable) -> list[str]:
@@ -1155,13 +1374,15 @@ def plan_sweep(args: argparse.Namespace) -> Plan:
     cells = select(all_cells(), args.only)
     runs_dir = os.path.join(args.out, "runs")
     statuses = {
-        c: cell_status(os.path.join(runs_dir, c.name), args.seeds, args.iterations) for c in cells
-    }
-    measured = measured_seconds(runs_dir)
-    estimates = {
-        c: estimate_seconds(c, args.seeds, args.iterations, measured)
+        c: sweep_status(c, os.path.join(runs_dir, c.name), args.seeds, args.iterations)
         for c in cells
-        if statuses[c] != Status.DONE
+    }
+    timings = measured_seconds(runs_dir)
+    todo = [c for c in cells if statuses[c] != Status.DONE]
+    computers = baseline_computers(todo, args.out, args.iterations)
+    estimates = {
+        c: estimate_seconds(c, statuses[c], args.seeds, args.iterations, timings, c in computers)
+        for c in todo
     }
     return Plan(cells, statuses, estimates)
 

@@ -70,10 +70,16 @@ def test_sweep_cells_are_the_papers_experiments():
         "reacher-2-emgail-pair",
         "reacher-2-emgail-auto",
     ]
+    # The reward check: every EM-GAIL cell of Figure 6, and at K = 2 the two it is compared with.
     reoptimized = [c.name for c in cells if c.reoptimized]
     assert reoptimized == [
-        f"{e}-{k}-emgail" for e, ks in sweep.ROBOTICS_INTENTIONS.items() for k in ks
+        f"{e}-{k}-{algo}"
+        for e, ks in sweep.ROBOTICS_INTENTIONS.items()
+        for k in ks
+        for algo in sweep.ALGOS
+        if algo == "emgail" or k == 2
     ]
+    assert "hopper-2-gail" in reoptimized and "hopper-3-gail" not in reoptimized
     with pytest.raises(sweep.SweepError, match="matches no cell"):
         sweep.select(cells, "walker")
 
@@ -230,6 +236,194 @@ def test_sweep_draws_the_figures_whose_cells_have_finished(tmp_path):
     written = sweep.draw_figures(str(tmp_path), results, known)
     assert written == ["fig4a.png", "fig5b.png", "fig6.png"]
     assert sorted(p.name for p in tmp_path.iterdir()) == written
+
+
+# A finished cell's reward check as reoptimize writes it now (every seed, the baseline), and as
+# it wrote it when the check took seed 0 alone.
+CHECK_OF_EVERY_SEED = {
+    "iteration": 4,
+    "budget": {"iterations": 4, "gamma": 0.995},
+    "seeds": [0, 1],
+    "erd": [0.5, 0.7],
+    "erd_mean": 0.6,
+    "erd_std": 0.1,
+    "baseline": {"erd": 0.03, "cache": "hopper-k2-4it-g0.995-0123456789ab.json"},
+    "compile_time_s": 5.0,
+    "train_time_s": 16.0,
+}
+CHECK_OF_SEED_0 = {"run_seed": 0, "iterations": 4, "erd": 0.49, "compile_time_s": 3.0,
+                   "train_time_s": 6.0}  # fmt: skip
+
+
+def finished_cell(out, cell, erd, check=None):
+    """``out/runs/<cell>`` as a finished 4-iteration run leaves it: its ``summary.json`` (ERD
+    ``erd`` per seed, 1 s per seed-iteration-intention, 10 s to compile) and ``check`` as
+    ``reoptimize.json``."""
+    from emgail_jax.host.final_results import FinalResults
+
+    k, seeds = cell.intentions, len(erd)
+    final = FinalResults(
+        erd=erd, erd_per_intention=[[e] * k for e in erd], cluster_accuracy=None,
+        expert_returns=[1.0] * k, returns=[[0.0] * k] * seeds, random_returns=[0.0] * k,
+        compile_time_s=10.0, train_time_s=4.0 * seeds * k, iteration_time_s=1.0, env_steps=1,
+    )  # fmt: skip
+    summary = {
+        "env": cell.env, "intentions": k, "seeds": seeds, "status": "completed",
+        "iterations_done": 4, "parameters": {"total": 1}, "final": final.to_summary(),
+        "timings": {"compile_time_s": 10.0, "train_time_s": 4.0 * seeds * k, "iterations": 4},
+    }  # fmt: skip
+    run_dir = out / "runs" / cell.name
+    run_dir.mkdir(parents=True)
+    (run_dir / "summary.json").write_text(json.dumps(summary))
+    if check is not None:
+        (run_dir / "reoptimize.json").write_text(json.dumps(check))
+    return run_dir
+
+
+@pytest.fixture
+def hopper_cells(tmp_path):
+    """The sweep's finished hopper cells, their reward checks of either form or none; its
+    results and OUT."""
+    sweep = _load("sweep")
+    Cell = sweep.Cell
+    out = tmp_path / "results"
+    finished_cell(out, Cell("hopper", 1, "gail"), [0.01, 0.01])
+    finished_cell(out, Cell("hopper", 2, "emgail"), [0.01, 0.01], CHECK_OF_EVERY_SEED)
+    finished_cell(out, Cell("hopper", 2, "infogail"), [0.02, 0.04])  # its check is to do
+    gail_check = {**CHECK_OF_EVERY_SEED, "erd": [0.9, 1.1], "erd_mean": 1.0}
+    finished_cell(out, Cell("hopper", 2, "gail"), [0.5, 0.6], gail_check)
+    finished_cell(out, Cell("hopper", 3, "emgail"), [0.03, 0.05], CHECK_OF_SEED_0)
+    finished_cell(out, Cell("hopper", 3, "gail"), [0.4, 0.4])
+    return sweep, sweep.collect(str(out), sweep.all_cells(), 2, 4), out
+
+
+def test_sweep_fig6_csv_sets_the_reward_check_beside_the_joint_erd(hopper_cells):
+    """fig6.csv keeps its columns and appends the reward check's: the mean and std of the
+    re-optimised ERD over the seeds checked, the true-reward baseline and how many seeds; a
+    check of seed 0 alone has no std and no baseline; a cell without a check, empty columns."""
+    sweep, results, out = hopper_cells
+    sweep.write_erd_csvs(str(out), results, sweep.SeparabilityTable({}))
+    lines = (out / "fig6.csv").read_text().splitlines()
+    assert lines[0] == (
+        "env,intentions,algo,separability,erd_mean,erd_std,reoptimized_erd,seeds,"
+        "reoptimized_erd_std,true_reward_erd,reoptimized_seeds"
+    )
+    assert lines[1:] == [
+        "hopper,1,gail,,0.0100,0.0000,,2,,,",
+        "hopper,2,emgail,,0.0100,0.0000,0.6000,2,0.1000,0.0300,2",
+        "hopper,2,infogail,,0.0300,0.0100,,2,,,",
+        "hopper,2,gail,,0.5500,0.0500,1.0000,2,0.1000,0.0300,2",
+        "hopper,3,emgail,,0.0400,0.0100,0.4900,2,,,1",
+        "hopper,3,gail,,0.4000,0.0000,,2,,,",
+    ]
+    rows = list(csv.DictReader((out / "fig6.csv").open()))  # as readers of the columns see it
+    assert [r["reoptimized_erd"] for r in rows if r["algo"] == "emgail"] == ["0.6000", "0.4900"]
+
+
+def test_sweep_a_cell_is_checked_until_every_seed_and_the_baseline_are(hopper_cells):
+    """A trained cell whose check is missing or took seed 0 alone has its check to do (and only
+    that); one the sweep does not check, or whose check is complete, is done."""
+    sweep, _, out = hopper_cells
+    status = {
+        name: sweep.sweep_status(cell, str(out / "runs" / name), 2, 4)
+        for name, cell in ((c.name, c) for c in sweep.select(sweep.all_cells(), "hopper"))
+        if (out / "runs" / name).exists()
+    }
+    assert status == {
+        "hopper-1-gail": "done",
+        "hopper-2-emgail": "done",
+        "hopper-2-infogail": "reward check",
+        "hopper-2-gail": "done",
+        "hopper-3-emgail": "reward check",
+        "hopper-3-gail": "done",
+    }
+    resumed = json.loads((out / "runs" / "hopper-2-emgail" / "summary.json").read_text())
+    (out / "runs" / "hopper-2-emgail" / "summary.json").write_text(
+        json.dumps({**resumed, "iterations_done": 6})
+    )  # trained further than its check: checked again
+    assert not sweep.reward_check_done(str(out / "runs" / "hopper-2-emgail"), 2)
+
+
+def test_sweep_reward_check_command_is_every_seed_beside_the_cached_baseline(
+    hopper_cells, monkeypatch
+):
+    """A trained cell whose check is to do runs reoptimize on every seed (no --seed), with the
+    baseline (no --no-baseline) cached under OUT, where every cell of the env and K finds it."""
+    from emgail_jax import reoptimize
+
+    sweep, _, out = hopper_cells
+    ran = []
+    monkeypatch.setattr(sweep, "run_command", lambda command, log: ran.append(command) or 0)
+    cell = sweep.Cell("hopper", 2, "infogail")
+    sweep.train_cell(cell, str(out), 2, 4)
+    (command,) = ran  # trained already: the check alone
+    assert command[:3] == [sys.executable, "-m", "emgail_jax.reoptimize"]
+    args = reoptimize.parse_args(command[3:])
+    assert args.run_dir == str(out / "runs" / "hopper-2-infogail")
+    assert args.seed is None and args.baseline and args.snapshot is None
+    assert args.cache == str(out / "true-reward-baselines")
+    assert (args.iterations, args.gamma, args.env_set) == (None, None, [])  # the env's budget
+    ran.clear()
+    sweep.train_cell(sweep.Cell("hopper", 2, "emgail"), str(out), 2, 4)
+    assert ran == []  # its check is complete
+
+
+def test_sweep_estimates_every_seeds_check_and_each_baseline_once(hopper_cells):
+    """A check costs every seed's fresh policies at the env's budget, and the true-reward
+    baseline's K policies in the first cell of an env and K that finds none cached; the
+    seconds per unit come from the finished cells and checks."""
+    sweep, _, out = hopper_cells
+    Cell, Status = sweep.Cell, sweep.Status
+    timings = sweep.measured_seconds(str(out / "runs"))
+    assert timings.training == {"hopper": (1.0, 10.0)}
+    # The medians of the checks' 16 s over 2 seeds x 4 iterations x 2 intentions (twice) and,
+    # seed 0 alone, 6 s over 4 x 3; and of their compiles, 5, 5 and 3 s.
+    assert timings.checks == {"hopper": (1.0, 5.0)}
+    infogail, swimmer = Cell("hopper", 2, "infogail"), Cell("swimmer", 2, "emgail")
+    # (2 seeds + the baseline) x 4 iterations x 2 intentions at 1 s, and two compiles.
+    check = 2 * 5.0 + 3 * 4 * 2
+    assert sweep.estimate_seconds(infogail, Status.CHECK, 2, 4, timings) == check
+    assert sweep.estimate_seconds(infogail, Status.CHECK, 2, 4, timings, False) == 5.0 + 2 * 4 * 2
+    trained = 10.0 + 1.0 * 2 * 4 * 2
+    assert sweep.estimate_seconds(infogail, Status.NEW, 2, 4, timings) == trained + check
+    per_unit, compile_s = sweep.MEASURED_SECONDS["swimmer"]  # no swimmer cell finished
+    check = 2 * compile_s + per_unit * 3 * 1500 * 2  # the swimmer's experts' budget
+    assert sweep.estimate_seconds(swimmer, Status.CHECK, 2, 4, timings) == pytest.approx(check)
+    hopper = [Cell("hopper", 2, "infogail"), Cell("hopper", 2, "gail"), Cell("hopper", 3, "emgail")]
+    assert sweep.baseline_computers(hopper, str(out), 4) == {hopper[0], hopper[2]}
+    cache = out / "true-reward-baselines"
+    cache.mkdir()
+    (cache / CHECK_OF_EVERY_SEED["baseline"]["cache"]).write_text("{}")
+    assert sweep.baseline_computers(hopper, str(out), 4) == {hopper[2]}
+
+
+def test_sweep_fig6_draws_the_reward_check_dashed_and_its_baseline_dotted(
+    hopper_cells, monkeypatch
+):
+    sweep, results, out = hopper_cells
+    drawn = {}
+
+    def keep(fig, out, name):
+        drawn[name] = fig
+        return name
+
+    monkeypatch.setattr(sweep, "_save", keep)
+    assert sweep.draw_fig6(str(out), results) == "fig6.png"
+    axes = drawn["fig6.png"].axes
+    hopper = axes[list(sweep.ROBOTICS_INTENTIONS).index("hopper")]
+    styled = lambda style: [
+        (line.get_color(), line.get_xydata().tolist())
+        for line in hopper.lines
+        if line.get_linestyle() == style
+    ]
+    # The mean over the seeds checked, per algorithm; seed 0 alone where that is all there is.
+    assert styled("--") == [("tab:red", [[2, 0.6], [3, 0.49]]), ("tab:green", [[2, 1.0]])]
+    assert styled(":") == [("black", [[2, 0.03]])]
+    legend = [text.get_text() for text in axes[-1].get_legend().get_texts()]
+    assert legend == [
+        "EM-GAIL", "Info/IntentionGAIL", "GAIL", "jointly trained policies",
+        "fresh TRPO on the learned reward (§5.2)", "fresh TRPO on the true reward",
+    ]  # fmt: skip
 
 
 def test_sweep_cell_status_reads_the_run_directory(tmp_path):

@@ -1,6 +1,7 @@
 """python -m emgail_jax.reoptimize on a tiny run: every seed, the true-reward baseline (cached),
 one matching, the success measures, snapshots."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -87,6 +88,40 @@ def test_the_baseline_is_read_from_the_cache_the_second_time(tiny_run, reoptimiz
     assert again["baseline"]["meets_bar"] == flipped
     assert again["baseline"]["erd_curve"] == first["baseline"]["erd_curve"]
     assert again["erd"] == first["erd"]  # the same keys: the same fresh policies
+
+
+def test_one_true_reward_baseline_serves_every_algorithm(saved):
+    """The baseline's cache key holds the env, K, budget and TRPO settings, not the algorithm
+    whose reward is checked: the sweep's EM-GAIL, Info/IntentionGAIL and GAIL cells of an env
+    and K share one baseline."""
+    budget = reoptimize.Budget(iterations=400, gamma=0.995)
+    key = reoptimize.baseline_key(saved, budget)
+    assert key.startswith("driver-k2-400it-g0.995-")
+    for algo in ("gail", "infogail"):
+        other = dataclasses.replace(saved, config=saved.config.with_values(algo=algo))
+        assert other.config.method.algo == algo
+        assert reoptimize.baseline_key(other, budget) == key
+    wider = dataclasses.replace(saved, config=saved.config.with_values(num_envs=3))
+    assert reoptimize.baseline_key(wider, budget) != key
+
+
+@pytest.mark.slow  # a tiny GAIL run and its re-optimisation: two compiles
+def test_gails_one_reward_is_reoptimised_like_emgails(tmp_path):
+    """GAIL's run is checked on its one reward: every learned intention earns the same on the
+    demonstrations, and the baseline is the one an EM-GAIL run of the env and K would read."""
+    from emgail_jax import run
+
+    out, cache = tmp_path / "gail", tmp_path / "cache"
+    tiny = ["--seeds", "2", "--iterations", "4", "--num-envs", "2", "--rollout-length", "20"]
+    args = ["--env", "driver", "--algo", "gail", *tiny, "--chunk-size", "2", "--quiet"]
+    assert run.main([*args, "--out", str(out)]) == 0
+    assert reoptimize.main([str(out), "--iterations", "2", "--cache", str(cache), "--quiet"]) == 0
+    result = json.loads((out / "reoptimize.json").read_text())
+    assert result["seeds"] == [0, 1] and len(result["erd"]) == 2
+    for per_seed in result["per_seed"]:
+        earned = per_seed["learned_reward_per_step"]["demonstrations"]
+        assert len(earned) == 2 and earned[0] == pytest.approx(earned[1])
+    assert result["baseline"]["cache"].split("/")[-1].startswith("driver-k2-2it-g0.995-")
 
 
 def test_a_snapshot_is_reoptimised_on_its_own_networks(tiny_run, reoptimized):

@@ -245,8 +245,10 @@ def to_json_value(value: Any) -> Any:
 
 
 def write_json(path: str, data: dict) -> None:
-    """Writes ``data`` atomically: a reader never sees a half-written file."""
-    tmp = f"{path}.tmp"
+    """Writes ``data`` atomically: a reader never sees a half-written file. Each writer has its
+    own temporary file, so that processes writing one path at once (the sweep's cells sharing a
+    true-reward baseline's cache) do not rename each other's away."""
+    tmp = f"{path}.{platform.node()}-{os.getpid()}.tmp"
     with open(tmp, "w") as f:
         json.dump(to_json_value(data), f, indent=2)
         f.write("\n")
