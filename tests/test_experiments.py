@@ -567,6 +567,28 @@ def test_posterior_ceiling_scores_the_demonstrations_by_step(capsys):
     assert all(0.0 <= v <= 1.0 for v in values)
 
 
+def test_intention_signals_describe_every_demonstration_of_every_seed(tiny_run, capsys):
+    module = _load("intention_signals")
+    from emgail_jax.host.saved_run import SavedRun
+
+    run = SavedRun.open(str(tiny_run), snapshot=2)
+    found = module.signals(run, seed=1)
+    episodes, k = run.demonstration_pairs.episodes, run.num_intentions
+    assert found["holder"].shape == found["true"].shape == found["agree"].shape == (episodes,)
+    assert found["logit"].shape == found["log_pi"].shape == (episodes, k)
+    assert np.all((found["agree"] >= 0) & (found["agree"] <= 1))
+    held = np.bincount(found["holder"], minlength=k)
+    np.testing.assert_array_equal(held, run.demonstrations_held(1))
+    assert module.main([str(tiny_run), "--snapshot", "2"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [line for line in lines if line.startswith("seed")] == [
+        "seed 0, iteration 2:",
+        "seed 1, iteration 2:",
+    ]
+    assert module.main([str(tiny_run / "missing")]) == 2
+    assert capsys.readouterr().err.startswith("error: ")
+
+
 def test_sweep_a_damaged_cell_is_named_and_continues_from_its_checkpoint(
     tmp_path, tiny_run, capsys
 ):
