@@ -563,7 +563,7 @@ def test_posterior_ceiling_scores_the_demonstrations_by_step(capsys):
     assert 0.5 <= overall <= 1.0  # two intentions: better than chance on shipped demos
     per_step = out.split("accuracy by step:")[1].splitlines()[0].split()
     steps, values = per_step[0::2], [float(v) for v in per_step[1::2]]
-    assert steps[0] == "0:" and len(steps) == len(module.STEPS_SHOWN)
+    assert steps == [f"{s}:" for s in module.STEPS_SHOWN if s < 50]  # reacher: 50 steps
     assert all(0.0 <= v <= 1.0 for v in values)
 
 
@@ -587,6 +587,36 @@ def test_intention_signals_describe_every_demonstration_of_every_seed(tiny_run, 
     ]
     assert module.main([str(tiny_run / "missing")]) == 2
     assert capsys.readouterr().err.startswith("error: ")
+
+
+def test_posterior_ceiling_of_the_driver_at_a_radius(capsys):
+    """The supervised posterior on a few fresh noisy driver episodes at radius 20 (paths far
+    apart) labels the generated demonstrations well, with and without the step; the driver's
+    options and the other envs' are refused in one line."""
+    from emgail_jax.host.problem import make_problem
+
+    module = _load("posterior_ceiling")
+    problem = make_problem("driver", 2, env_options={"radius": 20.0})
+    env, demos = problem.env, problem.demos
+    right = module.supervised_ceiling("driver", env, demos, env.expert_policy, 10, with_step=True)
+    assert sorted(right) == ["pair", "pair and step"]
+    for seen in right.values():
+        assert seen.shape == (1000,) and seen.dtype == bool  # 2 x 5 demonstrations x 100 steps
+        assert seen.mean() > 0.9
+        assert seen[demos.step_in_episode >= 50].all()  # by mid-episode the paths are apart
+    out = capsys.readouterr().out
+    assert "2000 fresh expert pairs; on the 1000 demonstration pairs" in out
+    tenths = out.split("by tenth of the episode:")[1].splitlines()[0].split()
+    assert tenths[0::2] == [f"{a}-{a + 9}:" for a in range(0, 100, 10)]
+    refused = {
+        ("--env", "reacher", "--radius", "4"): "--radius applies to the driver env only",
+        ("--env", "driver", "--radius", "0.1"): "tighter than the car can turn",
+        ("--env", "driver", "--run", "RUN"): "the driver has none",
+        ("--env", "driver", "--episodes", "0"): "--episodes must be at least 1; got 0",
+    }
+    for argv, message in refused.items():
+        assert module.main([*argv, "--intentions", "2"]) == 2
+        assert message in capsys.readouterr().err
 
 
 def test_sweep_a_damaged_cell_is_named_and_continues_from_its_checkpoint(
