@@ -23,7 +23,10 @@ intention, so that its K fresh policies are K agents of that one reward, true in
 by the one the run matched to i. Every fresh policy has the same budget whatever the algorithm
 (iterations, gamma, ``num_envs`` episodes of ``rollout_length`` steps per iteration: one row of
 the ``[K, num_envs]`` envs, although GAIL's single policy trained on all K rows), so that the
-algorithms' checks compare the rewards alone.
+algorithms' checks compare the rewards alone. A run trained with absorbing states
+(``--set absorbing_state=true``) is checked the same way: a fresh policy's termination is worth
+the learned reward of the absorbing state for every step left, as in the run's own B-step; the
+true-reward baseline has no absorbing state.
 
 Beside the learned reward, the **true-reward baseline**: the same TRPO, settings and budget on
 the env's true rewards, the floor any learned reward is judged against (computed once per env,
@@ -167,13 +170,13 @@ def success(env, trainer, states, matching) -> list[dict]:
     return experts.quality(env, policy, key_quality, SUCCESS_EPISODES)[:k_true]
 
 
-def _fresh_trainer(run, budget: Budget, reward_fn=None):
+def _fresh_trainer(run, budget: Budget, reward_fn=None, absorbing_reward=None):
     from emgail_jax.method.rl import make_rl_train, true_reward
 
     config = run.config.with_values(gamma=budget.gamma).method
     env = run.problem.env
     episodes = config.rollout.num_envs
-    return make_rl_train(config, env, reward_fn or true_reward, eval_episodes=episodes)
+    return make_rl_train(config, env, reward_fn or true_reward, episodes, absorbing_reward)
 
 
 def scored(returns, matching, run, seed: int | None) -> dict:
@@ -250,12 +253,14 @@ def reoptimize(
     progress: bool = True,
     parameters=None,
     reward_function=None,
+    absorbing_function=None,
 ) -> dict:
     """Trains one policy per learned intention on each of ``seeds``' frozen rewards of ``run``
     (all seeds vmapped in one program) and scores them; ``parameters`` (one per seed) replace
     the run's :meth:`~emgail_jax.host.saved_run.SavedRun.reward_parameters`, read by
-    ``reward_function`` (default the run's
-    :meth:`~emgail_jax.host.saved_run.SavedRun.reward_function`)."""
+    ``reward_function`` and ``absorbing_function`` (default the run's
+    :meth:`~emgail_jax.host.saved_run.SavedRun.reward_function` and
+    :meth:`~emgail_jax.host.saved_run.SavedRun.absorbing_reward_function`)."""
     import jax
 
     k = run.num_intentions
@@ -263,7 +268,11 @@ def reoptimize(
     reward_fn = lambda obs, action, true, intention, parameters: learned(
         parameters, obs, action, intention
     )
-    trainer = _fresh_trainer(run, budget, reward_fn)
+    absorbing = absorbing_function or run.absorbing_reward_function()
+    absorbing_fn = None
+    if absorbing is not None:
+        absorbing_fn = lambda intention, parameters: absorbing(parameters, intention)
+    trainer = _fresh_trainer(run, budget, reward_fn, absorbing_fn)
     per_seed_parameters = parameters or [run.reward_parameters(seed) for seed in seeds]
     parameters = stacked(per_seed_parameters)
     # Each seed's policies take their keys from the run's seed, one per learned intention.
@@ -288,6 +297,7 @@ def reoptimize(
         "iteration": iteration,
         "snapshot": run.snapshot,
         "budget": dataclasses.asdict(budget),
+        "absorbing_state": absorbing is not None,
         "eval_episodes": run.config.method.rollout.num_envs,
         "expert_returns": run.problem.demos.expert_returns,
         "random_returns": run.problem.random_returns,
@@ -509,10 +519,12 @@ def _check_options(args: argparse.Namespace) -> None:
 @dataclasses.dataclass
 class Chosen:
     """The reward the command line asks for: ``parameters`` (one per seed; None: the run's),
-    read by ``function`` (None: the run's), and what was done to get them (``result`` keys)."""
+    read by ``function`` and ``absorbing`` (None: the run's reward and absorbing reward), and
+    what was done to get them (``result`` keys)."""
 
     parameters: list | None = None
     function: object = None
+    absorbing: object = None
     details: dict = dataclasses.field(default_factory=dict)
 
 
@@ -539,6 +551,8 @@ def _opened(args: argparse.Namespace):
     if args.ensemble:
         chosen.parameters, iterations = ensemble_parameters(run, seeds, args.ensemble)
         chosen.function = ensemble_reward(run.reward_function())
+        if run.absorbing_reward_function() is not None:
+            chosen.absorbing = ensemble_reward(run.absorbing_reward_function())
         chosen.details["ensemble"] = iterations
     return run, seeds, chosen
 
@@ -571,12 +585,12 @@ def stacked(trees: list):
 
 
 def ensemble_reward(reward_function):
-    """``reward_function(parameters, obs, action, intention)`` averaged over ``parameters``
-    stacked ``[N, ...]`` (:func:`ensemble_parameters`)."""
+    """``reward_function(parameters, *inputs)`` (a reward, or the absorbing state's)
+    averaged over ``parameters`` stacked ``[N, ...]`` (:func:`ensemble_parameters`)."""
     import jax
 
-    def mean_reward(parameters, obs, action, intention):
-        every = jax.vmap(reward_function, (0, None, None, None))(parameters, obs, action, intention)
+    def mean_reward(parameters, *inputs):
+        every = jax.vmap(lambda one: reward_function(one, *inputs))(parameters)
         return every.mean(0)
 
     return mean_reward
@@ -621,6 +635,7 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
         progress=not args.quiet,
         parameters=chosen.parameters,
         reward_function=chosen.function,
+        absorbing_function=chosen.absorbing,
     )
     result["reward_form"] = run.algorithm.reward_form
     result.update(chosen.details)

@@ -42,13 +42,17 @@ def problem():
     return samples, reward, policy_net, value_net, policy, value, config, keys[6]
 
 
-def test_b_step_is_gae_then_standardised_trpo_then_value_fit(problem):
+@pytest.mark.parametrize("absorbing", [False, True])
+def test_b_step_is_gae_then_standardised_trpo_then_value_fit(problem, absorbing):
+    """With ``end_values`` (an absorbing state's), GAE bootstraps the episodes' ends from
+    them."""
     samples, reward, policy_net, value_net, policy, value, config, key = problem
+    end_values = jnp.full((T, K, B), -30.0) if absorbing else None
     optimizer = optax.adam(1e-3)
     b_step = jax.jit(make_b_step(policy_net.apply, value_net.apply, optimizer, config))
-    result = b_step(policy, Learner.create(value, optimizer), samples, reward, key)
+    result = b_step(policy, Learner.create(value, optimizer), samples, reward, key, end_values)
     expected_policy, expected_value = jax.jit(by_hand, static_argnums=(0, 1, 2))(
-        policy_net, value_net, config, policy, value, samples, reward, key
+        policy_net, value_net, config, policy, value, samples, reward, key, end_values
     )
     for got, want in zip(
         jax.tree.leaves((result.policy, result.value)),
@@ -63,7 +67,7 @@ def test_b_step_is_gae_then_standardised_trpo_then_value_fit(problem):
     assert {"policy/kl", "value/loss", "value/loss_before"} <= set(result.metrics)
 
 
-def by_hand(policy_net, value_net, config, policy, value, samples, reward, key):
+def by_hand(policy_net, value_net, config, policy, value, samples, reward, key, end_values=None):
     """The B-step written out from its parts."""
     optimizer = optax.adam(1e-3)
     obs, action, condition, time = map(
@@ -78,6 +82,7 @@ def by_hand(policy_net, value_net, config, policy, value, samples, reward, key):
         bootstrap,
         config.gamma,
         config.gae_lambda,
+        end_values,
     )
     advantages = intention_major(advantages)
     advantages = (advantages - advantages.mean(1, keepdims=True)) / (

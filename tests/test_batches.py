@@ -1,5 +1,6 @@
 """The data handed between the steps of an update: the demonstrations and the normalised batch."""
 
+import jax
 import numpy as np
 import pytest
 
@@ -19,6 +20,9 @@ def test_a_consistent_batch_passes_its_shape_check(random_batch):
         lambda b: b.replace(expert_actions=b.expert_actions[:5]),  # fewer than the pairs
         lambda b: b.replace(expert_obs=b.expert_obs[:, :1]),  # another observation size
         lambda b: b.replace(obs=b.obs[0]),  # not grouped by intention
+        # termination flags of fewer samples, or of fewer pairs
+        lambda b: b.replace(terminal=np.zeros((3, 3)), expert_terminal=np.zeros(6)),
+        lambda b: b.replace(terminal=np.zeros((3, 4)), expert_terminal=np.zeros(5)),
     ],
 )
 def test_a_batch_with_mismatched_shapes_is_refused(broken, random_batch):
@@ -38,3 +42,18 @@ def test_demonstration_pairs_numbers_the_demonstrations_and_keeps_the_labels():
     np.testing.assert_array_equal(expert.episode, [0, 0, 0, 1, 1, 2])
     assert expert.episodes == 3 and expert.has_labels
     assert np.isnan(expert.expert_returns).all() and expert.random_returns.dtype == np.float32
+
+
+@pytest.mark.parametrize("jit", [False, True])
+def test_a_demonstration_shorter_than_an_episode_ends_in_a_termination(jit):
+    """Demonstrations of 3, 2 and 1 pairs in episodes of 3 steps: the last pair of the second
+    and of the third ended its episode before the time limit; the first ran to it."""
+    demos = Demonstrations(
+        observations=np.zeros((6, 2)),
+        actions=np.zeros((6, 1)),
+        episode_starts=np.array([1, 0, 0, 1, 0, 1], bool),
+    )
+    pairs = DemonstrationPairs.create(demos, np.zeros(1), 1)
+    ends = jax.jit(lambda p: p.terminations(3)) if jit else (lambda p: p.terminations(3))
+    np.testing.assert_array_equal(ends(pairs), [0, 0, 0, 0, 1, 1])
+    np.testing.assert_array_equal(pairs.terminations(2), [0, 0, 0, 0, 0, 1])

@@ -168,6 +168,7 @@ def test_from_dict_round_trips_what_new_runs_write():
         prior="mixture",
         choose_intentions=True,
         reward_form="logit",
+        absorbing_state=True,
         info_weight=0.3,
         seed_batch=2,
         snapshot_every=0,
@@ -241,6 +242,13 @@ def test_with_settings_parses_each_value_as_the_type_of_its_default():
     assert RunConfig().with_settings([]) == RunConfig()
 
 
+@pytest.mark.parametrize("text", ["true", "True", "TRUE"])
+def test_a_boolean_setting_takes_the_shells_spelling_too(text):
+    assert RunConfig().with_settings([f"absorbing_state={text}"]).method.reward.absorbing_state
+    off = RunConfig().with_settings(["absorbing_state=true", "absorbing_state=false"])
+    assert off == RunConfig() and not RunConfig().method.reward.absorbing_state
+
+
 @pytest.mark.parametrize(
     ("flat", "layered"),
     [
@@ -285,7 +293,12 @@ def test_program_key_is_the_method_config():
     )
     assert same.program_key() == base.program_key() == base.method
     assert hash(same.program_key()) == hash(base.program_key())
-    for changed in ({"discriminator_steps": 3}, {"algo": "gail"}, {"reward_form": "logit"}):
+    for changed in (
+        {"discriminator_steps": 3},
+        {"algo": "gail"},
+        {"reward_form": "logit"},
+        {"absorbing_state": True},
+    ):
         assert base.with_values(**changed).program_key() != base.program_key()
 
 
@@ -330,6 +343,7 @@ def test_every_hyper_parameter_has_a_domain_its_default_is_in():
         ("trpo.line_search_decay=1", "trpo.line_search_decay must be in (0, 1)"),
         ("trpo.cg_damping=-1", "trpo.cg_damping must be a number >= 0"),
         ("choose_intentions=3", "choose_intentions must be True or False"),
+        ("absorbing_state=3", "absorbing_state must be True or False; got 3"),
         ("prior=flat", "prior must be one of uniform, mixture; got 'flat'"),
         ("snapshot_every=-1", "snapshot_every must be an integer >= 0; got -1"),
     ],

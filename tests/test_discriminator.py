@@ -11,6 +11,7 @@ import pytest
 from emgail_jax.method.algorithms import make_algorithm
 from emgail_jax.method.config import MStepConfig
 from emgail_jax.method.discriminator import (
+    absorbing_reward,
     discriminator_loss,
     discriminator_update,
     expert_logits,
@@ -32,31 +33,33 @@ def log_sigmoid(x):
     return -np.log1p(np.exp(-np.asarray(x, np.float64)))
 
 
-def test_loss_hand_computed_values():
-    params = jnp.array([0.0, LN3])  # condition 1 adds ln 3 to the logit
-    conditions = jnp.eye(2)
+def toy_absorbing_apply(params, obs, actions, condition, intention_major=False, absorbed=None):
+    """``toy_apply`` whose absorbing indicator adds ln 3 to the logit (0 for real pairs)."""
+    return toy_apply(params, obs, actions, condition) + LN3 * (
+        0.0 if absorbed is None else absorbed
+    )
+
+
+# condition 1 adds ln 3 to the logit
+HAND_PARAMS = jnp.array([0.0, LN3])
+HAND_BATCH = dict(
     # Expert pair 0: f = (0, ln 3) -> D = (1/2, 3/4); gamma = (1/2, 1/2).
     # Expert pair 1: f = (-ln 3, 0) -> D = (1/4, 1/2); gamma = (1, 0).
-    expert_obs = jnp.array([[0.0], [-LN3]])
-    expert_actions = jnp.zeros((2, 1))
-    gamma = jnp.array([[0.5, 0.5], [1.0, 0.0]])
+    expert_obs=jnp.array([[0.0], [-LN3]]),
+    expert_actions=jnp.zeros((2, 1)),
+    expert_weights=jnp.array([[0.5, 0.5], [1.0, 0.0]]),
+    conditions=jnp.eye(2),
     # Policy samples, one per condition (intention-major [C, M, ...]):
     # under condition 0: f = -ln 3 -> -log(1 - 1/4) = log 4/3;
     # under condition 1: f = ln 3 -> -log(1 - 3/4) = log 4.
-    policy_obs = jnp.array([[[-LN3]], [[0.0]]])
-    policy_actions = jnp.zeros((2, 1, 1))
-    policy_conditions = jnp.eye(2)[:, None, :]
-    loss, metrics = discriminator_loss(
-        toy_apply,
-        params,
-        expert_obs=expert_obs,
-        expert_actions=expert_actions,
-        expert_weights=gamma,
-        conditions=conditions,
-        policy_obs=policy_obs,
-        policy_actions=policy_actions,
-        policy_conditions=policy_conditions,
-    )
+    policy_obs=jnp.array([[[-LN3]], [[0.0]]]),
+    policy_actions=jnp.zeros((2, 1, 1)),
+    policy_conditions=jnp.eye(2)[:, None, :],
+)
+
+
+def test_loss_hand_computed_values():
+    loss, metrics = discriminator_loss(toy_apply, HAND_PARAMS, **HAND_BATCH)
     expert_term = ((0.5 * math.log(2) + 0.5 * math.log(4 / 3)) + math.log(4)) / 2
     policy_term = (math.log(4) + math.log(4 / 3)) / 2
     assert float(loss) == pytest.approx(expert_term + policy_term, rel=1e-6)
@@ -189,15 +192,27 @@ def test_update_reduces_loss_and_reports_first_step_metrics(network_batch):
     assert float(after) < float(before) - 0.05
 
 
+@pytest.mark.parametrize("absorbing", [False, True])
 @pytest.mark.parametrize("algo", ["emgail", "infogail", "gail"])
-def test_m_step_trains_on_the_algorithms_weights_and_conditions(algo, random_batch):
+def test_m_step_trains_on_the_algorithms_weights_and_conditions(algo, absorbing, random_batch):
     """The M-step is discriminator_update on the batch with what the algorithm chooses: EM-GAIL
-    weights each expert pair by gamma under every intention, the baselines by one."""
+    weights each expert pair by gamma under every intention, the baselines by one. With
+    termination flags, the absorbing pair is real with the summed weights of the demonstrations
+    that ended in a termination, and fake once for each terminated policy transition."""
     k, m, n = 3, 4, 6
     algorithm = make_algorithm(algo)
     batch = random_batch(k, m, n, obs_dim=4, act_dim=2, seed=2)
     gamma = jax.nn.softmax(jax.random.normal(jax.random.PRNGKey(4), (n, k)))
-    net = Discriminator(hidden=(8,), heads=True)
+    weights = gamma if algo == "emgail" else jnp.ones((n, 1))
+    absorbed = {}
+    if absorbing:
+        terminal = jnp.zeros((k, m)).at[0, 1].set(1.0).at[0, 3].set(1.0).at[2, 0].set(1.0)
+        expert_terminal = jnp.zeros(n).at[2].set(1.0).at[5].set(1.0)
+        batch = batch.replace(terminal=terminal, expert_terminal=expert_terminal)
+        absorbed = dict(
+            expert_absorbed=weights[2] + weights[5], policy_absorbed=jnp.array([2.0, 0.0, 1.0])
+        )
+    net = Discriminator(hidden=(8,), heads=True, absorbing=absorbing)
     own = jnp.broadcast_to(jnp.arange(k)[:, None], (k, m))
     conditions = algorithm.discriminator_condition(own, k)
     params = net.init(jax.random.PRNGKey(3), batch.obs, batch.executed, conditions)
@@ -211,11 +226,12 @@ def test_m_step_trains_on_the_algorithms_weights_and_conditions(algo, random_bat
         5,
         expert_obs=batch.expert_obs,
         expert_actions=batch.expert_actions,
-        expert_weights=gamma if algo == "emgail" else jnp.ones((n, 1)),
+        expert_weights=weights,
         conditions=jnp.eye(k) if algo == "emgail" else jnp.zeros((1, 0)),
         policy_obs=batch.obs,
         policy_actions=batch.executed,
         policy_conditions=conditions,
+        **absorbed,
     )
     for got, want in zip(
         jax.tree.leaves(result.discriminator), jax.tree.leaves(expected), strict=True
@@ -224,6 +240,7 @@ def test_m_step_trains_on_the_algorithms_weights_and_conditions(algo, random_bat
     assert float(result.metrics["discriminator/loss"]) == pytest.approx(
         float(expected_metrics["discriminator/loss"]), rel=1e-6
     )
+    assert ("discriminator/absorbing_d" in result.metrics) == absorbing
 
 
 @pytest.mark.parametrize("algo", ["emgail", "infogail", "gail"])
@@ -290,3 +307,39 @@ def test_gradient_penalty_flattens_the_trained_logit(network_batch):
         trained, _ = jax.jit(fit)(Learner.create(params, optimizer))
         norms[weight] = float(input_gradient_norms(net.apply, trained.params, **batch))
     assert norms[1.0] < 0.5 * norms[0.0]
+
+
+@pytest.mark.parametrize("jit", [False, True])
+def test_absorbing_pairs_hand_computed_one_sample_per_termination(jit):
+    """The batch above with absorbing pairs: the indicator adds ln 3, so the absorbing logit
+    is (ln 3, 2 ln 3) under the two conditions (D = 3/4, 9/10). One demonstration ended in a
+    termination with gamma (1/2, 1/2): one real sample more; row 0's policy terminated twice:
+    two fake samples more, none in row 1."""
+    absorbed = dict(expert_absorbed=jnp.array([0.5, 0.5]), policy_absorbed=jnp.array([2.0, 0.0]))
+    loss_of = lambda p: discriminator_loss(toy_absorbing_apply, p, **HAND_BATCH, **absorbed)
+    loss, metrics = (jax.jit(loss_of) if jit else loss_of)(HAND_PARAMS)
+    # -log D of the absorbing pair: log 4/3, log 10/9; -log(1 - D) under row 0: log 4.
+    real = 0.5 * math.log(2) + 0.5 * math.log(4 / 3) + math.log(4)
+    expert_term = (real + 0.5 * math.log(4 / 3) + 0.5 * math.log(10 / 9)) / 3
+    policy_term = (math.log(4 / 3) + math.log(4) + 2 * math.log(4)) / 4
+    assert float(loss) == pytest.approx(expert_term + policy_term, rel=1e-6)
+    assert float(metrics["discriminator/absorbing_d"]) == pytest.approx(0.825, rel=1e-6)
+    assert float(metrics["discriminator/policy_d"]) == pytest.approx(0.5, rel=1e-6)
+    # No termination on either side: the loss without absorbing pairs, to the bit.
+    none = dict(expert_absorbed=jnp.zeros(2), policy_absorbed=jnp.zeros(2))
+    without, _ = discriminator_loss(toy_absorbing_apply, HAND_PARAMS, **HAND_BATCH, **none)
+    plain, plain_metrics = discriminator_loss(toy_apply, HAND_PARAMS, **HAND_BATCH)
+    assert float(without) == pytest.approx(float(plain), rel=1e-7)
+    assert "discriminator/absorbing_d" not in plain_metrics
+
+
+@pytest.mark.parametrize("algo", ["emgail", "infogail", "gail"])
+def test_absorbing_reward_is_the_pseudo_reward_of_the_absorbing_pair(algo):
+    k = 2
+    algorithm = make_algorithm(algo, info_weight=0.5)
+    params = jnp.array([0.3, -0.4]) if algorithm.conditional_discriminator else jnp.zeros(0)
+    reward = absorbing_reward(toy_absorbing_apply, params, algorithm, k, 3, 2)
+    # Observation and action zeros, indicator 1: f = ln 3 (+ the condition's parameter).
+    logit = LN3 + (params if algorithm.conditional_discriminator else jnp.zeros(k))
+    info = 0.5 * math.log(1 / k) if algo == "infogail" else 0.0  # a uniform posterior
+    np.testing.assert_allclose(reward, jax.nn.softplus(logit) + info, rtol=1e-6)

@@ -5,7 +5,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from emgail_jax.method.gae import generalized_advantages
+from emgail_jax.method.gae import absorbing_value, generalized_advantages
+from emgail_jax.method.rollout import steps_left
 
 
 def reference_gae(rewards, values, dones, bootstrap, gamma, lam):
@@ -102,3 +103,48 @@ def test_jit_matches_eager():
     )
     for a, b in zip(eager, jitted, strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("jit", [False, True])
+def test_an_absorbing_state_bootstraps_the_terminating_transition_hand_computed(jit):
+    """The four steps above, transition 1 a termination with 2 steps left to the time limit,
+    into an absorbing state of reward -1: its return is 2 - (0.9 + 0.81)."""
+    rewards = jnp.array([1.0, 2.0, 3.0, 4.0])
+    values = jnp.array([0.5, 1.0, 1.5, 2.0])
+    dones = jnp.array([0.0, 1.0, 0.0, 0.0])
+    # V of the absorbing state with 2 steps left: -1 * (1 + 0.9) = -1.9, read at done only.
+    end_values = jnp.array([7.0, -1.9, 7.0, 7.0])
+    # delta1 = 2 + .9 * -1.9 - 1 = -0.71 ; A1 = -0.71 (done still cuts the recursion) ;
+    # A0 = 1.4 + .45 * -0.71 = 1.0805 ; A2, A3 as without it.
+    gae = jax.jit(generalized_advantages, static_argnums=(4, 5)) if jit else generalized_advantages
+    advantages, returns = gae(rewards, values, dones, jnp.array(3.0), 0.9, 0.5, end_values)
+    np.testing.assert_allclose(advantages, [1.0805, -0.71, 5.415, 4.7], rtol=1e-6)
+    np.testing.assert_allclose(returns, [1.5805, 0.29, 6.915, 6.7], rtol=1e-6)
+
+
+@pytest.mark.parametrize("jit", [False, True])
+def test_absorbing_value_is_the_reward_of_every_step_left_discounted(jit):
+    left = jnp.array([0, 1, 3])
+    value = jax.jit(absorbing_value, static_argnums=2) if jit else absorbing_value
+    # gamma 0.5: 2 * (0, 1, 1 + .5 + .25); gamma 1: 2 * (0, 1, 3)
+    np.testing.assert_allclose(value(jnp.float32(2.0), left, 0.5), [0.0, 2.0, 3.5], rtol=1e-6)
+    np.testing.assert_allclose(value(jnp.array([2.0]), left, 1.0), [0.0, 2.0, 6.0], rtol=1e-6)
+
+
+def test_a_truncation_gets_no_absorbing_value():
+    """An episode that ends at its time limit (here 4 steps: the transition taken at t = 3/4)
+    has no step left to stay absorbed: its return is the same with or without the absorbing
+    state, to the bit, while a termination's (t = 1/4) is not."""
+    rewards = jnp.array([1.0, 2.0, 3.0, 4.0])
+    values = jnp.array([0.5, 1.0, 1.5, 2.0])
+    time = jnp.array([0.5, 0.75, 0.0, 0.25])
+    truncated = jnp.array([0.0, 1.0, 0.0, 0.0])
+    ends = absorbing_value(jnp.float32(-5.0), steps_left(time, 4), 0.9)
+    np.testing.assert_allclose(ends, [-5.0, 0.0, -5.0 * (1 + 0.9 + 0.81), -5.0 * 1.9], rtol=1e-6)
+    gae = lambda dones, end_values=None: generalized_advantages(
+        rewards, values, dones, jnp.array(3.0), 0.9, 0.5, end_values
+    )
+    for with_end, without in zip(gae(truncated, ends), gae(truncated), strict=True):
+        np.testing.assert_array_equal(with_end, without)
+    terminated = jnp.array([0.0, 0.0, 0.0, 1.0])
+    assert not np.array_equal(gae(terminated, ends)[1], gae(terminated)[1])

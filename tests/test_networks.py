@@ -1,6 +1,7 @@
 """The four networks: shapes with and without an intention condition, initialisation, and the
 policy's action distribution against the diagonal-Gaussian formula."""
 
+import copy
 import math
 
 import jax
@@ -60,6 +61,28 @@ def test_output_shapes_with_and_without_a_condition(inputs, conditioned):
     params = discriminator.init(key, obs, action, condition)
     assert discriminator.apply(params, obs, action, condition).shape == (N,)
     assert _first_kernel(params).shape == (OBS + ACT + width, HIDDEN[0])
+
+
+@pytest.mark.parametrize("heads", [False, True])
+def test_an_absorbing_discriminator_has_one_input_more_zero_for_real_pairs(inputs, heads):
+    """The absorbing indicator is one input more, after the pair's; without its row of the
+    first kernel the network is the discriminator without it, on which a real pair reads 0."""
+    obs, action, one_hot, _ = inputs
+    key = jax.random.PRNGKey(1)
+    plain, absorbing = Discriminator(HIDDEN, heads), Discriminator(HIDDEN, heads, absorbing=True)
+    params = absorbing.init(key, obs, action, one_hot)
+    first = params["params"]["heads" if heads else "MLP_0"]["Dense_0"]
+    without = copy.deepcopy(params)
+    layer = without["params"]["heads" if heads else "MLP_0"]["Dense_0"]
+    layer["kernel"] = jnp.delete(first["kernel"], OBS + ACT, axis=-2)
+    expected = jax.eval_shape(plain.init, key, obs, action, one_hot)
+    assert jax.tree.map(jnp.shape, without) == jax.tree.map(jnp.shape, expected)
+    real = absorbing.apply(params, obs, action, one_hot)
+    np.testing.assert_allclose(real, plain.apply(without, obs, action, one_hot), atol=1e-6)
+    zero = absorbing.apply(params, obs, action, one_hot, absorbed=jnp.zeros(N))
+    np.testing.assert_array_equal(real, zero)
+    flagged = absorbing.apply(params, obs, action, one_hot, absorbed=jnp.ones(N))
+    assert not np.allclose(flagged, real)
 
 
 def test_posterior_gives_k_logits(inputs):

@@ -30,6 +30,7 @@ def test_every_seed_is_reoptimised_beside_the_true_reward(reoptimized, capsys):
     assert result["seeds"] == [0, 1] and len(result["erd"]) == 2
     assert result["budget"] == {"iterations": 2, "gamma": 0.995}
     assert result["eval_episodes"] == 2  # the tiny run's num_envs, as training evaluates
+    assert result["absorbing_state"] is False  # an episode's end is worth 0
     assert np.isclose(result["erd_mean"], np.mean(result["erd"]))
     for seed, per_seed in enumerate(result["per_seed"]):
         assert per_seed["run_seed"] == seed and per_seed["erd"] == result["erd"][seed]
@@ -103,6 +104,9 @@ def test_one_true_reward_baseline_serves_every_algorithm(saved):
         assert reoptimize.baseline_key(other, budget) == key
     wider = dataclasses.replace(saved, config=saved.config.with_values(num_envs=3))
     assert reoptimize.baseline_key(wider, budget) != key
+    # The true reward has no absorbing state, whatever the run learned.
+    absorbing = dataclasses.replace(saved, config=saved.config.with_values(absorbing_state=True))
+    assert reoptimize.baseline_key(absorbing, budget) == key
 
 
 @pytest.mark.slow  # a tiny GAIL run and its re-optimisation: two compiles
@@ -122,6 +126,35 @@ def test_gails_one_reward_is_reoptimised_like_emgails(tmp_path):
         earned = per_seed["learned_reward_per_step"]["demonstrations"]
         assert len(earned) == 2 and earned[0] == pytest.approx(earned[1])
     assert result["baseline"]["cache"].split("/")[-1].startswith("driver-k2-2it-g0.995-")
+
+
+@pytest.mark.slow  # a tiny run with absorbing states and two re-optimisations: three compiles
+def test_a_run_with_absorbing_states_is_reoptimised_with_them(tmp_path):
+    """The fresh agents are paid the learned reward of the absorbing state the run's own
+    B-step was (the one its last iteration logged), a single reward or an ensemble's."""
+    from emgail_jax import run
+    from emgail_jax.host.saved_run import SavedRun
+
+    out = tmp_path / "absorbing"
+    tiny = ["--seeds", "2", "--iterations", "4", "--num-envs", "2", "--rollout-length", "20"]
+    args = ["--env", "driver", *tiny, "--chunk-size", "2", "--snapshot-every", "2", "--quiet"]
+    assert run.main([*args, "--set", "absorbing_state=true", "--out", str(out)]) == 0
+    saved = SavedRun.open(str(out))
+    absorbing = saved.absorbing_reward_function()
+    for seed in (0, 1):
+        every = [absorbing(saved.reward_parameters(seed), i) for i in range(2)]
+        logged = saved.history["train/absorbing_reward"][seed, -1]
+        assert float(np.mean(every)) == pytest.approx(float(logged), rel=1e-5)
+    parameters, _ = reoptimize.ensemble_parameters(saved, [0], 2)
+    earlier = SavedRun.open(str(out), snapshot=2).reward_parameters(0)
+    mean = reoptimize.ensemble_reward(absorbing)(parameters[0], 1)
+    expected = (absorbing(earlier, 1) + absorbing(saved.reward_parameters(0), 1)) / 2
+    assert float(mean) == pytest.approx(float(expected), rel=1e-5)
+    for extra in ([], ["--ensemble", "2"]):
+        again = [str(out), "--iterations", "2", "--no-baseline", "--quiet", *extra]
+        assert reoptimize.main([*again, "--out", str(tmp_path / "r.json")]) == 0
+        result = json.loads((tmp_path / "r.json").read_text())
+        assert result["absorbing_state"] is True and len(result["erd"]) == 2
 
 
 def test_a_snapshot_is_reoptimised_on_its_own_networks(tiny_run, reoptimized):

@@ -38,7 +38,8 @@ def test_push_fills_the_oldest_slot():
 
 def test_draws_come_from_filled_slots_under_their_own_intention():
     replay = _replay(2)
-    replay_after, obs, executed = replay.draw(500)
+    replay_after, obs, executed, terminal = replay.draw(500)
+    assert terminal is None and replay.terminal is None  # no absorbing states
     assert obs.shape == (K, 500, D) and executed.shape == (K, 500, A)
     code = np.asarray(executed[..., 0]).astype(int)
     assert set(np.unique(code // 100)) == {1, 2}  # never the empty third slot
@@ -47,7 +48,7 @@ def test_draws_come_from_filled_slots_under_their_own_intention():
     )
     np.testing.assert_array_equal(obs[..., 0], executed[..., 0])  # pairs stay pairs
     assert len(np.unique(code % 10)) == M
-    _, again, _ = replay_after.draw(500)
+    _, again, _, _ = replay_after.draw(500)
     assert not np.array_equal(again, obs)  # the key moves on
 
 
@@ -72,3 +73,28 @@ def test_with_replay_appends_as_many_normalised_draws():
     np.testing.assert_array_equal(negatives.obs[:, M:, 0], drawn - 1.0)  # normalised when drawn
     assert set(np.unique(drawn // 100)) <= {1, 2}
     np.testing.assert_array_equal(negatives.expert_obs, seen.expert_obs)
+
+
+def test_termination_flags_travel_with_their_samples():
+    """With absorbing states the replay keeps each sample's termination flag: a drawn
+    terminated transition brings its absorbing negative along."""
+    replay = Replay.create(R, K, M, D, A, jax.random.PRNGKey(0), absorbing=True)
+    assert replay.terminal.shape == (R, K, M)
+    even = lambda executed: (executed[..., 0] % 2 == 0).astype(jnp.float32)  # "terminated"
+    for iteration in (1, 2):
+        obs, executed = _samples(iteration)
+        replay = replay.push(obs, executed, even(executed))
+    _, obs, executed, terminal = jax.jit(lambda r: r.draw(500))(replay)
+    np.testing.assert_array_equal(terminal, even(executed))
+    seen = NormalizedBatch(
+        normalizer=RunningStats.create(D),
+        obs=obs[:, :M],
+        executed=executed[:, :M],
+        expert_obs=jnp.zeros((3, D)),
+        expert_actions=jnp.zeros((3, A)),
+        terminal=even(executed[:, :M]),
+        expert_terminal=jnp.zeros(3),
+    )
+    _, negatives = with_replay(replay, seen, obs[:, :M], lambda x: x)
+    assert negatives.terminal.shape == (K, 2 * M)
+    np.testing.assert_array_equal(negatives.terminal, even(negatives.executed))

@@ -14,6 +14,8 @@ from emgail_jax.method.rollout import (
     episode_totals,
     intention_major,
     rollout,
+    steps_left,
+    terminations,
     time_major,
     uniform_random_policy,
 )
@@ -155,6 +157,25 @@ def test_time_and_done_when_the_env_terminates_early(terminating):
     np.testing.assert_allclose(first.time[:, 1, 0], expected_time)
     np.testing.assert_array_equal(np.flatnonzero(first.done[:, 1, 0]), [2, 5, 8])
     np.testing.assert_array_equal(middle.info["steps"], np.ones((K, B)))
+
+
+def test_terminations_are_the_envs_ends_before_the_time_limit(time_limited, terminating):
+    """The env's own ends after 3 steps of 4 are terminations, with one step left; the time
+    limit's are not (none left), although after the auto-reset neither state says which."""
+    _, _, limited, _, _ = time_limited
+    _, _, ended, _, _ = terminating
+    np.testing.assert_array_equal(steps_left(ended.time[:3, 1, 0], 4), [3, 2, 1])
+    np.testing.assert_array_equal(steps_left(limited.time[:4, 1, 0], 4), [3, 2, 1, 0])
+    assert not np.any(terminations(limited, 4)) and np.any(limited.done)
+    np.testing.assert_array_equal(terminations(ended, 4), ended.done)
+    # The state after a time limit's end already holds the next episode's truncation flag.
+    _, after, one_episode, _, _ = _roll(envs.wrap_for_training(_Counter(), 4), 4)
+    assert np.all(one_episode.done[-1]) and not np.any(after.info["truncation"])
+    # An end at the limit itself counts as the limit's: nothing is left to absorb.
+    _, _, at_limit, _, _ = _roll(envs.wrap_for_training(_Counter(stop=4), 4), 10)
+    assert np.any(at_limit.done) and not np.any(terminations(at_limit, 4))
+    jitted = jax.jit(terminations, static_argnums=1)(ended, 4)
+    np.testing.assert_array_equal(jitted, terminations(ended, 4))
 
 
 def _returns(env, policy, num_policies, episodes):

@@ -54,6 +54,11 @@ def test_load_reward_is_minus_log_one_minus_d(tiny_run, saved):
     np.testing.assert_allclose(jax.jit(reward)(obs, act, 1), reward(obs, act, 1), rtol=1e-6)
 
 
+def test_a_run_without_absorbing_states_has_no_absorbing_reward(saved):
+    # An episode's end is worth 0 (tests/test_reoptimize.py reads one that has one).
+    assert saved.absorbing_reward_function() is None
+
+
 def test_load_reward_judges_the_executed_action(tiny_run):
     """The discriminator learned on actions clipped to the range, so an action beyond it gets
     the reward of the clipped action."""

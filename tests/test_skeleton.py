@@ -13,8 +13,9 @@ from emgail_jax.method import normalizer as obs_norm
 from emgail_jax.method.b_step import PolicySamples
 from emgail_jax.method.batches import LearningBatch
 from emgail_jax.method.config import RunConfig
+from emgail_jax.method.gae import absorbing_value
 from emgail_jax.method.networks import GaussianPolicy, ValueNet, policy_action
-from emgail_jax.method.rollout import batch_reset, time_major
+from emgail_jax.method.rollout import batch_reset, steps_left, time_major
 from emgail_jax.method.skeleton import (
     PolicyStages,
     Rewarded,
@@ -129,6 +130,16 @@ def rollout(env, stages, state):
     )
 
 
+def _policy_samples(stages, batch, normalizer) -> PolicySamples:
+    """``batch`` as the B-step reads it, written out."""
+    return PolicySamples.of(
+        batch,
+        lambda x: obs_norm.normalize(normalizer, x, CONFIG.networks.obs_clip),
+        time_major(stages.condition(intention_rows((K, T * B))), T),
+        stages.condition(intention_rows((K, B))),
+    )
+
+
 # Op by op, TRPO and the value fit take about half a minute.
 @pytest.mark.parametrize("jit", [pytest.param(False, marks=pytest.mark.slow), True])
 def test_improve_is_the_b_step_on_the_normalised_rollout(env, stages, state, rollout, jit):
@@ -139,15 +150,32 @@ def test_improve_is_the_b_step_on_the_normalised_rollout(env, stages, state, rol
     key = jax.random.PRNGKey(5)
     improve = jax.jit(stages.improve) if jit else stages.improve
     got = improve(state, batch, normalizer, reward, key)
-    rows = intention_rows((K, T * B))
-    samples = PolicySamples.of(
-        batch,
-        lambda x: obs_norm.normalize(normalizer, x, CONFIG.networks.obs_clip),
-        time_major(stages.condition(rows), T),
-        stages.condition(intention_rows((K, B))),
-    )
+    samples = _policy_samples(stages, batch, normalizer)
     want = jax.jit(stages.b_step)(state.policy, state.value, samples, reward, key)
     assert_trees_close((got.policy, got.value), (want.policy, want.value))
+
+
+def test_improve_bootstraps_a_termination_with_the_absorbing_states_value(
+    env, stages, state, rollout
+):
+    """Row k's absorbing reward, for every step its episode has left to the time limit."""
+    end, transitions = rollout
+    transitions = transitions.replace(done=transitions.done.at[2].set(1.0))  # all end at t = 2
+    batch = LearningBatch.of(transitions, end, env.episode_length)
+    normalizer = obs_norm.update(state.normalizer, transitions.obs)
+    reward, key = transitions.true_reward[..., 0], jax.random.PRNGKey(5)
+    absorbing = jnp.array([-2.0, 3.0])
+    got = jax.jit(stages.improve)(state, batch, normalizer, reward, key, absorbing)
+    left = steps_left(batch.time, env.episode_length)
+    np.testing.assert_array_equal(left[:, 0, 0], env.episode_length - 1 - np.arange(T))
+    end_values = absorbing_value(absorbing[:, None], left, CONFIG.b_step.gamma)
+    samples = _policy_samples(stages, batch, normalizer)
+    b_step = jax.jit(stages.b_step)
+    want = b_step(state.policy, state.value, samples, reward, key, end_values)
+    assert_trees_close((got.policy, got.value), (want.policy, want.value))
+    without = b_step(state.policy, state.value, samples, reward, key)
+    pairs = zip(jax.tree.leaves(got.value), jax.tree.leaves(without.value), strict=True)
+    assert any(not np.allclose(a, b) for a, b in pairs)
 
 
 def make_toy_update(env, stages, sign: float):

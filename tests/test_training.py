@@ -282,6 +282,7 @@ def test_discriminator_and_posterior_see_the_executed_actions(env, expert):
         return transitions, batch
 
     transitions, batch = jax.jit(seen)(state, jax.random.PRNGKey(1))
+    assert batch.terminal is None and batch.expert_terminal is None  # no absorbing states
     assert np.abs(transitions.action).max() > 2.0
     np.testing.assert_array_equal(
         batch.executed, np.clip(intention_major(transitions.action), -1.0, 1.0)
@@ -481,3 +482,46 @@ def test_a_replay_changes_only_the_m_steps_negatives(env, expert, emgail, gail, 
         for a, b in zip(_leaves(state1.posterior), _leaves(plain.posterior), strict=True):
             np.testing.assert_array_equal(a, b)
     assert metrics["discriminator/loss"] != plain_metrics["discriminator/loss"]
+
+
+def test_absorbing_states_add_only_the_indicators_weights_and_the_replays_flags(env, expert):
+    """Off, nothing of the state changes; on, the discriminator's first layer has one input
+    more (so its Adam moments too) and a replay keeps each sample's termination flag."""
+    data = RunData.create(expert, env, 1.0)
+
+    def shapes(config):
+        init = make_train(config.method, env).init
+        return jax.eval_shape(init, jax.random.PRNGKey(0), data)
+
+    plain = CONFIG.with_values(discriminator_replay=2)
+    off = shapes(plain)
+    assert jax.tree.map(jnp.shape, shapes(plain.with_values(absorbing_state=False))) == (
+        jax.tree.map(jnp.shape, off)
+    )
+    on = shapes(plain.with_values(absorbing_state=True))
+    assert off.replay.terminal is None and on.replay.terminal.shape == (2, K, B * T)
+    on = on.replace(replay=on.replay.replace(terminal=None))
+    paths = lambda tree: {
+        jax.tree_util.keystr(path): leaf.shape
+        for path, leaf in jax.tree_util.tree_leaves_with_path(tree)
+    }
+    off_shapes, on_shapes = paths(off), paths(on)
+    assert off_shapes.keys() == on_shapes.keys()
+    changed = {path for path in off_shapes if off_shapes[path] != on_shapes[path]}
+    assert len(changed) == 3  # the kernel, and Adam's two moments of it
+    for path in changed:
+        assert "discriminator" in path and "Dense_0" in path and "kernel" in path
+        assert on_shapes[path] == (K, 10 + 1 + 1, 8) and off_shapes[path] == (K, 10 + 1, 8)
+
+
+def test_an_absorbing_run_learns_the_absorbing_states_reward(env, expert):
+    """One iteration with absorbing states (and a replay): the M-step reports D of the
+    absorbing state and the reward stage its reward. The driver never terminates, so every
+    flag is 0 and the absorbing pair is only ever scored, never trained on."""
+    config = CONFIG.with_values(absorbing_state=True, discriminator_replay=2)
+    _, [(state, metrics)], _ = _train(config, env, expert, 1, (False,))
+    assert {"discriminator/absorbing_d", "train/absorbing_reward"} <= set(metrics)
+    assert 0.0 < metrics["discriminator/absorbing_d"] < 1.0
+    assert metrics["train/absorbing_reward"] > 0.0  # -log(1 - D), the default form
+    assert not np.any(state.replay.terminal)
+    assert all(np.all(np.isfinite(leaf)) for leaf in _leaves(state))

@@ -30,7 +30,7 @@ from emgail_jax.method.algorithms import Algorithm, make_algorithm
 from emgail_jax.method.batches import DemonstrationPairs
 from emgail_jax.method.choosing import demonstrations_held
 from emgail_jax.method.config import RunConfig
-from emgail_jax.method.discriminator import learned_reward
+from emgail_jax.method.discriminator import absorbing_reward, learned_reward
 from emgail_jax.method.networks import policy_action
 from emgail_jax.method.posterior import (
     Responsibilities,
@@ -217,6 +217,22 @@ class SavedRun:
                 intention=intention,
                 own_log_posterior=own,
             )
+
+        return reward
+
+    def absorbing_reward_function(self) -> Callable | None:
+        """For a run trained with absorbing states, the learned reward of the absorbing state
+        a termination leads to as ``R_abs(parameters, intention)`` (the parameters as
+        :meth:`reward_function`'s); None otherwise: an episode's end is worth 0."""
+        if not self.config.method.reward.absorbing_state:
+            return None
+        k, algorithm, env = self.num_intentions, self.algorithm, self.problem.env
+        apply = self.networks.discriminator.apply
+
+        def reward(parameters, intention):
+            sizes = (env.observation_size, env.action_size)
+            every = absorbing_reward(apply, parameters["discriminator"], algorithm, k, *sizes)
+            return jnp.take(every, intention)
 
         return reward
 

@@ -77,16 +77,22 @@ def make_b_step(
     value_optimizer: optax.GradientTransformation,
     config: BStepConfig,
 ):
-    """``b_step(policy, value, samples, reward, key) -> BStep``: one policy improvement of the
-    policy parameters ``policy`` on ``reward [T, K, B]`` for ``samples`` (a
+    """``b_step(policy, value, samples, reward, key, end_values=None) -> BStep``: one policy
+    improvement of the policy parameters ``policy`` on ``reward [T, K, B]`` for ``samples`` (a
     :class:`PolicySamples`), and a refit of the value baseline ``value`` (a :class:`Learner`).
+    ``end_values [T, K, B]``: V of the state an episode ends in (GAE's; None: 0).
 
     The networks see the samples grouped by intention (``[K, T * B]``, see
     :func:`~emgail_jax.method.rollout.intention_major`), GAE sees them in time order.
     """
 
     def b_step(
-        policy: Any, value: Learner, samples: PolicySamples, reward: jax.Array, key: jax.Array
+        policy: Any,
+        value: Learner,
+        samples: PolicySamples,
+        reward: jax.Array,
+        key: jax.Array,
+        end_values: jax.Array | None = None,
     ) -> BStep:
         chex.assert_equal_shape((reward, samples.time, samples.done))
         chex.assert_equal_shape_prefix((samples.obs, samples.action, samples.condition), 3)
@@ -105,7 +111,7 @@ def make_b_step(
             intention_major=True,
         )
         advantages, returns = generalized_advantages(
-            reward, values, samples.done, bootstrap, config.gamma, config.gae_lambda
+            reward, values, samples.done, bootstrap, config.gamma, config.gae_lambda, end_values
         )
         # Each intention's advantages are standardised on their own, so that no intention's
         # reward scale dominates a shared policy update.

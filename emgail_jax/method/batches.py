@@ -56,6 +56,16 @@ class DemonstrationPairs:
             has_labels=demos.intentions is not None,
         )
 
+    def terminations(self, episode_length: int) -> jax.Array:
+        """``[N]`` 1.0 on the last pair of every demonstration shorter than ``episode_length``:
+        one the env ended. A demonstration records no termination flag; the shipped files and
+        the Minari datasets written here end early only where the env did (``experts``'
+        replay check, ``minari_datasets.write``)."""
+        last = jnp.append(self.episode[1:] != self.episode[:-1], True)
+        ones = jnp.ones(self.episode.shape)
+        length = jax.ops.segment_sum(ones, self.episode, num_segments=self.episodes)
+        return jnp.where(last & (length[self.episode] < episode_length), 1.0, 0.0)
+
 
 @struct.dataclass
 class LearningBatch:
@@ -92,6 +102,10 @@ class NormalizedBatch:
     executed: jax.Array  # [K, M, A] their actions as executed (clipped)
     expert_obs: jax.Array  # [N, D]
     expert_actions: jax.Array  # [N, A] executed
+    # With absorbing states only (None otherwise): 1.0 where a sample's transition, or a
+    # demonstration's last pair, ended its episode before the time limit.
+    terminal: jax.Array | None = None  # [K, M]
+    expert_terminal: jax.Array | None = None  # [N]
 
     def own_intention(self) -> jax.Array:
         """``[K, M]``: the intention whose policy made each sample (row k is k)."""
@@ -107,4 +121,7 @@ class NormalizedBatch:
         chex.assert_equal_shape_prefix((self.expert_obs, self.expert_actions), 1)
         chex.assert_equal_shape_suffix((self.obs, self.expert_obs), 1)
         chex.assert_equal_shape_suffix((self.executed, self.expert_actions), 1)
+        if self.terminal is not None:
+            chex.assert_shape(self.terminal, self.obs.shape[:2])
+            chex.assert_shape(self.expert_terminal, self.expert_obs.shape[:1])
         return self

@@ -230,6 +230,7 @@ SETTINGS: dict[str, Setting] = {
     "posterior_steps": _at("method", "e_step", "steps", domain=COUNT),
     "reward_from": _at("method", "reward", "source", domain=_one_of(RewardFrom)),
     "reward_form": _at("method", "reward", "form", domain=_one_of(RewardForm)),
+    "absorbing_state": _at("method", "reward", "absorbing_state", domain=BOOLEAN),
     "info_weight": _at("info_weight", domain=NON_NEGATIVE),
     "chunk_size": _at("schedule", "chunk_size", domain=COUNT),
     "seed_batch": _at("schedule", "seed_batch", domain=_or_default(COUNT)),
@@ -368,11 +369,14 @@ class BStepConfig(_Layer):
 
 @dataclass(frozen=True)
 class RewardConfig(_Layer):
-    """The B-step's reward: its form, and which networks score it."""
+    """The B-step's reward: its form, which networks score it, and whether a termination
+    leads to an absorbing state whose reward the discriminator learns (DAC, Kostrikov et al.
+    2019; off: an episode's end is worth 0, as the paper has it)."""
 
     PREFIX = ("method", "reward")
     form: RewardForm = RewardForm.GAIL
     source: RewardFrom = RewardFrom.UPDATED
+    absorbing_state: bool = False
 
 
 @dataclass(frozen=True)
@@ -577,6 +581,8 @@ def _parse_setting(text: str, current, key: str):
         return text
     if dataclasses.is_dataclass(current):
         raise ValueError(f"'{key}' has fields: set one of them, e.g. {key}.<field>=...")
+    if isinstance(current, bool) and text.lower() in ("true", "false"):
+        return text.lower() == "true"  # the shell's spelling as well as Python's
     try:
         value = ast.literal_eval(text)
     except (ValueError, SyntaxError):

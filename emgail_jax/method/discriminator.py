@@ -9,6 +9,15 @@ condition c with a weight w[n, c]: EM-GAIL's conditions are the K one-hot intent
 weights are the responsibilities gamma (eq. 19); the baselines' D(s, a) has a single, empty
 condition with weight one (eq. 22). Policy samples are scored under their own condition only.
 The reward the discriminator defines is in :mod:`emgail_jax.method.algorithms`.
+
+With absorbing states (``--set absorbing_state=true``, DAC), a termination leads to the
+absorbing state, one pair (normalised observation and action zeros, the absorbing indicator 1:
+:class:`~emgail_jax.method.networks.Discriminator`) that the discriminator learns like any
+other: one absorbing sample per policy transition that terminated, as a negative, and per
+demonstration that ended in one, as a positive. One sample per termination, as DAC's replay
+holds one: the horizon it lasts enters the B-step's value
+(:func:`~emgail_jax.method.gae.absorbing_value`), not D's loss, where a policy that falls early
+would otherwise put most of the negatives' weight on that one pair.
 """
 
 from __future__ import annotations
@@ -33,6 +42,30 @@ def expert_logits(apply: Callable, params, obs, actions, conditions: jax.Array) 
     return apply(params, obs[None], actions[None], conditions[:, None, :], intention_major=True).T
 
 
+def absorbing_logits(
+    apply: Callable, params, conditions: jax.Array, obs_size: int, action_size: int
+) -> jax.Array:
+    """``[C]``: f of the absorbing pair (observation and action zeros, the absorbing indicator
+    1) under every condition ``conditions [C, c]``."""
+    c = conditions.shape[0]
+    zeros = lambda size: jnp.zeros((c, 1, size))
+    logits = apply(
+        params,
+        zeros(obs_size),
+        zeros(action_size),
+        conditions[:, None, :],
+        intention_major=True,
+        absorbed=jnp.ones((c, 1)),
+    )
+    return logits[:, 0]
+
+
+def _with_absorbing(losses: jax.Array, absorbing_losses: jax.Array, counts: jax.Array):
+    """The mean loss over ``losses`` (one per sample) and ``counts [C]`` absorbing samples
+    whose losses are ``absorbing_losses [C]``."""
+    return (losses.sum() + jnp.sum(counts * absorbing_losses)) / (losses.size + counts.sum())
+
+
 def discriminator_loss(
     apply: Callable,
     params,
@@ -45,6 +78,8 @@ def discriminator_loss(
     policy_actions: jax.Array,
     policy_conditions: jax.Array,
     gradient_penalty: float = 0.0,
+    expert_absorbed: jax.Array | None = None,
+    policy_absorbed: jax.Array | None = None,
 ):
     """Logistic loss: expert pairs are real, weighted over conditions; policy samples are fake;
     plus ``gradient_penalty`` times :func:`input_gradient_norms` (none computed at 0).
@@ -56,17 +91,37 @@ def discriminator_loss(
       policy_obs, policy_actions, policy_conditions: ``[C, M, D]``, ``[C, M, A]``,
         ``[C, M, c]``: M samples of each condition, row c generated under condition c (the
         intention-major layout of :func:`~emgail_jax.method.rollout.intention_major`).
+      expert_absorbed, policy_absorbed: with absorbing states (both or neither), the
+        absorbing pair as a real sample, weighted ``[C]`` under each condition (the summed
+        weights of the demonstrations that ended in a termination), and as a fake one,
+        ``[rows]`` samples under each row's condition (its terminations); each counts as one
+        sample more in its term's mean.
     """
     real = expert_logits(apply, params, expert_obs, expert_actions, conditions)
     fake = apply(params, policy_obs, policy_actions, policy_conditions, intention_major=True)
-    expert_term = jnp.mean(jnp.sum(expert_weights * jax.nn.softplus(-real), -1))
-    policy_term = jnp.mean(jax.nn.softplus(fake))
+    expert_losses = jnp.sum(expert_weights * jax.nn.softplus(-real), -1)
+    policy_losses = jax.nn.softplus(fake)
+    absorbing_metrics = {}
+    if policy_absorbed is None:
+        expert_term, policy_term = jnp.mean(expert_losses), jnp.mean(policy_losses)
+    else:
+        sizes = (policy_obs.shape[-1], policy_actions.shape[-1])
+        real_absorbing = absorbing_logits(apply, params, conditions, *sizes)
+        fake_absorbing = absorbing_logits(apply, params, policy_conditions[:, 0], *sizes)
+        expert_term = _with_absorbing(
+            expert_losses, jax.nn.softplus(-real_absorbing), expert_absorbed
+        )
+        policy_term = _with_absorbing(
+            policy_losses, jax.nn.softplus(fake_absorbing), policy_absorbed
+        )
+        absorbing_metrics = {"discriminator/absorbing_d": jnp.mean(jax.nn.sigmoid(fake_absorbing))}
     loss = expert_term + policy_term
     real_d = jnp.sum(expert_weights * jax.nn.sigmoid(real), -1)
     metrics = {
         "discriminator/loss": loss,
         "discriminator/expert_d": jnp.mean(real_d),
         "discriminator/policy_d": jnp.mean(jax.nn.sigmoid(fake)),
+        **absorbing_metrics,
     }
     if gradient_penalty:
         norms = input_gradient_norms(
@@ -139,7 +194,8 @@ def make_m_step(apply: Callable, optimizer: optax.GradientTransformation, config
     discriminator (a :class:`Learner`) learns the expert pairs of ``batch`` (a
     :class:`NormalizedBatch`), weighted over intentions by ``gamma [N, K]`` as ``algorithm``
     says (eq. 19 or 22), against the policy samples under their own intention; ``config.steps``
-    full-batch steps, with the gradient penalty of weight ``config.gradient_penalty``."""
+    full-batch steps, with the gradient penalty of weight ``config.gradient_penalty``. A batch
+    with termination flags adds the absorbing pair on both sides (module docstring)."""
 
     def m_step(
         discriminator: Learner, batch: NormalizedBatch, gamma: jax.Array, algorithm: Algorithm
@@ -147,6 +203,12 @@ def make_m_step(apply: Callable, optimizer: optax.GradientTransformation, config
         k = batch.obs.shape[0]
         chex.assert_shape(gamma, (batch.expert_obs.shape[0], k))
         own_intention = batch.own_intention()
+        absorbed = {}
+        if batch.terminal is not None:
+            absorbed = dict(
+                expert_absorbed=batch.expert_terminal @ algorithm.expert_weights(gamma),
+                policy_absorbed=batch.terminal.sum(1),
+            )
         trained, metrics = discriminator_update(
             apply,
             optimizer,
@@ -160,6 +222,7 @@ def make_m_step(apply: Callable, optimizer: optax.GradientTransformation, config
             policy_actions=batch.executed,
             policy_conditions=algorithm.discriminator_condition(own_intention, k),
             gradient_penalty=config.gradient_penalty,
+            **absorbed,
         )
         return MStep(trained, metrics)
 
@@ -188,3 +251,20 @@ def learned_reward(
     condition = algorithm.discriminator_condition(intention, num_intentions)
     logit = apply(params, obs, executed, condition, intention_major=intention_major)
     return algorithm.pseudo_reward(logit, own_log_posterior)
+
+
+def absorbing_reward(
+    apply: Callable,
+    params,
+    algorithm: Algorithm,
+    num_intentions: int,
+    obs_size: int,
+    action_size: int,
+) -> jax.Array:
+    """``[K]`` the learned reward of the absorbing state under each intention, as
+    :func:`learned_reward` scores a pair; Info/IntentionGAIL's lambda log P(i | s, a) taken at
+    1/K, since the absorbing state tells no intention from another."""
+    intentions = jnp.arange(num_intentions)
+    conditions = algorithm.discriminator_condition(intentions, num_intentions)  # [K, c]
+    logits = absorbing_logits(apply, params, conditions, obs_size, action_size)
+    return algorithm.pseudo_reward(logits, jnp.full(num_intentions, -jnp.log(num_intentions)))

@@ -131,11 +131,22 @@ class ValueNet(ScalarNet):
 
 
 class Discriminator(ScalarNet):
-    """The logit f of D = sigmoid(f): f(s, a, i) for EM-GAIL, f(s, a) for the baselines."""
+    """The logit f of D = sigmoid(f): f(s, a, i) for EM-GAIL, f(s, a) for the baselines.
+
+    With ``absorbing``, one input more: the absorbing-state indicator (DAC), ``absorbed [...]``
+    where given and 0 (a real pair) otherwise, so that every caller scoring real pairs is
+    unchanged."""
+
+    absorbing: bool = False
 
     @nn.compact
-    def __call__(self, obs, action, condition, intention_major: bool = False) -> jax.Array:
+    def __call__(
+        self, obs, action, condition, intention_major: bool = False, absorbed=None
+    ) -> jax.Array:
         x = jnp.concatenate([obs, action], -1)
+        if self.absorbing:
+            indicator = jnp.zeros(x.shape[:-1]) if absorbed is None else absorbed
+            x = jnp.concatenate([x, jnp.broadcast_to(indicator, x.shape[:-1])[..., None]], -1)
         logit = conditioned_mlp(
             self.hidden, 1, x, condition, self.heads, intention_major=intention_major
         )

@@ -30,36 +30,45 @@ class Replay:
     executed: jax.Array  # [R, K, M, A] executed (clipped) actions
     pushed: jax.Array  # [] int32, iterations pushed so far
     key: jax.Array  # the draws' own key: no other key of the run changes with a replay
+    # With absorbing states only (None otherwise): 1.0 where a sample's transition terminated
+    # its episode, so that a drawn termination brings its absorbing negative along.
+    terminal: jax.Array | None = None  # [R, K, M]
 
     @classmethod
-    def create(cls, size: int, k: int, m: int, obs_size: int, action_size: int, key) -> Replay:
+    def create(
+        cls, size: int, k: int, m: int, obs_size: int, action_size: int, key, absorbing=False
+    ) -> Replay:
         return cls(
             obs=jnp.zeros((size, k, m, obs_size)),
             executed=jnp.zeros((size, k, m, action_size)),
             pushed=jnp.zeros((), jnp.int32),
             key=key,
+            terminal=jnp.zeros((size, k, m)) if absorbing else None,
         )
 
-    def push(self, obs: jax.Array, executed: jax.Array) -> Replay:
-        """With one iteration's samples ``obs [K, M, D]`` (raw), ``executed [K, M, A]`` in the
-        oldest slot."""
+    def push(self, obs: jax.Array, executed: jax.Array, terminal=None) -> Replay:
+        """With one iteration's samples ``obs [K, M, D]`` (raw), ``executed [K, M, A]`` (and,
+        with absorbing states, ``terminal [K, M]``) in the oldest slot."""
         slot = self.pushed % self.obs.shape[0]
         return self.replace(
             obs=self.obs.at[slot].set(obs),
             executed=self.executed.at[slot].set(executed),
             pushed=self.pushed + 1,
+            terminal=None if terminal is None else self.terminal.at[slot].set(terminal),
         )
 
-    def draw(self, count: int) -> tuple[Replay, jax.Array, jax.Array]:
-        """``(replay, obs [K, count, D], executed [K, count, A])``: per intention, ``count``
-        samples drawn uniformly (with replacement) from the slots filled so far."""
+    def draw(self, count: int) -> tuple[Replay, jax.Array, jax.Array, jax.Array | None]:
+        """``(replay, obs [K, count, D], executed [K, count, A], terminal [K, count] or
+        None)``: per intention, ``count`` samples drawn uniformly (with replacement) from the
+        slots filled so far."""
         size, k, m = self.obs.shape[:3]
         key, key_draw = jax.random.split(self.key)
         filled = jnp.minimum(self.pushed, size)
         index = jax.random.randint(key_draw, (k, count), 0, filled * m)  # [K, count]
         per_intention = lambda x: jnp.swapaxes(x, 0, 1).reshape(k, size * m, -1)
         take = lambda x: jnp.take_along_axis(per_intention(x), index[..., None], axis=1)
-        return self.replace(key=key), take(self.obs), take(self.executed)
+        terminal = None if self.terminal is None else take(self.terminal)[..., 0]
+        return self.replace(key=key), take(self.obs), take(self.executed), terminal
 
 
 def with_replay(
@@ -67,10 +76,14 @@ def with_replay(
 ) -> tuple[Replay, NormalizedBatch]:
     """The replay with ``seen``'s samples (raw ``raw_obs [K, M, D]``) pushed, and ``seen`` with
     as many samples again drawn from it appended to its own (``[K, 2M, ...]``, normalised by
-    ``normalize``): the M-step's negatives."""
-    replay = replay.push(raw_obs, seen.executed)
-    replay, obs, executed = replay.draw(raw_obs.shape[1])
+    ``normalize``; their termination flags too, with absorbing states): the M-step's
+    negatives."""
+    replay = replay.push(raw_obs, seen.executed, seen.terminal)
+    replay, obs, executed, terminal = replay.draw(raw_obs.shape[1])
     both = lambda own, drawn: jnp.concatenate([own, drawn], axis=1)
-    return replay, seen.replace(
+    negatives = seen.replace(
         obs=both(seen.obs, normalize(obs)), executed=both(seen.executed, executed)
     )
+    if terminal is not None:
+        negatives = negatives.replace(terminal=both(seen.terminal, terminal))
+    return replay, negatives

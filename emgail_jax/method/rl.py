@@ -37,6 +37,8 @@ from emgail_jax.method.skeleton import PolicyStages, Rewarded, make_update, unco
 # (obs [T, 1, B, D] raw, action [T, 1, B, A], true_reward [T, 1, B, K], intention [],
 #  reward_data: the reward's parameters, any pytree or None) -> [T, 1, B]
 RewardFn = Callable[[jax.Array, jax.Array, jax.Array, jax.Array, Any], jax.Array]
+# (intention [], reward_data) -> [] the learned reward of the absorbing state (DAC)
+AbsorbingRewardFn = Callable[[jax.Array, Any], jax.Array]
 
 
 def true_reward(obs, action, reward, intention, reward_data=None):
@@ -55,12 +57,18 @@ class RLState:
 
 
 def make_rl_train(
-    config: MethodConfig, env: envs.Env, reward_fn: RewardFn = true_reward, eval_episodes: int = 5
+    config: MethodConfig,
+    env: envs.Env,
+    reward_fn: RewardFn = true_reward,
+    eval_episodes: int = 5,
+    absorbing_reward: AbsorbingRewardFn | None = None,
 ):
     """Builds ``init(key) -> RLState``, ``update(state, intention, reward_data=None) -> (state,
     metrics)`` and ``policy(state, deterministic) -> (obs, key) -> action``: the trainer
     skeleton (:mod:`~emgail_jax.method.skeleton`) with ``reward_fn`` as its reward stage; every
-    update scores the new policy on ``eval_episodes`` deterministic episodes."""
+    update scores the new policy on ``eval_episodes`` deterministic episodes. With
+    ``absorbing_reward`` (a learned reward of a run with absorbing states), a termination is
+    worth that reward for every step left to the time limit, as in the run's B-step."""
     config = config.resolved(env)
     train_env = envs.wrap_for_training(env)
     eval_env = envs.EpisodeWrapper(env)
@@ -89,7 +97,10 @@ def make_rl_train(
 
     def reward(state: RLState, batch, normalizer, intention, reward_data) -> Rewarded:
         rewards = reward_fn(batch.obs, batch.action, batch.true_reward, intention, reward_data)
-        return Rewarded(rewards, {}, {"train/reward": rewards.mean()})
+        absorbed = None
+        if absorbing_reward is not None:
+            absorbed = absorbing_reward(intention, reward_data)[None]  # [1]: the one row
+        return Rewarded(rewards, {}, {"train/reward": rewards.mean()}, absorbed)
 
     # Fresh episodes of the improved policy, not the IRL loop's evaluation phases: the experts
     # and the baselines' cached numbers were made with these keys.

@@ -39,6 +39,20 @@ class Transitions:
         )
 
 
+def steps_left(time: jax.Array, episode_length: int) -> jax.Array:
+    """``[...]`` int32: the steps an episode has left to its time limit after a transition taken
+    at ``time [...]`` (t / episode_length of the observation it was taken in); 0 after the last."""
+    return episode_length - 1 - jnp.round(time * episode_length).astype(jnp.int32)
+
+
+def terminations(transitions: Transitions, episode_length: int) -> jax.Array:
+    """``[T, K, B]`` 1.0 where the env itself ended the episode before its time limit (a
+    termination, not a truncation). Told by the time: after an auto-reset the state holds the
+    next episode's ``info['truncation']``. An end at the limit itself counts as the limit's:
+    no step is left after it."""
+    return transitions.done * (steps_left(transitions.time, episode_length) > 0)
+
+
 def intention_major(x: jax.Array) -> jax.Array:
     """``[T, K, B, ...] -> [K, T * B, ...]``: a rollout's samples grouped by intention, the
     layout the networks take with ``intention_major=True``."""

@@ -34,9 +34,10 @@ from emgail_jax.method import normalizer as obs_norm
 from emgail_jax.method.b_step import BStep, PolicySamples, make_b_step
 from emgail_jax.method.batches import LearningBatch
 from emgail_jax.method.config import MethodConfig
+from emgail_jax.method.gae import absorbing_value
 from emgail_jax.method.networks import GaussianPolicy, ValueNet, policy_action
 from emgail_jax.method.optim import Learner
-from emgail_jax.method.rollout import Policy, Transitions, rollout, time_major
+from emgail_jax.method.rollout import Policy, Transitions, rollout, steps_left, time_major
 
 # intentions [...] (int) -> the policy's and the value's intention input [..., C] (C may be 0)
 Condition = Callable[[Any], jax.Array]
@@ -121,10 +122,18 @@ class PolicyStages:
         return rollout(env, policy, env_state, key, self.config.rollout.rollout_length)
 
     def improve(
-        self, state, batch: LearningBatch, normalizer: obs_norm.RunningStats, reward, key
+        self,
+        state,
+        batch: LearningBatch,
+        normalizer: obs_norm.RunningStats,
+        reward,
+        key,
+        absorbing_reward=None,
     ) -> BStep:
         """Step 4: the B-step of ``state``'s policy and value on ``reward [T, K, B]`` for
-        ``batch``, its observations normalised with ``normalizer`` (the rollout's included)."""
+        ``batch``, its observations normalised with ``normalizer`` (the rollout's included).
+        ``absorbing_reward [K]``: the reward of every step a row's episode has left after a
+        termination (DAC's absorbing state); None: nothing follows an episode's end."""
         t, k, b = reward.shape
         rows = intention_rows((k, t * b))
         samples = PolicySamples.of(
@@ -133,7 +142,11 @@ class PolicyStages:
             time_major(self.condition(rows), t),
             self.condition(intention_rows((k, b))),
         )
-        return self.b_step(state.policy, state.value, samples, reward, key)
+        end_values = None
+        if absorbing_reward is not None:
+            left = steps_left(batch.time, self.episode_length)  # 0 at a time limit
+            end_values = absorbing_value(absorbing_reward[:, None], left, self.config.b_step.gamma)
+        return self.b_step(state.policy, state.value, samples, reward, key, end_values)
 
 
 @struct.dataclass
@@ -143,6 +156,9 @@ class Rewarded:
     reward: jax.Array  # [T, K, B]
     state: dict  # the trainer state's fields the stage replaces (none for plain RL)
     metrics: dict
+    # [K] the reward of the absorbing state a termination leads to, per row (DAC); None: an
+    # episode's end is worth 0 (the true reward, a run without absorbing states).
+    absorbing_reward: jax.Array | None = None
 
 
 # (state, key, *inputs) -> (end env state, transitions [T, K, B, ...], metrics)
@@ -167,7 +183,9 @@ def make_update(
         normalizer = obs_norm.update(state.normalizer, transitions.obs)
         rewarded = reward(state, transitions, normalizer, *inputs)
         batch = LearningBatch.of(transitions, end, stages.episode_length)
-        improved = stages.improve(state, batch, normalizer, rewarded.reward, key_value)
+        improved = stages.improve(
+            state, batch, normalizer, rewarded.reward, key_value, rewarded.absorbing_reward
+        )
         new_state = state.replace(
             policy=improved.policy,
             value=improved.value,

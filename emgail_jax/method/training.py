@@ -49,7 +49,12 @@ from emgail_jax.method.algorithms import Algorithm, make_algorithm
 from emgail_jax.method.batches import DemonstrationPairs, NormalizedBatch
 from emgail_jax.method.choosing import holds_demonstrations
 from emgail_jax.method.config import MethodConfig, ResponsibilityMode
-from emgail_jax.method.discriminator import expert_logits, learned_reward, make_m_step
+from emgail_jax.method.discriminator import (
+    absorbing_reward,
+    expert_logits,
+    learned_reward,
+    make_m_step,
+)
 from emgail_jax.method.metrics import cluster_accuracy, normalized_erd
 from emgail_jax.method.networks import (
     Discriminator,
@@ -82,6 +87,7 @@ from emgail_jax.method.rollout import (
     episode_totals,
     fresh_starts,
     intention_major,
+    terminations,
     time_major,
     tree_where,
 )
@@ -147,7 +153,7 @@ def make_networks(config: MethodConfig, env: envs.Env) -> Networks:
     return Networks(
         policy=GaussianPolicy(env.action_size, shape.hidden, shape.init_log_std, heads),
         value=ValueNet(shape.hidden, heads),
-        discriminator=Discriminator(shape.hidden, heads),
+        discriminator=Discriminator(shape.hidden, heads, config.reward.absorbing_state),
         posterior=Posterior(env.num_intentions, shape.hidden),
     )
 
@@ -331,6 +337,7 @@ def replay_of(config: MethodConfig, env: envs.Env, key: jax.Array) -> Replay | N
         env.observation_size,
         env.action_size,
         jax.random.fold_in(key, 1),
+        absorbing=config.reward.absorbing_state,
     )
 
 
@@ -411,17 +418,25 @@ def normalized_batch(
     demos: DemonstrationPairs,
     env: envs.Env,
     obs_clip: float,
+    absorbing: bool = False,
 ) -> NormalizedBatch:
     """The rollout and the demonstrations as the posterior and the discriminator see them, with
-    ``normalizer`` (the rollout's statistics included); TRPO keeps the raw samples."""
+    ``normalizer`` (the rollout's statistics included); TRPO keeps the raw samples. With
+    ``absorbing``, the terminations of both, where the discriminator adds absorbing pairs."""
     normalize = lambda x: obs_norm.normalize(normalizer, x, obs_clip)
-    return NormalizedBatch(
+    batch = NormalizedBatch(
         normalizer=normalizer,
         obs=normalize(intention_major(transitions.obs)),
         executed=env.clip_action(intention_major(transitions.action)),
         expert_obs=normalize(demos.observations),
         expert_actions=demos.actions,
-    ).check()
+    )
+    if absorbing:
+        batch = batch.replace(
+            terminal=intention_major(terminations(transitions, env.episode_length)),
+            expert_terminal=demos.terminations(env.episode_length),
+        )
+    return batch.check()
 
 
 def make_reseed(config: MethodConfig, networks: Networks, k: int):
@@ -510,10 +525,26 @@ class LearnedRewardStage:
             intention_major=True,
         )
 
+    def absorbing_reward(self, discriminator, algorithm) -> jax.Array:
+        """``[K]`` the B-step's reward of the absorbing state under each intention, from the
+        ``discriminator`` (a :class:`Learner`)."""
+        env = self.env
+        return absorbing_reward(
+            self.networks.discriminator.apply,
+            discriminator.params,
+            algorithm,
+            env.num_intentions,
+            env.observation_size,
+            env.action_size,
+        )
+
     def __call__(self, state: TrainState, transitions, normalizer, evaluating, data) -> Rewarded:
         config, demos = self.config, data.demos
         algorithm = algorithm_of(config, data)
-        seen = normalized_batch(normalizer, transitions, demos, self.env, config.networks.obs_clip)
+        absorbing = config.reward.absorbing_state
+        seen = normalized_batch(
+            normalizer, transitions, demos, self.env, config.networks.obs_clip, absorbing
+        )
         reseeding = state.reseeding
         # EM-GAIL's M-step sees a re-seeding in gamma; Info/IntentionGAIL's D(s, a) ignores
         # gamma, so its posterior learns the held demonstrations instead.
@@ -538,6 +569,10 @@ class LearnedRewardStage:
             e.responsibilities, demos, k, config.e_step.responsibilities, in_use
         )
         metrics = {**clustering, **e.metrics, **m.metrics, "train/pseudo_reward": reward.mean()}
+        absorbed = None
+        if absorbing:
+            absorbed = self.absorbing_reward(rewarding, algorithm)
+            metrics["train/absorbing_reward"] = absorbed.mean()
         if in_use is not None:
             metrics["posterior/intentions_in_use"] = in_use.sum()
         learned = dict(
@@ -547,7 +582,7 @@ class LearnedRewardStage:
             reseeding=reseeding,
             replay=replay,
         )
-        return Rewarded(time_major(reward, transitions.obs.shape[0]), learned, metrics)
+        return Rewarded(time_major(reward, transitions.obs.shape[0]), learned, metrics, absorbed)
 
 
 def make_train(config: MethodConfig, env: envs.Env) -> Trainer:
