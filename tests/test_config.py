@@ -229,6 +229,31 @@ def test_choosing_k_needs_a_posterior_and_the_mixture_prior():
             )
 
 
+@pytest.mark.parametrize("mode", ["pair", "labels"])
+def test_tempering_needs_a_trajectory_e_step(mode):
+    with pytest.raises(ValueError, match=f"responsibilities {mode} has none") as error:
+        RunConfig().with_values(responsibilities=mode).with_settings(
+            ["trajectory_temper_iterations=10"]
+        )
+    assert "\n" not in str(error.value)
+    assert RunConfig().with_values(responsibilities=mode).method.e_step == EStepConfig(
+        responsibilities=mode
+    )  # off, any E-step
+
+
+def test_tempering_goes_with_either_trajectory_e_step_and_the_mixture_prior():
+    assert RunConfig().method.e_step.trajectory_temper_iterations == 0
+    for mode in ("trajectory", "trajectory-centered"):
+        config = RunConfig().with_settings(
+            [f"responsibilities={mode}", "prior=mixture", "trajectory_temper_iterations=30"]
+        )
+        e_step = config.method.e_step
+        assert (e_step.trajectory_temper_iterations, e_step.prior) == (30, Prior.MIXTURE)
+        assert RunConfig.from_dict(config.to_dict()) == config
+    older = {k: v for k, v in RunConfig().to_dict().items() if k != "trajectory_temper_iterations"}
+    assert RunConfig.from_dict(older).method.e_step.trajectory_temper_iterations == 0
+
+
 def test_with_settings_parses_each_value_as_the_type_of_its_default():
     config = RunConfig().with_settings(
         ["discriminator_steps=5", "trpo.cg_damping=0", "hidden=(32, 32)", "algo=gail"]
@@ -346,6 +371,10 @@ def test_every_hyper_parameter_has_a_domain_its_default_is_in():
         ("absorbing_state=3", "absorbing_state must be True or False; got 3"),
         ("prior=flat", "prior must be one of uniform, mixture; got 'flat'"),
         ("snapshot_every=-1", "snapshot_every must be an integer >= 0; got -1"),
+        (
+            "trajectory_temper_iterations=-1",
+            "trajectory_temper_iterations must be an integer >= 0; got -1",
+        ),
     ],
 )
 def test_a_value_outside_its_domain_is_refused_in_one_line(setting, message):

@@ -21,6 +21,7 @@ from emgail_jax.method.training import (
     make_policy_stages,
     make_train,
     normalized_batch,
+    responsibilities_of,
     training_env,
 )
 
@@ -525,3 +526,25 @@ def test_an_absorbing_run_learns_the_absorbing_states_reward(env, expert):
     assert metrics["train/absorbing_reward"] > 0.0  # -log(1 - D), the default form
     assert not np.any(state.replay.terminal)
     assert all(np.all(np.isfinite(leaf)) for leaf in _leaves(state))
+
+
+def test_a_tempered_e_step_weighs_the_evidence_by_the_iteration(env, expert, emgail):
+    """``trajectory_temper_iterations``: the E-step of update n tempers by the beta of iteration
+    n (``state.iteration`` before the update), and ``responsibilities_of`` the state after it
+    gives back the demonstrations each intention held then; the untempered run's differ."""
+    _, steps, _ = _train(CONFIG.with_values(trajectory_temper_iterations=4), env, expert, 2)
+    config = CONFIG.method.replace(
+        e_step=CONFIG.method.e_step.replace(trajectory_temper_iterations=4)
+    ).resolved(env)
+    networks = make_networks(config, env)
+    for state, metrics in steps:
+        held = responsibilities_of(networks, config, state, expert).gamma
+        per_demonstration = jax.ops.segment_sum(held, expert.episode, expert.episodes)
+        pairs = jax.ops.segment_sum(np.ones(len(expert.episode)), expert.episode, expert.episodes)
+        np.testing.assert_allclose(
+            (per_demonstration / pairs[:, None]).sum(0), metrics["reseed/demonstrations"], rtol=1e-4
+        )
+    _, untempered = emgail[1][0]
+    assert not np.allclose(
+        steps[0][1]["reseed/demonstrations"], untempered["reseed/demonstrations"]
+    )

@@ -206,6 +206,9 @@ SETTINGS: dict[str, Setting] = {
     "responsibilities": _at(
         "method", "e_step", "responsibilities", domain=_one_of(ResponsibilityMode)
     ),
+    "trajectory_temper_iterations": _at(
+        "method", "e_step", "trajectory_temper_iterations", domain=_integers(0)
+    ),
     "prior": _at("method", "e_step", "prior", domain=_one_of(Prior)),
     "reseed": _at("method", "e_step", "reseed", domain=BOOLEAN),
     "reseed_patience": _at("method", "e_step", "reseed_patience", domain=COUNT),
@@ -319,10 +322,13 @@ class NetworkConfig(_Layer):
 class EStepConfig(_Layer):
     """The E-step (:mod:`emgail_jax.method.posterior`): the responsibilities, the prior, the
     posterior's full-batch Adam steps, and re-seeding of emptied intentions
-    (:mod:`emgail_jax.method.reseeding`)."""
+    (:mod:`emgail_jax.method.reseeding`). ``trajectory_temper_iterations`` N > 0 tempers a
+    trajectory E-step's evidence, from one pair's worth at iteration 0 to all of it at
+    iteration N (``posterior.evidence_temper``; 0: untempered, the default)."""
 
     PREFIX = ("method", "e_step")
     responsibilities: ResponsibilityMode = ResponsibilityMode.TRAJECTORY
+    trajectory_temper_iterations: int = 0
     prior: Prior = Prior.UNIFORM
     learning_rate: float = 1e-3
     steps: int = 20
@@ -330,6 +336,14 @@ class EStepConfig(_Layer):
     reseed_patience: int = 10
     reseed_window: int = 10
     reseed_attempts: int = 3
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.trajectory_temper_iterations and not self.responsibilities.per_demonstration:
+            raise ValueError(
+                "trajectory_temper_iterations tempers a trajectory E-step; responsibilities "
+                f"{self.responsibilities.value} has none (use trajectory or trajectory-centered)"
+            )
 
 
 @dataclass(frozen=True)

@@ -70,6 +70,7 @@ from emgail_jax.method.posterior import (
     expert_responsibilities,
     make_e_step,
     mixture_weights,
+    tempered_evidence,
 )
 from emgail_jax.method.replay import Replay, with_replay
 from emgail_jax.method.reseeding import (
@@ -204,6 +205,9 @@ def responsibilities_of(
     """The E-step's responsibilities of ``demos`` under one seed's ``state`` (its posterior,
     observation statistics and mixture weights), computed as training computes them."""
     expert_obs = obs_norm.normalize(state.normalizer, demos.observations, config.networks.obs_clip)
+    # A state after n updates holds the posterior the E-step of update n - 1 trained; a
+    # tempered E-step weighed the evidence with that update's beta.
+    evidence_weight = tempered_evidence(config.e_step, state.iteration - 1, demos)
     return expert_responsibilities(
         networks.posterior.apply,
         state.posterior.params,
@@ -214,6 +218,7 @@ def responsibilities_of(
         mode=config.e_step.responsibilities,
         labels=demos.labels if demos.has_labels else None,
         weights=state.intention_weights if config.e_step.prior.estimated else None,
+        evidence_weight=evidence_weight,
     )
 
 
@@ -491,7 +496,7 @@ class LearnedRewardStage:
     config: MethodConfig
     env: envs.Env
     networks: Networks
-    e_step: Callable  # (posterior, seen, demos, weights, lesson=None) -> EStep
+    e_step: Callable  # (posterior, seen, demos, weights, lesson=None, iteration=None) -> EStep
     m_step: Callable  # (discriminator, seen, gamma, algorithm) -> MStep
     reseed: Callable  # see make_reseed
 
@@ -550,7 +555,9 @@ class LearnedRewardStage:
         # gamma, so its posterior learns the held demonstrations instead.
         teaches = reseeding is not None and not algorithm.conditional_discriminator
         lesson = lesson_of(reseeding, demos) if teaches else None
-        e = self.e_step(state.posterior, seen, demos, state.intention_weights, lesson)
+        e = self.e_step(
+            state.posterior, seen, demos, state.intention_weights, lesson, state.iteration
+        )
         if reseeding is not None:
             reseeding, e = self.reseed(reseeding, e, state.discriminator, seen, demos, algorithm)
         replay, negatives = state.replay, seen
