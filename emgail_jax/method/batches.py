@@ -62,9 +62,14 @@ class DemonstrationPairs:
         the Minari datasets written here end early only where the env did (``experts``'
         replay check, ``minari_datasets.write``)."""
         last = jnp.append(self.episode[1:] != self.episode[:-1], True)
-        ones = jnp.ones(self.episode.shape)
-        length = jax.ops.segment_sum(ones, self.episode, num_segments=self.episodes)
+        length = pairs_per_demonstration(self.episode, self.episodes)
         return jnp.where(last & (length[self.episode] < episode_length), 1.0, 0.0)
+
+
+def pairs_per_demonstration(episode: jax.Array, episodes: int) -> jax.Array:
+    """``[E]`` float: how many pairs each demonstration has (``episode [N]``: the index of each
+    pair's demonstration, in ``[0, episodes)``)."""
+    return jax.ops.segment_sum(jnp.ones(episode.shape), episode, num_segments=episodes)
 
 
 @struct.dataclass

@@ -16,7 +16,11 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from emgail_jax.method.batches import DemonstrationPairs, NormalizedBatch
+from emgail_jax.method.batches import (
+    DemonstrationPairs,
+    NormalizedBatch,
+    pairs_per_demonstration,
+)
 from emgail_jax.method.config import EStepConfig, ResponsibilityMode, RewardFrom
 from emgail_jax.method.optim import Learner, minimize
 
@@ -74,11 +78,6 @@ class Lesson:
 def log_posterior(apply: Callable, params, obs: jax.Array, actions: jax.Array) -> jax.Array:
     """``[..., K]`` log P(i | s, a) of (normalised) ``obs [..., D]`` and ``actions [..., A]``."""
     return jax.nn.log_softmax(apply(params, obs, actions), axis=-1)
-
-
-def pairs_per_demonstration(episode: jax.Array, episodes: int) -> jax.Array:
-    """``[E]`` float: how many pairs each demonstration has (``episode [N]``, as below)."""
-    return jax.ops.segment_sum(jnp.ones(episode.shape), episode, num_segments=episodes)
 
 
 def evidence_temper(iteration: jax.Array, ramp_iterations: int, pairs: jax.Array) -> jax.Array:

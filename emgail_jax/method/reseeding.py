@@ -29,6 +29,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from emgail_jax.method.batches import pairs_per_demonstration
 from emgail_jax.method.choosing import kept_share
 
 
@@ -91,7 +92,7 @@ def demonstration_responsibilities(
     """``[E, K]`` each demonstration's mean responsibility over its pairs (``gamma [N, K]``,
     ``episode [N]``); in the trajectory E-step, the one its pairs all share."""
     total = jax.ops.segment_sum(gamma, episode, num_segments=episodes)
-    pairs = jax.ops.segment_sum(jnp.ones_like(episode, gamma.dtype), episode, episodes)
+    pairs = pairs_per_demonstration(episode, episodes)
     return total / jnp.maximum(pairs, 1.0)[:, None]
 
 
