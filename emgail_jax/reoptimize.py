@@ -651,8 +651,11 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
 
 
 def default_name(args) -> str:
-    """``reoptimize[-snapshot-ITER][-consolidated-STEPS][-ensemble-N][-FORM][-env-...].json``"""
+    """``reoptimize[-seed-S][-snapshot-ITER][-consolidated-STEPS][-ensemble-N][-FORM][-env-...]
+    .json``: a check of one seed does not overwrite the check of every seed."""
     parts = ["reoptimize"]
+    if args.seed is not None:
+        parts.append(f"seed-{args.seed}")
     if args.snapshot is not None:
         parts.append(f"snapshot-{args.snapshot}")
     if args.consolidate:

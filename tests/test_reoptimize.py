@@ -272,3 +272,12 @@ def test_a_variant_is_scored_against_its_own_true_reward_agent(tmp_path):
     plain = json.loads((out / "reoptimize.json").read_text())
     assert plain["variant"] is None and plain["baseline"]["cache"] != baseline["cache"]
     assert plain["random_returns"] != pytest.approx(result["random_returns"])
+
+
+def test_the_default_file_names_what_was_checked():
+    args = reoptimize.parse_args(["RUN"])
+    assert reoptimize.default_name(args) == "reoptimize.json"
+    args = reoptimize.parse_args(
+        ["RUN", "--seed", "1", "--reward-form", "log-d", "--snapshot", "20"]
+    )
+    assert reoptimize.default_name(args) == "reoptimize-seed-1-snapshot-20-log-d.json"
