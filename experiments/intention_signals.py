@@ -24,20 +24,18 @@ import jax.numpy as jnp
 import numpy as np
 
 
-def per_demonstration(values: np.ndarray, episode: np.ndarray, episodes: int) -> np.ndarray:
-    """``[E, ...]`` the mean of ``values [N, ...]`` over each demonstration's pairs."""
-    counts = np.bincount(episode, minlength=episodes).reshape(-1, *([1] * (values.ndim - 1)))
-    totals = np.zeros((episodes, *values.shape[1:]))
-    np.add.at(totals, episode, values)
-    return totals / np.maximum(counts, 1)
-
-
 def signals(run, seed: int) -> dict[str, np.ndarray]:
     """Per demonstration of ``seed``: ``holder [E]``, ``true [E]`` (-1 unknown), and ``logit``,
     ``log_pi`` ``[E, K]`` under every learned intention and ``agree [E]`` with the holder."""
     from emgail_jax.method import normalizer as obs_norm
     from emgail_jax.method.discriminator import expert_logits
     from emgail_jax.method.networks import action_distribution
+    from emgail_jax.method.reseeding import demonstration_responsibilities
+
+    def per_demonstration(values) -> np.ndarray:  # [N, C] -> [E, C], the mean over its pairs
+        return np.asarray(
+            demonstration_responsibilities(jnp.asarray(values), pairs.episode, episodes)
+        )
 
     pairs, k = run.demonstration_pairs, run.num_intentions
     episode, episodes = np.asarray(pairs.episode), pairs.episodes
@@ -64,11 +62,9 @@ def signals(run, seed: int) -> dict[str, np.ndarray]:
     return {
         "holder": holder[first],
         "true": np.asarray(pairs.labels)[first],
-        "logit": per_demonstration(np.asarray(logits), episode, episodes),
-        "log_pi": per_demonstration(
-            np.stack([np.asarray(x) for x in log_pi], 1), episode, episodes
-        ),
-        "agree": per_demonstration(agree.astype(float), episode, episodes),
+        "logit": per_demonstration(logits),
+        "log_pi": per_demonstration(jnp.stack(log_pi, 1)),
+        "agree": per_demonstration(agree[:, None].astype(np.float32))[:, 0],
     }
 
 
