@@ -43,7 +43,9 @@ far from the experts have optimised a reward that pays off the demonstrations' s
 gravity, friction or viscosity: docs/environments.md), the test of a reward in dynamics its
 demonstrations never saw. ERD there is normalised by the variant's own references: the
 true-reward baseline trained in the variant with the same budget (0) and random actions in
-the variant (1).
+the variant (1). Beside the fresh agents, the run's own jointly trained policies deployed
+unchanged in the variant, scored the same way: a reward is worth more than a policy where its
+fresh agents beat them.
 """
 
 from __future__ import annotations
@@ -365,6 +367,40 @@ def true_reward_baseline(run, budget: Budget, cache: str | None, progress: bool 
     return {**result, "success": found, "meets_bar": [q["meets_bar"] for q in found], "cache": path}
 
 
+def joint_policies(run, seeds: list[int], iteration: int) -> dict:
+    """The run's own jointly trained policies, unchanged, in ``run.problem``'s env (a variant):
+    ``num_envs`` deterministic episodes per learned intention, scored like the fresh policies
+    (the run's matching at ``iteration``). What a reward re-optimised in the variant is
+    compared with: the policy a user would otherwise deploy there."""
+    import jax
+    import jax.numpy as jnp
+
+    import envs
+    from emgail_jax.method.rollout import episodes
+
+    env = envs.EpisodeWrapper(run.problem.env)
+    k = run.num_intentions
+    rows = jnp.arange(k)[:, None]
+    count = run.config.method.rollout.num_envs
+    key = jax.random.PRNGKey(run.spec.first_seed + 3000)
+    per_seed = []
+    for seed in seeds:
+        policy = run.policy(seed)
+        act = lambda state, _, policy=policy: policy(state.obs, rows)
+        returns, _, _ = jax.device_get(
+            jax.jit(lambda key, act=act: episodes(env, act, key, k, count))(key)
+        )
+        mean = np.asarray(returns, np.float64).mean(1)[None]  # [1, K learned, K env]
+        scores = scored(mean, run_matching(run, seed, iteration), run, seed)
+        per_seed.append({"run_seed": seed, **{n: scores[n] for n in ("erd", "returns")}})
+    erds = [r["erd"] for r in per_seed]
+    return {
+        "erd": erds,
+        "erd_mean": None if None in erds else float(np.mean(erds)),
+        "per_seed": per_seed,
+    }
+
+
 def variant_problem(run, settings: list[str]):
     """The run's problem in a variant of its env (``settings``: ``KEY=FACTOR``); ERD's
     references then follow the variant (random actions in it; the expert: see
@@ -420,6 +456,12 @@ def print_result(run, result: dict) -> None:
         row(f"seed {seed_result['run_seed']}", seed_result)
     if result.get("baseline"):
         row("true reward", result["baseline"])
+    joint = (result.get("variant") or {}).get("joint_policies")
+    for seed_result in joint["per_seed"] if joint else []:
+        row(
+            f"seed {seed_result['run_seed']}: its own policy",
+            {**seed_result, "meets_bar": [None], "erd_per_intention": None},
+        )
     console = Console(width=140)
     console.print(table)
     if result["erd_mean"] is not None:
@@ -639,6 +681,8 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
     )
     result["reward_form"] = run.algorithm.reward_form
     result.update(chosen.details)
+    if variant is not None:
+        variant["joint_policies"] = joint_policies(run, seeds, result["iteration"])
     result["variant"] = variant
     result["baseline"] = None
     if args.baseline:

@@ -268,6 +268,10 @@ def test_a_variant_is_scored_against_its_own_true_reward_agent(tmp_path):
     # The variant's expert is its true-reward agent: the returns ERD is measured from.
     assert result["expert_returns"] == pytest.approx(baseline["returns"])
     assert baseline["cache"].endswith(".json") and "swimmer-k2-2it" in baseline["cache"]
+    # Beside it, the run's own policies deployed unchanged in the variant.
+    joint = result["variant"]["joint_policies"]
+    assert [r["run_seed"] for r in joint["per_seed"]] == [0] and np.isfinite(joint["erd"][0])
+    assert joint["erd_mean"] == pytest.approx(joint["erd"][0])
     assert reoptimize.main(args) == 0  # the env as trained: another baseline, other references
     plain = json.loads((out / "reoptimize.json").read_text())
     assert plain["variant"] is None and plain["baseline"]["cache"] != baseline["cache"]
