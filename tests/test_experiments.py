@@ -611,12 +611,29 @@ def test_posterior_ceiling_of_the_driver_at_a_radius(capsys):
     refused = {
         ("--env", "reacher", "--radius", "4"): "--radius applies to the driver env only",
         ("--env", "driver", "--radius", "0.1"): "tighter than the car can turn",
-        ("--env", "driver", "--run", "RUN"): "the driver has none",
         ("--env", "driver", "--episodes", "0"): "--episodes must be at least 1; got 0",
     }
     for argv, message in refused.items():
         assert module.main([*argv, "--intentions", "2"]) == 2
         assert message in capsys.readouterr().err
+
+
+def test_posterior_ceiling_scores_a_driver_runs_own_posterior_by_tenth(tiny_run, capsys):
+    """A driver run's posterior, matched by its trajectory labels, by step and by tenth of the
+    episode for every seed; no action comparison (the driver's expert acts on whole states)."""
+    from emgail_jax.host.problem import make_problem
+
+    module = _load("posterior_ceiling")
+    module.compare_run(str(tiny_run), make_problem("driver", 2).demos)
+    lines = capsys.readouterr().out.splitlines()
+    assert [line.split(":")[0].strip() for line in lines if "run seed" in line] == [
+        "run seed 0",
+        "run seed 1",
+    ]
+    tenths = [line.split("by tenth:")[1].split() for line in lines if "by tenth:" in line]
+    assert len(tenths) == 2 and all(len(t) == 20 for t in tenths)
+    assert all(0.0 <= float(v) <= 1.0 for t in tenths for v in t[1::2])
+    assert not any("apart" in line or "|policy" in line for line in lines)
 
 
 def test_sweep_a_damaged_cell_is_named_and_continues_from_its_checkpoint(
