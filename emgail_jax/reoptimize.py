@@ -173,7 +173,8 @@ def success(env, trainer, states, matching) -> list[dict]:
 def _fresh_trainer(run, budget: Budget, reward_fn=None, absorbing_reward=None):
     from emgail_jax.method.rl import make_rl_train, true_reward
 
-    config = run.config.with_values(gamma=budget.gamma).method
+    # A fresh agent learns no discriminator: its rollouts need no AIRL successors.
+    config = run.config.with_values(gamma=budget.gamma, discriminator_form="gail").method
     env = run.problem.env
     episodes = config.rollout.num_envs
     return make_rl_train(config, env, reward_fn or true_reward, episodes, absorbing_reward)
@@ -531,6 +532,7 @@ class Chosen:
 def _opened(args: argparse.Namespace):
     """``(run, seeds, Chosen)`` of the command line: the saved run with the reward form asked
     for, and its consolidated or ensemble rewards if asked."""
+    from emgail_jax.host.run_spec import RunError
     from emgail_jax.host.saved_run import SavedRun
     from emgail_jax.method.algorithms import make_algorithm
 
@@ -540,6 +542,11 @@ def _opened(args: argparse.Namespace):
         run.problem = variant_problem(run, args.env_set)
     seeds = list(range(run.spec.seeds)) if args.seed is None else [args.seed]
     run.seed_state(seeds[0])  # checks --seed
+    if run.config.method.m_step.form.airl and (args.reward_form or args.consolidate):
+        # Its reward is g_i(s), no reading of a GAIL discriminator's logit, nor refitted as one.
+        raise RunError(
+            "an AIRL run's reward is g_i(s): --reward-form and --consolidate do not apply"
+        )
     if args.reward_form is not None:
         config = run.config
         run.algorithm = make_algorithm(config.method.algo, config.info_weight, args.reward_form)

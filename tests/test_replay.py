@@ -38,8 +38,9 @@ def test_push_fills_the_oldest_slot():
 
 def test_draws_come_from_filled_slots_under_their_own_intention():
     replay = _replay(2)
-    replay_after, obs, executed, terminal = replay.draw(500)
+    replay_after, obs, executed, terminal, successor = replay.draw(500)
     assert terminal is None and replay.terminal is None  # no absorbing states
+    assert successor is None and replay.successor is None  # no AIRL
     assert obs.shape == (K, 500, D) and executed.shape == (K, 500, A)
     code = np.asarray(executed[..., 0]).astype(int)
     assert set(np.unique(code // 100)) == {1, 2}  # never the empty third slot
@@ -48,7 +49,7 @@ def test_draws_come_from_filled_slots_under_their_own_intention():
     )
     np.testing.assert_array_equal(obs[..., 0], executed[..., 0])  # pairs stay pairs
     assert len(np.unique(code % 10)) == M
-    _, again, _, _ = replay_after.draw(500)
+    _, again, *_ = replay_after.draw(500)
     assert not np.array_equal(again, obs)  # the key moves on
 
 
@@ -84,7 +85,7 @@ def test_termination_flags_travel_with_their_samples():
     for iteration in (1, 2):
         obs, executed = _samples(iteration)
         replay = replay.push(obs, executed, even(executed))
-    _, obs, executed, terminal = jax.jit(lambda r: r.draw(500))(replay)
+    _, obs, executed, terminal, _ = jax.jit(lambda r: r.draw(500))(replay)
     np.testing.assert_array_equal(terminal, even(executed))
     seen = NormalizedBatch(
         normalizer=RunningStats.create(D),
