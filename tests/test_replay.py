@@ -99,3 +99,34 @@ def test_termination_flags_travel_with_their_samples():
     _, negatives = with_replay(replay, seen, obs[:, :M], lambda x: x)
     assert negatives.terminal.shape == (K, 2 * M)
     np.testing.assert_array_equal(negatives.terminal, even(negatives.executed))
+
+
+def test_successors_travel_with_their_samples_normalised_when_drawn():
+    """With AIRL's discriminator the replay keeps each sample's raw successor; drawn, its
+    next observation is normalised like the observations and its flag kept."""
+    replay = Replay.create(R, K, M, D, A, jax.random.PRNGKey(0), successors=True)
+    assert replay.successor.shape == (R, K, M, D + 1)
+    obs, executed = _samples(1)
+    raw = jnp.concatenate([obs + 1.0, (executed[..., :1] % 2 == 0).astype(jnp.float32)], -1)
+    seen = NormalizedBatch(
+        normalizer=None,
+        obs=obs - 1.0,
+        executed=executed,
+        expert_obs=jnp.zeros((3, D)),
+        expert_actions=jnp.zeros((3, A)),
+        successor=jnp.concatenate([obs, raw[..., -1:]], -1),
+        expert_successor=jnp.zeros((3, D + 1)),
+    )
+    normalize = lambda x: x - 1.0
+    for jit in (False, True):
+        together = lambda r: with_replay(r, seen, obs, normalize, raw)
+        replay_after, negatives = (jax.jit(together) if jit else together)(replay)
+        assert negatives.successor.shape == (K, 2 * M, D + 1)
+        drawn = negatives.successor[:, M:]
+        # Every sample's successor is its own observation + 1 (normalised: - 1), its flag its
+        # action's parity.
+        np.testing.assert_allclose(drawn[..., :-1], negatives.obs[:, M:] + 1.0)
+        np.testing.assert_array_equal(
+            drawn[..., -1], (negatives.executed[:, M:, 0] % 2 == 0).astype(np.float32)
+        )
+    assert int(replay_after.pushed) == 1
