@@ -23,7 +23,10 @@ intention, so that its K fresh policies are K agents of that one reward, true in
 by the one the run matched to i. Every fresh policy has the same budget whatever the algorithm
 (iterations, gamma, ``num_envs`` episodes of ``rollout_length`` steps per iteration: one row of
 the ``[K, num_envs]`` envs, although GAIL's single policy trained on all K rows), so that the
-algorithms' checks compare the rewards alone. A run trained with absorbing states
+algorithms' checks compare the rewards alone. A run trained with AIRL's discriminator
+(``--set discriminator_form=airl``) is checked on its state-only reward g_i(s), the one AIRL
+claims transfers, not on f - log pi (its policies' training reward, which reads the policy). A
+run trained with absorbing states
 (``--set absorbing_state=true``) is checked the same way: a fresh policy's termination is worth
 the learned reward of the absorbing state for every step left, as in the run's own B-step; the
 true-reward baseline has no absorbing state.

@@ -172,6 +172,8 @@ def _error(capsys):
         (["--intentions", "auto", "--algo", "gail"], "needs a posterior"),
         (["--intentions", "auto", "--max-intentions", "0"], "must be at least 1"),
         (["--intentions", "auto", "--max-intentions", "5"], "has 4 intentions"),
+        (["--set", "discriminator_form=bogus"], "discriminator_form must be one of gail, airl"),
+        (["--set", "discriminator_form=airl", "--algo", "infogail"], "not infogail"),
     ],
 )
 def test_bad_input_gives_one_line_and_exit_code_2(tmp_path, capsys, extra, message):
@@ -187,6 +189,23 @@ def test_malformed_demonstrations_are_rejected(tmp_path, capsys):
     code, _ = _run(tmp_path, "bad", "--demos", str(path))
     assert code == 2
     assert "lacks the key(s) actions, episode_starts" in _error(capsys)
+
+
+def test_airl_refuses_demonstrations_without_final_observations(tmp_path, capsys):
+    from emgail_jax.host.problem import make_problem
+
+    demos = make_problem("driver", 2).demos
+    path = tmp_path / "no-finals.npz"
+    np.savez(
+        path,
+        observations=demos.observations,
+        actions=demos.actions,
+        episode_starts=demos.episode_starts,
+        intentions=demos.intentions,
+    )
+    code, _ = _run(tmp_path, "airl", "--demos", str(path), "--set", "discriminator_form=airl")
+    assert code == 2
+    assert "needs each demonstration's final observation" in _error(capsys)
 
 
 def test_existing_run_is_kept_unless_overwrite(runs, capsys):
