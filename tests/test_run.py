@@ -191,18 +191,18 @@ def test_malformed_demonstrations_are_rejected(tmp_path, capsys):
     assert "lacks the key(s) actions, episode_starts" in _error(capsys)
 
 
-def test_airl_refuses_demonstrations_without_final_observations(tmp_path, capsys):
+def _driver_demonstrations_file(path, *keys):
+    """``path``: the driver's demonstrations as a file of the required arrays and ``keys``."""
     from emgail_jax.host.problem import make_problem
 
     demos = make_problem("driver", 2).demos
-    path = tmp_path / "no-finals.npz"
-    np.savez(
-        path,
-        observations=demos.observations,
-        actions=demos.actions,
-        episode_starts=demos.episode_starts,
-        intentions=demos.intentions,
-    )
+    keys = ("observations", "actions", "episode_starts", *keys)
+    np.savez(path, **{key: getattr(demos, key) for key in keys})
+    return path
+
+
+def test_airl_refuses_demonstrations_without_final_observations(tmp_path, capsys):
+    path = _driver_demonstrations_file(tmp_path / "no-finals.npz", "intentions")
     code, _ = _run(tmp_path, "airl", "--demos", str(path), "--set", "discriminator_form=airl")
     assert code == 2
     assert "needs each demonstration's final observation" in _error(capsys)
@@ -238,16 +238,7 @@ def test_a_failed_write_is_a_one_line_error(tmp_path, capsys, monkeypatch):
 
 
 def test_demonstrations_without_labels_or_returns(tmp_path, capsys):
-    from emgail_jax.host.problem import make_problem
-
-    demos = make_problem("driver", 2).demos
-    path = tmp_path / "unlabelled.npz"
-    np.savez(
-        path,
-        observations=demos.observations,
-        actions=demos.actions,
-        episode_starts=demos.episode_starts,
-    )
+    path = _driver_demonstrations_file(tmp_path / "unlabelled.npz")
     code, out = _run(tmp_path, "unlabelled", "--demos", str(path))
     assert code == 0
     printed = capsys.readouterr().out

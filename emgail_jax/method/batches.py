@@ -154,4 +154,8 @@ class NormalizedBatch:
         if self.terminal is not None:
             chex.assert_shape(self.terminal, self.obs.shape[:2])
             chex.assert_shape(self.expert_terminal, self.expert_obs.shape[:1])
+        if self.successor is not None:
+            follows = self.obs.shape[-1] + 1
+            chex.assert_shape(self.successor, (*self.obs.shape[:2], follows))
+            chex.assert_shape(self.expert_successor, (self.expert_obs.shape[0], follows))
         return self
