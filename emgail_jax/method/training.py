@@ -15,7 +15,9 @@ stage is steps 2-3 and the learned reward (:class:`LearnedRewardStage`, which re
    gamma = P on the expert pairs;
 3. M-step (:mod:`emgail_jax.method.discriminator`): the discriminator learns expert (weighted by
    gamma) against policy samples (with ``discriminator_replay``, past iterations' too:
-   :mod:`emgail_jax.method.replay`);
+   :mod:`emgail_jax.method.replay`; with ``discriminator_form=airl``, AIRL's discriminator,
+   which reads each pair's successor and the current policy's log-density:
+   :mod:`emgail_jax.method.airl`);
 4. B-step (:mod:`emgail_jax.method.b_step`): the samples are relabelled with the learned reward, GAE
    computes advantages, TRPO updates the policy, and the value baseline is refitted;
 5. metrics: the clustering accuracy of the E-step and, when ``evaluating``, deterministic
