@@ -23,7 +23,10 @@ intention, so that its K fresh policies are K agents of that one reward, true in
 by the one the run matched to i. Every fresh policy has the same budget whatever the algorithm
 (iterations, gamma, ``num_envs`` episodes of ``rollout_length`` steps per iteration: one row of
 the ``[K, num_envs]`` envs, although GAIL's single policy trained on all K rows), so that the
-algorithms' checks compare the rewards alone. A run trained with absorbing states
+algorithms' checks compare the rewards alone. A run trained with AIRL's discriminator
+(``--set discriminator_form=airl``) is checked on its state-only reward g_i(s), the one AIRL
+claims transfers, not on f - log pi (its policies' training reward, which reads the policy). A
+run trained with absorbing states
 (``--set absorbing_state=true``) is checked the same way: a fresh policy's termination is worth
 the learned reward of the absorbing state for every step left, as in the run's own B-step; the
 true-reward baseline has no absorbing state.
@@ -175,7 +178,8 @@ def success(env, trainer, states, matching) -> list[dict]:
 def _fresh_trainer(run, budget: Budget, reward_fn=None, absorbing_reward=None):
     from emgail_jax.method.rl import make_rl_train, true_reward
 
-    config = run.config.with_values(gamma=budget.gamma).method
+    # A fresh agent learns no discriminator: its rollouts need no AIRL successors.
+    config = run.config.with_values(gamma=budget.gamma, discriminator_form="gail").method
     env = run.problem.env
     episodes = config.rollout.num_envs
     return make_rl_train(config, env, reward_fn or true_reward, episodes, absorbing_reward)
@@ -573,6 +577,7 @@ class Chosen:
 def _opened(args: argparse.Namespace):
     """``(run, seeds, Chosen)`` of the command line: the saved run with the reward form asked
     for, and its consolidated or ensemble rewards if asked."""
+    from emgail_jax.host.run_spec import RunError
     from emgail_jax.host.saved_run import SavedRun
     from emgail_jax.method.algorithms import make_algorithm
 
@@ -582,6 +587,11 @@ def _opened(args: argparse.Namespace):
         run.problem = variant_problem(run, args.env_set)
     seeds = list(range(run.spec.seeds)) if args.seed is None else [args.seed]
     run.seed_state(seeds[0])  # checks --seed
+    if run.config.method.m_step.form.airl and (args.reward_form or args.consolidate):
+        # Its reward is g_i(s), no reading of a GAIL discriminator's logit, nor refitted as one.
+        raise RunError(
+            "an AIRL run's reward is g_i(s): --reward-form and --consolidate do not apply"
+        )
     if args.reward_form is not None:
         config = run.config
         run.algorithm = make_algorithm(config.method.algo, config.info_weight, args.reward_form)

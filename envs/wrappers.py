@@ -101,12 +101,18 @@ class AutoResetWrapper(Wrapper):
         return state.replace(info={**state.info, "next_start": self.env.reset(key)})
 
     def step(self, state: State, action: jax.Array) -> State:
+        return self.step_and_observe(state, action)[0]
+
+    def step_and_observe(self, state: State, action: jax.Array) -> tuple[State, jax.Array]:
+        """:meth:`step`, and the observation the transition reached: at an episode's end the
+        last one of that episode, which the state returned already replaced (AIRL's s' at a
+        time limit)."""
         next_state = self.env.step(state, action)
         start = next_state.info["next_start"]
         start = start.replace(info={**start.info, "next_start": start})
         done = next_state.done.astype(bool)
         merged = jax.tree.map(lambda a, b: jnp.where(done, a, b), start, next_state)
-        return merged.replace(reward=next_state.reward, done=next_state.done)
+        return merged.replace(reward=next_state.reward, done=next_state.done), next_state.obs
 
 
 def wrap_for_training(env: Env, episode_length: int | None = None) -> Env:

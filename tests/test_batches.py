@@ -23,6 +23,8 @@ def test_a_consistent_batch_passes_its_shape_check(random_batch):
         # termination flags of fewer samples, or of fewer pairs
         lambda b: b.replace(terminal=np.zeros((3, 3)), expert_terminal=np.zeros(6)),
         lambda b: b.replace(terminal=np.zeros((3, 4)), expert_terminal=np.zeros(5)),
+        # AIRL's successors without the continuation flag
+        lambda b: b.replace(successor=np.zeros((3, 4, 2)), expert_successor=np.zeros((6, 2))),
     ],
 )
 def test_a_batch_with_mismatched_shapes_is_refused(broken, random_batch):
@@ -57,3 +59,18 @@ def test_a_demonstration_shorter_than_an_episode_ends_in_a_termination(jit):
     ends = jax.jit(lambda p: p.terminations(3)) if jit else (lambda p: p.terminations(3))
     np.testing.assert_array_equal(ends(pairs), [0, 0, 0, 0, 1, 1])
     np.testing.assert_array_equal(pairs.terminations(2), [0, 0, 0, 0, 0, 1])
+
+
+def test_the_discriminator_reads_actions_or_with_airl_successors(random_batch):
+    batch = random_batch(k=3, m=4, n=6, obs_dim=2)
+    assert batch.discriminated() == (batch.executed, batch.expert_actions)
+    assert batch.log_policy_offsets() == {}
+    airl = batch.replace(
+        successor=np.ones((3, 4, 3)),
+        expert_successor=np.ones((6, 3)),
+        log_policy=np.zeros((3, 4)),
+        expert_log_policy=np.zeros((6, 3)),
+    )
+    assert airl.check() is airl
+    assert airl.discriminated() == (airl.successor, airl.expert_successor)
+    assert set(airl.log_policy_offsets()) == {"policy_log_policy", "expert_log_policy"}

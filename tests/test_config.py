@@ -20,6 +20,7 @@ from emgail_jax.method.config import (
     MethodConfig,
     Prior,
     ResponsibilityMode,
+    RewardForm,
     RewardFrom,
     RunConfig,
     RunSchedule,
@@ -229,6 +230,28 @@ def test_choosing_k_needs_a_posterior_and_the_mixture_prior():
             )
 
 
+@pytest.mark.parametrize(
+    ("settings", "message"),
+    [
+        (["algo=infogail"], "takes algo emgail or gail, not infogail"),
+        (["absorbing_state=true"], "does not take absorbing_state=true"),
+        (["reward_form=log-d"], "reward_form applies to discriminator_form gail only"),
+    ],
+)
+def test_airl_refuses_what_it_does_not_combine_with_in_one_line(settings, message):
+    with pytest.raises(ValueError, match=message) as error:
+        RunConfig().with_settings([*settings, "discriminator_form=airl"])
+    assert "\n" not in str(error.value)
+
+
+def test_airl_rewards_its_logit_and_gail_its_reward_form():
+    airl = RunConfig().with_settings(["discriminator_form=airl", "algo=gail"]).method
+    assert airl.m_step.form.airl and airl.reward_form is RewardForm.LOGIT
+    log_d = RunConfig().with_settings(["reward_form=log-d"]).method
+    assert not log_d.m_step.form.airl and log_d.reward_form is RewardForm.LOG_D
+    assert RunConfig().to_dict()["discriminator_form"] == "gail"
+
+
 @pytest.mark.parametrize("mode", ["pair", "labels"])
 def test_tempering_needs_a_trajectory_e_step(mode):
     with pytest.raises(ValueError, match=f"responsibilities {mode} has none") as error:
@@ -370,6 +393,7 @@ def test_every_hyper_parameter_has_a_domain_its_default_is_in():
         ("choose_intentions=3", "choose_intentions must be True or False"),
         ("absorbing_state=3", "absorbing_state must be True or False; got 3"),
         ("prior=flat", "prior must be one of uniform, mixture; got 'flat'"),
+        ("discriminator_form=bogus", "discriminator_form must be one of gail, airl; got 'bogus'"),
         ("snapshot_every=-1", "snapshot_every must be an integer >= 0; got -1"),
         (
             "trajectory_temper_iterations=-1",

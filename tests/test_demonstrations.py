@@ -138,3 +138,19 @@ def test_episode_and_step_in_episode_restart_at_each_demonstration():
     demos = Demonstrations(np.zeros((6, 2)), np.zeros((6, 1)), starts)
     assert demos.episode.tolist() == [0, 0, 0, 1, 1, 2]
     assert demos.step_in_episode.tolist() == [0, 1, 2, 0, 1, 0]
+
+
+def test_next_observations_are_the_next_pairs_and_each_final_observation(generated):
+    """AIRL's s' of a demonstration pair: the next pair's observation within its
+    demonstration, the demonstration's final observation after its last pair."""
+    following = generated.next_observations()
+    assert following.shape == generated.observations.shape and following.dtype == np.float32
+    last = np.append(generated.episode[1:] != generated.episode[:-1], True)
+    np.testing.assert_array_equal(following[~last], generated.observations[1:][~last[:-1]])
+    np.testing.assert_array_equal(following[last], generated.final_observations)
+    assert (
+        Demonstrations(
+            generated.observations, generated.actions, generated.episode_starts
+        ).next_observations()
+        is None
+    )

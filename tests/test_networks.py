@@ -11,6 +11,7 @@ import pytest
 
 from emgail_jax.method.networks import (
     MLP,
+    AIRLDiscriminator,
     Discriminator,
     GaussianPolicy,
     Posterior,
@@ -326,3 +327,53 @@ def test_policy_action_is_the_mean_unless_exploring():
     np.testing.assert_allclose(sample, mean + jnp.exp(log_std) * jax.random.normal(key, (2, 2)))
     # The same draw as the action distribution's own sampler, so that either may be used.
     np.testing.assert_array_equal(sample, action_distribution(mean, log_std).sample(seed=key))
+
+
+def _airl(heads: bool):
+    net = AIRLDiscriminator(HIDDEN, heads, discount=0.9)
+    obs = jnp.zeros((1, OBS))
+    params = net.init(jax.random.PRNGKey(0), obs, jnp.zeros((1, OBS + 1)), jnp.eye(K)[:1])
+    shaping = lambda p, o, c, **kw: net.apply(p, o, c, method=lambda m, *a: m.shaping_net(*a))
+    return net, params, shaping
+
+
+@pytest.mark.parametrize("heads", [False, True])
+@pytest.mark.parametrize("jit", [False, True])
+def test_airl_f_is_reward_plus_discounted_shaping_difference(heads, jit):
+    """f(s, s', i) = g_i(s) + 0.9 h_i(s') - h_i(s), and h(s') is dropped (h(s') = 0) where
+    the transition terminated."""
+    net, params, shaping = _airl(heads)
+    keys = jax.random.split(jax.random.PRNGKey(1), 3)
+    obs, next_obs = jax.random.normal(keys[0], (N, OBS)), jax.random.normal(keys[1], (N, OBS))
+    going_on = (jnp.arange(N) % 2).astype(jnp.float32)  # even rows terminated
+    condition = jax.nn.one_hot(jnp.arange(N) % K, K)
+    f_of = lambda p: net.apply(
+        p, obs, jnp.concatenate([next_obs, going_on[:, None]], -1), condition
+    )
+    f = (jax.jit(f_of) if jit else f_of)(params)
+    g = net.apply(params, obs, condition, method="reward")
+    h, h_next = shaping(params, obs, condition), shaping(params, next_obs, condition)
+    np.testing.assert_allclose(f, g + 0.9 * going_on * h_next - h, rtol=1e-5, atol=1e-6)
+    assert np.all(np.isfinite(h_next)) and float(jnp.abs(h_next).max()) > 0
+    # g and h are two networks of the state alone, each conditioned on the intention.
+    assert set(params["params"]) == {"reward_net", "shaping_net"}
+    other = jax.nn.one_hot((jnp.arange(N) + 1) % K, K)
+    assert not np.allclose(g, net.apply(params, obs, other, method="reward"))
+
+
+def test_airl_intention_major_rows_use_their_own_heads():
+    net, params, _ = _airl(True)
+    obs = jax.random.normal(jax.random.PRNGKey(2), (K, N, OBS))
+    follows = jnp.concatenate([obs[..., ::-1], jnp.ones((K, N, 1))], -1)
+    rows = jnp.broadcast_to(jnp.eye(K)[:, None, :], (K, N, K))
+    major = net.apply(params, obs, follows, rows, intention_major=True)
+    np.testing.assert_allclose(major, net.apply(params, obs, follows, rows), rtol=1e-5)
+
+
+def test_airl_continuation_flag_has_no_input_gradient():
+    """The flag is data: the gradient penalty reads d f / d(s, s') alone."""
+    net, params, _ = _airl(True)
+    follows = jnp.ones((N, OBS + 1))
+    total = lambda x: net.apply(params, jnp.ones((N, OBS)), x, jnp.eye(K)[jnp.arange(N) % K]).sum()
+    grad = jax.grad(total)(follows)
+    assert float(jnp.abs(grad[:, -1]).max()) == 0.0 and float(jnp.abs(grad[:, :-1]).max()) > 0

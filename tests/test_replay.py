@@ -38,8 +38,9 @@ def test_push_fills_the_oldest_slot():
 
 def test_draws_come_from_filled_slots_under_their_own_intention():
     replay = _replay(2)
-    replay_after, obs, executed, terminal = replay.draw(500)
+    replay_after, obs, executed, terminal, successor = replay.draw(500)
     assert terminal is None and replay.terminal is None  # no absorbing states
+    assert successor is None and replay.successor is None  # no AIRL
     assert obs.shape == (K, 500, D) and executed.shape == (K, 500, A)
     code = np.asarray(executed[..., 0]).astype(int)
     assert set(np.unique(code // 100)) == {1, 2}  # never the empty third slot
@@ -48,7 +49,7 @@ def test_draws_come_from_filled_slots_under_their_own_intention():
     )
     np.testing.assert_array_equal(obs[..., 0], executed[..., 0])  # pairs stay pairs
     assert len(np.unique(code % 10)) == M
-    _, again, _, _ = replay_after.draw(500)
+    _, again, *_ = replay_after.draw(500)
     assert not np.array_equal(again, obs)  # the key moves on
 
 
@@ -84,7 +85,7 @@ def test_termination_flags_travel_with_their_samples():
     for iteration in (1, 2):
         obs, executed = _samples(iteration)
         replay = replay.push(obs, executed, even(executed))
-    _, obs, executed, terminal = jax.jit(lambda r: r.draw(500))(replay)
+    _, obs, executed, terminal, _ = jax.jit(lambda r: r.draw(500))(replay)
     np.testing.assert_array_equal(terminal, even(executed))
     seen = NormalizedBatch(
         normalizer=RunningStats.create(D),
@@ -98,3 +99,34 @@ def test_termination_flags_travel_with_their_samples():
     _, negatives = with_replay(replay, seen, obs[:, :M], lambda x: x)
     assert negatives.terminal.shape == (K, 2 * M)
     np.testing.assert_array_equal(negatives.terminal, even(negatives.executed))
+
+
+def test_successors_travel_with_their_samples_normalised_when_drawn():
+    """With AIRL's discriminator the replay keeps each sample's raw successor; drawn, its
+    next observation is normalised like the observations and its flag kept."""
+    replay = Replay.create(R, K, M, D, A, jax.random.PRNGKey(0), successors=True)
+    assert replay.successor.shape == (R, K, M, D + 1)
+    obs, executed = _samples(1)
+    raw = jnp.concatenate([obs + 1.0, (executed[..., :1] % 2 == 0).astype(jnp.float32)], -1)
+    seen = NormalizedBatch(
+        normalizer=None,
+        obs=obs - 1.0,
+        executed=executed,
+        expert_obs=jnp.zeros((3, D)),
+        expert_actions=jnp.zeros((3, A)),
+        successor=jnp.concatenate([obs, raw[..., -1:]], -1),
+        expert_successor=jnp.zeros((3, D + 1)),
+    )
+    normalize = lambda x: x - 1.0
+    for jit in (False, True):
+        together = lambda r: with_replay(r, seen, obs, normalize, raw)
+        replay_after, negatives = (jax.jit(together) if jit else together)(replay)
+        assert negatives.successor.shape == (K, 2 * M, D + 1)
+        drawn = negatives.successor[:, M:]
+        # Every sample's successor is its own observation + 1 (normalised: - 1), its flag its
+        # action's parity.
+        np.testing.assert_allclose(drawn[..., :-1], negatives.obs[:, M:] + 1.0)
+        np.testing.assert_array_equal(
+            drawn[..., -1], (negatives.executed[:, M:, 0] % 2 == 0).astype(np.float32)
+        )
+    assert int(replay_after.pushed) == 1

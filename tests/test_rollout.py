@@ -128,6 +128,36 @@ def test_time_and_done_under_a_time_limit(time_limited):
     np.testing.assert_array_equal(end.info["steps"], np.full((K, B), 0))
 
 
+@pytest.mark.parametrize("stop", [1000, 3])
+def test_next_observations_are_those_reached_before_the_auto_reset(stop):
+    """AIRL's s': the counter's observation plus one on every step, at a time limit (4 steps)
+    and at a termination (3) alike, where the state already holds the next episode's start."""
+    env = envs.wrap_for_training(_Counter(stop=stop), 4)
+
+    @jax.jit
+    def go(key):
+        state = batch_reset(env, key, (K, B))
+        return rollout(env, row_policy, state, key, 10, next_obs=True)
+
+    _, transitions = go(jax.random.PRNGKey(0))
+    assert transitions.next_obs.shape == transitions.obs.shape
+    np.testing.assert_allclose(transitions.next_obs, transitions.obs + 1.0, rtol=1e-6)
+    ends = np.asarray(transitions.done[:-1]) > 0
+    assert ends.any()
+    following = np.asarray(transitions.obs[1:, ..., 0])
+    assert np.all(np.abs(following[ends] - transitions.next_obs[:-1, ..., 0][ends]) > 1e-6)
+    assert (
+        rollout(
+            env,
+            row_policy,
+            batch_reset(env, jax.random.PRNGKey(0), (K, B)),
+            jax.random.PRNGKey(1),
+            2,
+        )[1].next_obs
+        is None
+    )
+
+
 def test_observations_restart_at_a_fresh_start_after_done(time_limited):
     start, _, first, _, _ = time_limited
     obs = np.asarray(first.obs[..., 0])  # [T, K, B]

@@ -172,6 +172,8 @@ def _error(capsys):
         (["--intentions", "auto", "--algo", "gail"], "needs a posterior"),
         (["--intentions", "auto", "--max-intentions", "0"], "must be at least 1"),
         (["--intentions", "auto", "--max-intentions", "5"], "has 4 intentions"),
+        (["--set", "discriminator_form=bogus"], "discriminator_form must be one of gail, airl"),
+        (["--set", "discriminator_form=airl", "--algo", "infogail"], "not infogail"),
     ],
 )
 def test_bad_input_gives_one_line_and_exit_code_2(tmp_path, capsys, extra, message):
@@ -187,6 +189,23 @@ def test_malformed_demonstrations_are_rejected(tmp_path, capsys):
     code, _ = _run(tmp_path, "bad", "--demos", str(path))
     assert code == 2
     assert "lacks the key(s) actions, episode_starts" in _error(capsys)
+
+
+def _driver_demonstrations_file(path, *keys):
+    """``path``: the driver's demonstrations as a file of the required arrays and ``keys``."""
+    from emgail_jax.host.problem import make_problem
+
+    demos = make_problem("driver", 2).demos
+    keys = ("observations", "actions", "episode_starts", *keys)
+    np.savez(path, **{key: getattr(demos, key) for key in keys})
+    return path
+
+
+def test_airl_refuses_demonstrations_without_final_observations(tmp_path, capsys):
+    path = _driver_demonstrations_file(tmp_path / "no-finals.npz", "intentions")
+    code, _ = _run(tmp_path, "airl", "--demos", str(path), "--set", "discriminator_form=airl")
+    assert code == 2
+    assert "needs each demonstration's final observation" in _error(capsys)
 
 
 def test_existing_run_is_kept_unless_overwrite(runs, capsys):
@@ -219,16 +238,7 @@ def test_a_failed_write_is_a_one_line_error(tmp_path, capsys, monkeypatch):
 
 
 def test_demonstrations_without_labels_or_returns(tmp_path, capsys):
-    from emgail_jax.host.problem import make_problem
-
-    demos = make_problem("driver", 2).demos
-    path = tmp_path / "unlabelled.npz"
-    np.savez(
-        path,
-        observations=demos.observations,
-        actions=demos.actions,
-        episode_starts=demos.episode_starts,
-    )
+    path = _driver_demonstrations_file(tmp_path / "unlabelled.npz")
     code, out = _run(tmp_path, "unlabelled", "--demos", str(path))
     assert code == 0
     printed = capsys.readouterr().out

@@ -147,3 +147,44 @@ def test_reward_function_takes_any_seeds_parameters(saved):
             saved.reward(seed)(obs, actions, 1),
             rtol=1e-6,
         )
+
+
+@pytest.fixture(scope="module")
+def airl_run(tmp_path_factory):
+    """A finished tiny EM-GAIL driver run with AIRL's discriminator, its replay and gradient
+    penalty on (the tiny run's sizes)."""
+    from emgail_jax import run
+
+    out = tmp_path_factory.mktemp("tiny") / "airl"
+    args = [
+        *("--env", "driver", "--seeds", "2", "--iterations", "4", "--num-envs", "2"),
+        *("--rollout-length", "20", "--chunk-size", "2", "--snapshot-every", "2", "--quiet"),
+        *("--set", "discriminator_form=airl", "--set", "discriminator_replay=2"),
+        *("--set", "discriminator_gradient_penalty=0.1", "--out", str(out)),
+    ]
+    assert run.main(args) == 0
+    return out
+
+
+def test_an_airl_runs_reward_is_its_state_only_g(airl_run):
+    """``reoptimize``'s reward of an AIRL run: g_i(s) of the normalised observation, whatever
+    the action; no absorbing reward; the GAIL discriminator's readings refused."""
+    from emgail_jax import reoptimize
+
+    saved = SavedRun.open(str(airl_run))
+    assert saved.absorbing_reward_function() is None
+    obs = np.asarray(saved.demonstration_pairs.observations[:5])
+    actions = np.asarray(saved.demonstration_pairs.actions[:5])
+    reward = jax.jit(saved.reward_function())
+    state = saved.seed_state(1)
+    normalized = obs_norm.normalize(state.normalizer, obs, saved.config.method.networks.obs_clip)
+    for intention in (0, 1):
+        condition = jax.nn.one_hot(jnp.full(5, intention), 2)
+        g = saved.networks.discriminator.apply(
+            state.discriminator.params, normalized, condition, method="reward"
+        )
+        got = reward(saved.reward_parameters(1), obs, actions, intention)
+        np.testing.assert_allclose(got, g, rtol=1e-5)
+        np.testing.assert_allclose(saved.reward(1)(obs, -actions, intention), got, rtol=1e-5)
+    assert np.all(np.isfinite(saved.history["discriminator/loss"]))
+    assert reoptimize.main([str(airl_run), "--reward-form", "logit"]) == 2

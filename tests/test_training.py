@@ -548,3 +548,20 @@ def test_a_tempered_e_step_weighs_the_evidence_by_the_iteration(env, expert, emg
     assert not np.allclose(
         steps[0][1]["reseed/demonstrations"], untempered["reseed/demonstrations"]
     )
+
+
+@pytest.mark.parametrize("algo", ["emgail", "gail"])
+def test_airl_discriminator_trains_with_its_successors_and_log_densities(env, expert, algo):
+    """``discriminator_form=airl``: g and h state-only networks, finite updates with the
+    replay (its successors kept) and the gradient penalty on, and the B-step's reward the
+    logit f - log pi of the rollout's own samples."""
+    config = CONFIG.with_settings(
+        [f"algo={algo}", "discriminator_form=airl", "discriminator_replay=2"]
+    ).with_values(discriminator_gradient_penalty=0.1)
+    state, steps, _ = _train(config, env, expert, 2)
+    assert set(state.discriminator.params["params"]) == {"reward_net", "shaping_net"}
+    assert state.replay.successor.shape[-1] == env.observation_size + 1
+    for _, metrics in steps:
+        for key in ("discriminator/loss", "train/pseudo_reward", "discriminator/gradient_norm"):
+            assert np.isfinite(metrics[key]), key
+    assert 0 < metrics["discriminator/policy_d"] < 1

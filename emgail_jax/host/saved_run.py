@@ -94,7 +94,7 @@ class SavedRun:
             problem=problem,
             config=config,
             algorithm=make_algorithm(
-                config.method.algo, config.info_weight, config.method.reward.form
+                config.method.algo, config.info_weight, config.method.reward_form
             ),
             networks=make_networks(config.method, env),
             state=state,
@@ -167,7 +167,10 @@ class SavedRun:
         """The learned pseudo-reward ``R_i(obs [..., D], action [..., A], i [...]) -> [...]``:
         -log(1 - D(s, a, i)) for EM-GAIL (eq. 20), plus lambda log P(i | s, a) for
         Info/IntentionGAIL (eq. 23), -log(1 - D(s, a)) for GAIL. The action is clipped to the
-        env's range first: the discriminator learned on executed actions."""
+        env's range first: the discriminator learned on executed actions. A run trained with
+        AIRL's discriminator (``discriminator_form=airl``) gives its state-only reward
+        g_i(s) (g(s) for GAIL), the action unread: the reward AIRL claims transfers, not the
+        f - log pi its own policies were trained on (which needs s' and the policy)."""
         parameters = self.reward_parameters(seed)
         reward = self.reward_function()
         return lambda obs, action, intention: reward(parameters, obs, action, intention)
@@ -193,6 +196,8 @@ class SavedRun:
             self.config.method.networks.obs_clip,
         )
         networks, env = self.networks, self.problem.env
+        if self.config.method.m_step.form.airl:
+            return self._airl_reward_function()
 
         def reward(parameters, obs, action, intention):
             obs = jnp.asarray(obs, jnp.float32)
@@ -216,6 +221,22 @@ class SavedRun:
                 executed=action,
                 intention=intention,
                 own_log_posterior=own,
+            )
+
+        return reward
+
+    def _airl_reward_function(self) -> Callable:
+        """:meth:`reward_function` of an AIRL run: g_i(s) of the normalised observation."""
+        k, algorithm = self.num_intentions, self.algorithm
+        network, clip = self.networks.discriminator, self.config.method.networks.obs_clip
+
+        def reward(parameters, obs, action, intention):
+            obs = jnp.asarray(obs, jnp.float32)
+            intention = jnp.broadcast_to(jnp.asarray(intention, jnp.int32), obs.shape[:-1])
+            normalized = obs_norm.normalize(parameters["normalizer"], obs, clip)
+            condition = algorithm.discriminator_condition(intention, k)
+            return network.apply(
+                parameters["discriminator"], normalized, condition, method="reward"
             )
 
         return reward

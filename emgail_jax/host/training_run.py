@@ -19,7 +19,7 @@ from emgail_jax.host import checkpoints, records, stopping
 from emgail_jax.host.history import concat_history
 from emgail_jax.host.progress import ProgressBar
 from emgail_jax.host.results_pipeline import final_results
-from emgail_jax.host.run_spec import RunSpec, read_summary, stored_sources
+from emgail_jax.host.run_spec import RunError, RunSpec, read_summary, stored_sources
 from emgail_jax.host.schedule import evaluation_plan
 from emgail_jax.host.seed_runner import Runner, chunks, gather
 from emgail_jax.method.batches import DemonstrationPairs
@@ -219,6 +219,11 @@ def _runner(spec: RunSpec, problem, config) -> tuple[Runner, dict[str, int]]:
     pairs = DemonstrationPairs.create(
         problem.demos, problem.random_returns, problem.true_intentions
     )
+    if config.method.m_step.form.airl and pairs.next_observations is None:
+        raise RunError(
+            "discriminator_form airl needs each demonstration's final observation (s' of its "
+            "last pair); these demonstrations store none"
+        )
     data = RunData.create(pairs, env, config.info_weight)
     init, update = make_train(config.method, env)
     # Runs of one process that differ only in data (the sweep's driver radii) share programs.

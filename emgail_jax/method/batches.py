@@ -28,6 +28,9 @@ class DemonstrationPairs:
     labels: jax.Array  # [N] hidden intention labels, -1 when unknown
     expert_returns: jax.Array  # [K true] NaN when unknown
     random_returns: jax.Array  # [K true]
+    # The raw observation each pair reached (the next pair's, at a demonstration's end its
+    # final observation); None where the demonstrations store no final observations.
+    next_observations: jax.Array | None = None  # [N, D]
     episodes: int = struct.field(pytree_node=False, default=1)  # demonstrations (episodes)
     has_labels: bool = struct.field(pytree_node=False, default=False)
 
@@ -52,6 +55,7 @@ class DemonstrationPairs:
             labels=np.asarray(labels, np.int32),
             expert_returns=np.asarray(returns, np.float32),
             random_returns=np.asarray(random_returns, np.float32),
+            next_observations=demos.next_observations(),
             episodes=int(episode.max()) + 1,
             has_labels=demos.intentions is not None,
         )
@@ -111,6 +115,27 @@ class NormalizedBatch:
     # demonstration's last pair, ended its episode before the time limit.
     terminal: jax.Array | None = None  # [K, M]
     expert_terminal: jax.Array | None = None  # [N]
+    # With AIRL's discriminator only (None otherwise, :mod:`emgail_jax.method.airl`): what f
+    # reads after each pair (its successor), and log pi of the executed actions under the
+    # current policy, a sample's under its own intention, an expert pair's under every
+    # discriminator condition.
+    successor: jax.Array | None = None  # [K, M, D + 1]
+    expert_successor: jax.Array | None = None  # [N, D + 1]
+    log_policy: jax.Array | None = None  # [K, M]
+    expert_log_policy: jax.Array | None = None  # [N, C]
+
+    def discriminated(self) -> tuple[jax.Array, jax.Array]:
+        """``(samples [K, M, X], expert pairs [N, X])``: what the discriminator reads beside
+        the observation, the executed actions (GAIL's) or the successors (AIRL's)."""
+        if self.successor is None:
+            return self.executed, self.expert_actions
+        return self.successor, self.expert_successor
+
+    def log_policy_offsets(self) -> dict:
+        """The discriminator loss's log-density offsets of the logit (AIRL's; none for GAIL)."""
+        if self.log_policy is None:
+            return {}
+        return dict(policy_log_policy=self.log_policy, expert_log_policy=self.expert_log_policy)
 
     def own_intention(self) -> jax.Array:
         """``[K, M]``: the intention whose policy made each sample (row k is k)."""
@@ -129,4 +154,8 @@ class NormalizedBatch:
         if self.terminal is not None:
             chex.assert_shape(self.terminal, self.obs.shape[:2])
             chex.assert_shape(self.expert_terminal, self.expert_obs.shape[:1])
+        if self.successor is not None:
+            follows = self.obs.shape[-1] + 1
+            chex.assert_shape(self.successor, (*self.obs.shape[:2], follows))
+            chex.assert_shape(self.expert_successor, (self.expert_obs.shape[0], follows))
         return self

@@ -52,6 +52,18 @@ class RewardForm(enum.StrEnum):
     LOG_D = "log-d"  # log D = -softplus(-f), never above 0
 
 
+class DiscriminatorForm(enum.StrEnum):
+    """``--set discriminator_form=...``: what the M-step's discriminator is
+    (:mod:`emgail_jax.method.discriminator`; AIRL's: :mod:`emgail_jax.method.airl`)."""
+
+    GAIL = "gail"  # D = sigmoid(f(s, a, i)), the paper's
+    AIRL = "airl"  # D = exp f / (exp f + pi_i(a | s)), f = g_i(s) + gamma h_i(s') - h_i(s)
+
+    @property
+    def airl(self) -> bool:
+        return self is DiscriminatorForm.AIRL
+
+
 @dataclass(frozen=True)
 class TRPOConfig:
     """The B-step's TRPO (:mod:`emgail_jax.method.trpo`)."""
@@ -129,6 +141,7 @@ def _values(options: type[enum.Enum]) -> tuple[str, ...]:
 
 NAMES = _values(AlgorithmName)
 REWARD_FORMS = _values(RewardForm)
+DISCRIMINATOR_FORMS = _values(DiscriminatorForm)
 INTENTION_INPUTS = _values(IntentionInput)
 RESPONSIBILITIES = _values(ResponsibilityMode)
 REWARD_FROM = _values(RewardFrom)
@@ -229,6 +242,7 @@ SETTINGS: dict[str, Setting] = {
         "method", "m_step", "gradient_penalty", domain=NON_NEGATIVE
     ),
     "discriminator_replay": _at("method", "m_step", "replay", domain=_integers(0)),
+    "discriminator_form": _at("method", "m_step", "form", domain=_one_of(DiscriminatorForm)),
     "posterior_learning_rate": _at("method", "e_step", "learning_rate", domain=POSITIVE),
     "posterior_steps": _at("method", "e_step", "steps", domain=COUNT),
     "reward_from": _at("method", "reward", "source", domain=_one_of(RewardFrom)),
@@ -349,15 +363,16 @@ class EStepConfig(_Layer):
 @dataclass(frozen=True)
 class MStepConfig(_Layer):
     """The M-step (:mod:`emgail_jax.method.discriminator`): full-batch Adam steps, the
-    weight of a zero-centred gradient penalty on the logit (0: none), and the iterations of
+    weight of a zero-centred gradient penalty on the logit (0: none), the iterations of
     past policy samples replayed as further negatives (:mod:`emgail_jax.method.replay`; 0:
-    none)."""
+    none), and the discriminator's form (GAIL's, or AIRL's: :mod:`emgail_jax.method.airl`)."""
 
     PREFIX = ("method", "m_step")
     learning_rate: float = 1e-3
     steps: int = 10
     gradient_penalty: float = 0.0
     replay: int = 0
+    form: DiscriminatorForm = DiscriminatorForm.GAIL
 
 
 @dataclass(frozen=True)
@@ -418,6 +433,8 @@ class MethodConfig(_Layer):
                 "choosing the number of intentions needs a posterior and the mixture prior: "
                 "an algo other than gail, and prior mixture"
             )
+        if self.m_step.form.airl:
+            _check_airl(self)
 
     def resolved(self, env) -> MethodConfig:
         """Fills the env-dependent rollout sizes from ``env``."""
@@ -429,9 +446,32 @@ class MethodConfig(_Layer):
         return self.replace(rollout=rollout)
 
     @property
+    def reward_form(self) -> RewardForm:
+        """The form of the B-step's reward of the discriminator logit: AIRL's discriminator
+        rewards its logit f - log pi (log D - log(1 - D)), GAIL's as ``reward.form`` says."""
+        return RewardForm.LOGIT if self.m_step.form.airl else self.reward.form
+
+    @property
     def reseeds(self) -> bool:
         """Whether emptied intentions are re-seeded: with a posterior, unless turned off."""
         return self.e_step.reseed and self.algo.learns_posterior
+
+
+def _check_airl(config: MethodConfig) -> None:
+    """Refuses what AIRL's discriminator does not combine with (one line each)."""
+    if config.algo is AlgorithmName.INFOGAIL:
+        # Its D(s, a) has no condition, its policy one per intention: no one pi to divide by.
+        raise ValueError("discriminator_form airl takes algo emgail or gail, not infogail")
+    if config.reward.absorbing_state:
+        raise ValueError(
+            "discriminator_form airl ends an episode with h(s') = 0 at a termination; "
+            "it does not take absorbing_state=true"
+        )
+    if config.reward.form is not RewardForm.GAIL:
+        raise ValueError(
+            "discriminator_form airl rewards its own logit f - log pi; reward_form applies to "
+            "discriminator_form gail only"
+        )
 
 
 @dataclass(frozen=True)

@@ -46,6 +46,18 @@ class Demonstrations:
         """``[N]`` each pair's step within its demonstration."""
         return np.arange(len(self)) - np.flatnonzero(self.episode_starts)[self.episode]
 
+    def next_observations(self) -> np.ndarray | None:
+        """``[N, obs_dim]`` float32: the observation each pair reached, the next pair's within a
+        demonstration and its final observation after its last pair; None without final
+        observations (the shipped files and :func:`generate` store them, from a one-step
+        :func:`replay` for the files)."""
+        if self.final_observations is None:
+            return None
+        following = np.append(self.observations[1:], self.observations[-1:], 0)
+        last = np.append(self.episode[1:] != self.episode[:-1], True)
+        finals = self.final_observations[self.episode]
+        return np.where(last[:, None], finals, following).astype(np.float32)
+
     @property
     def num_intentions(self) -> int | None:
         if self.intentions is not None:

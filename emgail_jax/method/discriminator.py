@@ -10,6 +10,10 @@ weights are the responsibilities gamma (eq. 19); the baselines' D(s, a) has a si
 condition with weight one (eq. 22). Policy samples are scored under their own condition only.
 The reward the discriminator defines is in :mod:`emgail_jax.method.algorithms`.
 
+AIRL's discriminator (``--set discriminator_form=airl``, :mod:`emgail_jax.method.airl`) runs
+through the same loss: its network reads a pair's successor where GAIL's reads the action, and
+its logit is f - log pi, the log-densities entering here as fixed offsets of the logit.
+
 With absorbing states (``--set absorbing_state=true``, DAC), a termination leads to the
 absorbing state, one pair (normalised observation and action zeros, the absorbing indicator 1:
 :class:`~emgail_jax.method.networks.Discriminator`) that the discriminator learns like any
@@ -40,6 +44,14 @@ def expert_logits(apply: Callable, params, obs, actions, conditions: jax.Array) 
     """``[N, C]``: f(s, a, c) of every expert pair under every condition ``conditions [C, c]``
     (broadcast, so that a discriminator with one head per intention runs each head once)."""
     return apply(params, obs[None], actions[None], conditions[:, None, :], intention_major=True).T
+
+
+def expert_scores(apply: Callable, params, batch: NormalizedBatch, conditions) -> jax.Array:
+    """``[N, C]``: the logit of every expert pair of ``batch`` under every condition
+    ``conditions [C, c]``, as the loss scores it (AIRL's: f - log pi)."""
+    _, expert_inputs = batch.discriminated()
+    logits = expert_logits(apply, params, batch.expert_obs, expert_inputs, conditions)
+    return logits if batch.expert_log_policy is None else logits - batch.expert_log_policy
 
 
 def absorbing_logits(
@@ -80,6 +92,8 @@ def discriminator_loss(
     gradient_penalty: float = 0.0,
     expert_absorbed: jax.Array | None = None,
     policy_absorbed: jax.Array | None = None,
+    expert_log_policy: jax.Array | None = None,
+    policy_log_policy: jax.Array | None = None,
 ):
     """Logistic loss: expert pairs are real, weighted over conditions; policy samples are fake;
     plus ``gradient_penalty`` times :func:`input_gradient_norms` (none computed at 0).
@@ -96,9 +110,15 @@ def discriminator_loss(
         weights of the demonstrations that ended in a termination), and as a fake one,
         ``[rows]`` samples under each row's condition (its terminations); each counts as one
         sample more in its term's mean.
+      expert_log_policy, policy_log_policy: AIRL's (both or neither; ``expert_actions`` and
+        ``policy_actions`` then hold the successors): ``[N, C]`` log pi of every expert pair
+        under every condition, ``[C, M]`` of every sample under its own, subtracted from f.
+        The gradient penalty reads f alone.
     """
     real = expert_logits(apply, params, expert_obs, expert_actions, conditions)
     fake = apply(params, policy_obs, policy_actions, policy_conditions, intention_major=True)
+    if policy_log_policy is not None:
+        real, fake = real - expert_log_policy, fake - policy_log_policy
     expert_losses = jnp.sum(expert_weights * jax.nn.softplus(-real), -1)
     policy_losses = jax.nn.softplus(fake)
     absorbing_metrics = {}
@@ -203,6 +223,7 @@ def make_m_step(apply: Callable, optimizer: optax.GradientTransformation, config
         k = batch.obs.shape[0]
         chex.assert_shape(gamma, (batch.expert_obs.shape[0], k))
         own_intention = batch.own_intention()
+        policy_inputs, expert_inputs = batch.discriminated()
         absorbed = {}
         if batch.terminal is not None:
             absorbed = dict(
@@ -215,14 +236,15 @@ def make_m_step(apply: Callable, optimizer: optax.GradientTransformation, config
             discriminator,
             config.steps,
             expert_obs=batch.expert_obs,
-            expert_actions=batch.expert_actions,
+            expert_actions=expert_inputs,
             expert_weights=algorithm.expert_weights(gamma),
             conditions=algorithm.discriminator_conditions(k),
             policy_obs=batch.obs,
-            policy_actions=batch.executed,
+            policy_actions=policy_inputs,
             policy_conditions=algorithm.discriminator_condition(own_intention, k),
             gradient_penalty=config.gradient_penalty,
             **absorbed,
+            **batch.log_policy_offsets(),
         )
         return MStep(trained, metrics)
 
@@ -240,16 +262,20 @@ def learned_reward(
     intention: jax.Array,
     own_log_posterior: jax.Array,
     intention_major: bool = False,
+    log_policy: jax.Array | None = None,
 ) -> jax.Array:
     """The learned reward ``[...]`` of pairs (normalised ``obs [..., D]``, ``executed [..., A]``)
     under their ``intention [...]``: -log(1 - D(s, a, i)) for EM-GAIL (eq. 20), plus lambda
     log P(i | s, a) (``own_log_posterior [...]``) for Info/IntentionGAIL (eq. 23), and
     -log(1 - D(s, a)) for GAIL. ``intention_major``: the leading axis of the inputs is the
     intention (the rollouts' layout ``[K, ...]``, see
-    :func:`~emgail_jax.method.networks.conditioned_mlp`).
+    :func:`~emgail_jax.method.networks.conditioned_mlp`). AIRL's: ``executed`` holds the
+    successors and ``log_policy [...]`` log pi of the pairs' actions, the logit f - log pi.
     """
     condition = algorithm.discriminator_condition(intention, num_intentions)
     logit = apply(params, obs, executed, condition, intention_major=intention_major)
+    if log_policy is not None:
+        logit = logit - log_policy
     return algorithm.pseudo_reward(logit, own_log_posterior)
 
 

@@ -153,6 +153,45 @@ class Discriminator(ScalarNet):
         return logit[..., 0]
 
 
+class StateScalar(ScalarNet):
+    """A conditioned MLP of the observation alone, one output per row: AIRL's g and h."""
+
+    @nn.compact
+    def __call__(self, obs, condition, intention_major: bool = False) -> jax.Array:
+        out = conditioned_mlp(
+            self.hidden, 1, obs, condition, self.heads, intention_major=intention_major
+        )
+        return out[..., 0]
+
+
+class AIRLDiscriminator(ScalarNet):
+    """AIRL's f(s, a, s', i) = g_i(s) + discount * h_i(s') - h_i(s) (Fu et al. 2018, eq. 13):
+    g the state-only reward, h the state-only shaping, each conditioned on the intention as
+    :class:`Discriminator` is. It takes :class:`Discriminator`'s place in every call, the
+    ``successor [..., D + 1]`` (:func:`~emgail_jax.method.airl.successor`) in the action's:
+    the next observation and 1 where the episode goes on after it, 0 where it terminated
+    (h(s') = 0 there). The logit of D is f - log pi_i(a | s), which the callers subtract.
+
+    The continuation flag is data, not a place where f should be smooth: its input gradient is
+    stopped, so that the M-step's gradient penalty reads d f / d(s, s') alone."""
+
+    discount: float = 0.99
+
+    def setup(self):
+        self.reward_net = StateScalar(self.hidden, self.heads)
+        self.shaping_net = StateScalar(self.hidden, self.heads)
+
+    def __call__(self, obs, successor, condition, intention_major: bool = False) -> jax.Array:
+        next_obs, going_on = successor[..., :-1], jax.lax.stop_gradient(successor[..., -1])
+        shaping = lambda x: self.shaping_net(x, condition, intention_major)
+        reward = self.reward_net(obs, condition, intention_major)
+        return reward + self.discount * going_on * shaping(next_obs) - shaping(obs)
+
+    def reward(self, obs, condition, intention_major: bool = False) -> jax.Array:
+        """g_i(s), the state-only reward that AIRL claims transfers (``reoptimize``'s)."""
+        return self.reward_net(obs, condition, intention_major)
+
+
 class Posterior(nn.Module):
     """Logits of P(i | s, a) over the K intentions."""
 

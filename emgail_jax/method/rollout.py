@@ -27,15 +27,21 @@ class Transitions:
     time: jax.Array  # [T, K, B] t / episode_length of `obs`
     done: jax.Array  # [T, K, B] 1.0 where the episode ended with this transition
     true_reward: jax.Array  # [T, K, B, K] true reward of every intention (evaluation only)
+    # Where asked for only (AIRL's s'; None otherwise): the raw observation each transition
+    # reached, at an episode's end its last one (the auto-reset replaced it in the state).
+    next_obs: jax.Array | None = None  # [T, K, B, D]
 
     @classmethod
-    def zeros(cls, t: int, k: int, b: int, obs_size: int, action_size: int) -> Transitions:
+    def zeros(
+        cls, t: int, k: int, b: int, obs_size: int, action_size: int, next_obs: bool = False
+    ) -> Transitions:
         return cls(
             obs=jnp.zeros((t, k, b, obs_size)),
             action=jnp.zeros((t, k, b, action_size)),
             time=jnp.zeros((t, k, b)),
             done=jnp.zeros((t, k, b)),
             true_reward=jnp.zeros((t, k, b, k)),
+            next_obs=jnp.zeros((t, k, b, obs_size)) if next_obs else None,
         )
 
 
@@ -75,35 +81,45 @@ def batch_reset(env: envs.Env, key: jax.Array, shape: tuple[int, ...]) -> envs.S
     return reset(keys)
 
 
-def _batch_step(env: envs.Env, ndim: int):
-    step = env.step
+def _batch_step(env: envs.Env, ndim: int, step=None):
+    step = step or env.step
     for _ in range(ndim):
         step = jax.vmap(step)
     return step
 
 
 def rollout(
-    env: envs.Env, policy: Policy, state: envs.State, key: jax.Array, length: int
+    env: envs.Env,
+    policy: Policy,
+    state: envs.State,
+    key: jax.Array,
+    length: int,
+    next_obs: bool = False,
 ) -> tuple[envs.State, Transitions]:
-    """``length`` steps of the ``[K, B]`` envs in ``state`` (an auto-resetting env).
+    """``length`` steps of the ``[K, B]`` envs in ``state`` (an auto-resetting env), with
+    ``next_obs`` the observations they reached too (``Transitions.next_obs``).
 
     The initial states of the episodes that start during this rollout are drawn first (see
     :class:`envs.AutoResetWrapper`).
     """
-    step = _batch_step(env, 2)
+    if next_obs:
+        step = _batch_step(env, 2, env.step_and_observe)
+    else:
+        step = lambda state, action: (_batch_step(env, 2)(state, action), None)
     key_starts, key = jax.random.split(key)
     starts = jax.random.split(key_starts, state.done.shape)
     state = jax.vmap(jax.vmap(env.refresh))(state, starts)
 
     def body(state, step_key):
         action = policy(state.obs, step_key)
-        next_state = step(state, action)
+        next_state, reached = step(state, action)
         transition = Transitions(
             obs=state.obs,
             action=action,
             time=state.info["steps"] / env.episode_length,
             done=next_state.done,
             true_reward=next_state.reward,
+            next_obs=reached,
         )
         return next_state, transition
 

@@ -118,8 +118,10 @@ class PolicyStages:
         self, env: envs.Env, policy: Policy, env_state: envs.State, key: jax.Array
     ) -> tuple[envs.State, Transitions]:
         """Step 1: ``rollout_length`` steps of the auto-resetting ``env`` from ``env_state``
-        with ``policy`` (:func:`~emgail_jax.method.rollout.rollout`)."""
-        return rollout(env, policy, env_state, key, self.config.rollout.rollout_length)
+        with ``policy`` (:func:`~emgail_jax.method.rollout.rollout`), the observations reached
+        recorded for AIRL's discriminator."""
+        length, airl = self.config.rollout.rollout_length, self.config.m_step.form.airl
+        return rollout(env, policy, env_state, key, length, next_obs=airl)
 
     def improve(
         self,

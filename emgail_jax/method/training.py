@@ -15,7 +15,9 @@ stage is steps 2-3 and the learned reward (:class:`LearnedRewardStage`, which re
    gamma = P on the expert pairs;
 3. M-step (:mod:`emgail_jax.method.discriminator`): the discriminator learns expert (weighted by
    gamma) against policy samples (with ``discriminator_replay``, past iterations' too:
-   :mod:`emgail_jax.method.replay`);
+   :mod:`emgail_jax.method.replay`; with ``discriminator_form=airl``, AIRL's discriminator,
+   which reads each pair's successor and the current policy's log-density:
+   :mod:`emgail_jax.method.airl`);
 4. B-step (:mod:`emgail_jax.method.b_step`): the samples are relabelled with the learned reward, GAE
    computes advantages, TRPO updates the policy, and the value baseline is refitted;
 5. metrics: the clustering accuracy of the E-step and, when ``evaluating``, deterministic
@@ -45,18 +47,20 @@ from flax import struct
 
 import envs
 from emgail_jax.method import normalizer as obs_norm
+from emgail_jax.method.airl import successor, with_log_densities
 from emgail_jax.method.algorithms import Algorithm, make_algorithm
 from emgail_jax.method.batches import DemonstrationPairs, NormalizedBatch
 from emgail_jax.method.choosing import holds_demonstrations
 from emgail_jax.method.config import MethodConfig, ResponsibilityMode
 from emgail_jax.method.discriminator import (
     absorbing_reward,
-    expert_logits,
+    expert_scores,
     learned_reward,
     make_m_step,
 )
 from emgail_jax.method.metrics import cluster_accuracy, normalized_erd
 from emgail_jax.method.networks import (
+    AIRLDiscriminator,
     Discriminator,
     GaussianPolicy,
     Posterior,
@@ -144,17 +148,21 @@ class RunData:
 class Networks:
     policy: GaussianPolicy
     value: ValueNet
-    discriminator: Discriminator
+    discriminator: Discriminator | AIRLDiscriminator
     posterior: Posterior
 
 
 def make_networks(config: MethodConfig, env: envs.Env) -> Networks:
     shape = config.networks
     heads = shape.intention_input.heads
+    if config.m_step.form.airl:  # f's shaping discounts as the B-step does
+        discriminator = AIRLDiscriminator(shape.hidden, heads, config.b_step.gamma)
+    else:
+        discriminator = Discriminator(shape.hidden, heads, config.reward.absorbing_state)
     return Networks(
         policy=GaussianPolicy(env.action_size, shape.hidden, shape.init_log_std, heads),
         value=ValueNet(shape.hidden, heads),
-        discriminator=Discriminator(shape.hidden, heads, config.reward.absorbing_state),
+        discriminator=discriminator,
         posterior=Posterior(env.num_intentions, shape.hidden),
     )
 
@@ -163,7 +171,7 @@ def make_policy_stages(config: MethodConfig, env: envs.Env, networks: Networks) 
     """The skeleton's policy side for ``networks``: row k of the ``[K, B]`` layout acts as
     intention k (GAIL's single policy ignores the row)."""
     # Only the policy's conditioning is read, which no algorithm's data changes.
-    algorithm = make_algorithm(config.algo, reward_form=config.reward.form)
+    algorithm = make_algorithm(config.algo, reward_form=config.reward_form)
     condition = lambda intentions: algorithm.policy_condition(intentions, env.num_intentions)
     return PolicyStages.create(networks.policy, networks.value, condition, config, env)
 
@@ -270,7 +278,7 @@ def evaluation_phases(config: MethodConfig, env: envs.Env) -> int:
 
 def algorithm_of(config: MethodConfig, data: RunData) -> Algorithm:
     """The run's algorithm, with Info/IntentionGAIL's lambda from the run's data."""
-    return make_algorithm(config.algo, data.info_weight, config.reward.form)
+    return make_algorithm(config.algo, data.info_weight, config.reward_form)
 
 
 class Optimizers(NamedTuple):
@@ -303,8 +311,9 @@ def make_init(config: MethodConfig, env: envs.Env, networks: Networks, optimizer
         obs = jnp.zeros((1, env.observation_size))
         action = jnp.zeros((1, env.action_size))
         policy, value = stages.init(keys["policy"], keys["value"])
+        read = successor(obs, jnp.zeros(1)) if config.m_step.form.airl else action
         discriminator = networks.discriminator.init(
-            keys["disc"], obs, action, discriminator_condition
+            keys["disc"], obs, read, discriminator_condition
         )
         posterior = (
             Learner.create(networks.posterior.init(keys["post"], obs, action), optimizers.posterior)
@@ -343,6 +352,7 @@ def replay_of(config: MethodConfig, env: envs.Env, key: jax.Array) -> Replay | N
         env.action_size,
         jax.random.fold_in(key, 1),
         absorbing=config.reward.absorbing_state,
+        successors=config.m_step.form.airl,
     )
 
 
@@ -388,7 +398,9 @@ def make_collect(config: MethodConfig, env: envs.Env, stages: PolicyStages):
 
         carry = (
             state.env_state,
-            Transitions.zeros(t, k, b, env.observation_size, env.action_size),
+            Transitions.zeros(
+                t, k, b, env.observation_size, env.action_size, config.m_step.form.airl
+            ),
             state.env_state,
             jnp.zeros((k, b, k)),
             jnp.ones((k, b)),
@@ -427,7 +439,8 @@ def normalized_batch(
 ) -> NormalizedBatch:
     """The rollout and the demonstrations as the posterior and the discriminator see them, with
     ``normalizer`` (the rollout's statistics included); TRPO keeps the raw samples. With
-    ``absorbing``, the terminations of both, where the discriminator adds absorbing pairs."""
+    ``absorbing``, the terminations of both, where the discriminator adds absorbing pairs;
+    for a rollout that recorded its next observations (AIRL's), the successors of both."""
     normalize = lambda x: obs_norm.normalize(normalizer, x, obs_clip)
     batch = NormalizedBatch(
         normalizer=normalizer,
@@ -436,12 +449,26 @@ def normalized_batch(
         expert_obs=normalize(demos.observations),
         expert_actions=demos.actions,
     )
+    if transitions.next_obs is not None:
+        batch = batch.replace(
+            successor=successors(transitions, env, normalize),
+            expert_successor=successor(
+                normalize(demos.next_observations), demos.terminations(env.episode_length)
+            ),
+        )
     if absorbing:
         batch = batch.replace(
             terminal=intention_major(terminations(transitions, env.episode_length)),
             expert_terminal=demos.terminations(env.episode_length),
         )
     return batch.check()
+
+
+def successors(transitions: Transitions, env: envs.Env, normalize=lambda x: x) -> jax.Array:
+    """``[K, M, D + 1]`` the successor of every sample of a rollout that recorded its next
+    observations (``normalize``d; raw by default), grouped by intention."""
+    terminal = terminations(transitions, env.episode_length)
+    return intention_major(successor(normalize(transitions.next_obs), terminal))
 
 
 def make_reseed(config: MethodConfig, networks: Networks, k: int):
@@ -454,11 +481,10 @@ def make_reseed(config: MethodConfig, networks: Networks, k: int):
 
     def reseed(memory: Reseeding, e: EStep, discriminator: Learner, seen, demos, algorithm):
         def scores(holder: jax.Array) -> jax.Array:
-            logits = expert_logits(
+            logits = expert_scores(
                 networks.discriminator.apply,
                 discriminator.params,
-                seen.expert_obs,
-                seen.expert_actions,
+                seen,
                 algorithm.discriminator_conditions(k),
             )  # [N, C]
             column = holder[demos.episode] if algorithm.conditional_discriminator else 0
@@ -524,10 +550,11 @@ class LearnedRewardStage:
             algorithm,
             k,
             obs=seen.obs,
-            executed=seen.executed,
+            executed=seen.discriminated()[0],
             intention=intention_rows((k, m)),
             own_log_posterior=own_log_posterior,
             intention_major=True,
+            log_policy=seen.log_policy,
         )
 
     def absorbing_reward(self, discriminator, algorithm) -> jax.Array:
@@ -550,6 +577,13 @@ class LearnedRewardStage:
         seen = normalized_batch(
             normalizer, transitions, demos, self.env, config.networks.obs_clip, absorbing
         )
+        densities = lambda batch: batch  # AIRL's log pi, under the policy that made the rollout
+        if config.m_step.form.airl:
+            policy_apply = self.networks.policy.apply
+            densities = lambda batch: with_log_densities(
+                batch, policy_apply, state.policy, algorithm
+            )
+        seen = densities(seen)
         reseeding = state.reseeding
         # EM-GAIL's M-step sees a re-seeding in gamma; Info/IntentionGAIL's D(s, a) ignores
         # gamma, so its posterior learns the held demonstrations instead.
@@ -564,7 +598,9 @@ class LearnedRewardStage:
         if replay is not None:
             normalize = lambda x: obs_norm.normalize(normalizer, x, config.networks.obs_clip)
             raw = intention_major(transitions.obs)
-            replay, negatives = with_replay(replay, seen, raw, normalize)
+            raw_successors = None if seen.successor is None else successors(transitions, self.env)
+            replay, negatives = with_replay(replay, seen, raw, normalize, raw_successors)
+            negatives = densities(negatives)
         m = self.m_step(state.discriminator, negatives, e.gamma, algorithm)
         rewarding = config.reward.source.choose(
             updated=m.discriminator, previous=state.discriminator
