@@ -689,7 +689,10 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
         reward_function=chosen.function,
         absorbing_function=chosen.absorbing,
     )
-    result["reward_form"] = run.algorithm.reward_form
+    # What the fresh agents were paid: an AIRL run's policies trained on f - log pi, its
+    # fresh agents on g_i(s).
+    airl = run.config.method.m_step.form.airl
+    result["reward_form"] = "airl-g" if airl else run.algorithm.reward_form
     result.update(chosen.details)
     if variant is not None:
         variant["joint_policies"] = joint_policies(run, seeds, result["iteration"])

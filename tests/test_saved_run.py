@@ -188,3 +188,15 @@ def test_an_airl_runs_reward_is_its_state_only_g(airl_run):
         np.testing.assert_allclose(saved.reward(1)(obs, -actions, intention), got, rtol=1e-5)
     assert np.all(np.isfinite(saved.history["discriminator/loss"]))
     assert reoptimize.main([str(airl_run), "--reward-form", "logit"]) == 2
+
+
+@pytest.mark.slow  # a fresh agent compiled and trained on the AIRL run's reward
+def test_an_airl_runs_check_says_its_fresh_agents_were_paid_g(airl_run):
+    import json
+
+    from emgail_jax import reoptimize
+
+    args = [str(airl_run), "--seed", "0", "--iterations", "2", "--no-baseline", "--quiet"]
+    assert reoptimize.main(args) == 0
+    result = json.loads((airl_run / "reoptimize-seed-0.json").read_text())
+    assert result["reward_form"] == "airl-g" and result["seeds"] == [0]
