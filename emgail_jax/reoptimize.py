@@ -1,17 +1,19 @@
 """Is the learned reward a reward? Train fresh policies on it and measure their ERD (paper §5.2).
 
-    python -m emgail_jax.reoptimize RUN_DIR [--seed S] [--snapshot ITER] [--ensemble N]
-        [--iterations N] [--gamma G] [--no-baseline] [--cache DIR] [--env-set KEY=FACTOR ...]
-        [--out PATH]
+    python -m emgail_jax.reoptimize RUN_DIR [--seed S] [--rl-seed R] [--snapshot ITER]
+        [--ensemble N] [--iterations N] [--gamma G] [--no-baseline] [--cache DIR]
+        [--env-set KEY=FACTOR ...] [--out PATH]
 
 For every run seed (or ``--seed S`` alone) and every learned intention, a new policy is trained
 from scratch with TRPO on the frozen pseudo-reward R_i(s, a) of that seed (the run's final
 networks, or those of the snapshot of ``--snapshot ITER``; with ``--ensemble N`` the mean of
 R_i over the last N snapshots up to them), never seeing the true reward; the seeds' and
-intentions' policies are vmapped in one program. Their deterministic episodes (as
-many per iteration as training evaluates, ``num_envs``) are scored under the true rewards; the
-ERD matches each true intention to the learned one the run itself matched it to (its jointly
-trained policies' matching at that iteration), one matching for every number reported. Each
+intentions' policies are vmapped in one program (``--rl-seed R``: another draw of their
+initialisation and samples, to tell a reward that fails from a search that did). Their
+deterministic episodes (as many per iteration as training evaluates, ``num_envs``) are scored
+under the true rewards; the ERD matches each true intention to the learned one the run itself
+matched it to (its jointly trained policies' matching at that iteration), one matching for
+every number reported. Each
 env's success measure (the experts' bars: velocity, upright, pitch turn, ball reached) is
 reported beside it, over the experts' 10 deterministic episodes.
 
@@ -260,9 +262,11 @@ def reoptimize(
     parameters=None,
     reward_function=None,
     absorbing_function=None,
+    rl_seed: int = 0,
 ) -> dict:
     """Trains one policy per learned intention on each of ``seeds``' frozen rewards of ``run``
-    (all seeds vmapped in one program) and scores them; ``parameters`` (one per seed) replace
+    (all seeds vmapped in one program) and scores them; ``rl_seed`` picks another draw of the
+    fresh policies' keys (0: the default's); ``parameters`` (one per seed) replace
     the run's :meth:`~emgail_jax.host.saved_run.SavedRun.reward_parameters`, read by
     ``reward_function`` and ``absorbing_function`` (default the run's
     :meth:`~emgail_jax.host.saved_run.SavedRun.reward_function` and
@@ -281,10 +285,14 @@ def reoptimize(
     trainer = _fresh_trainer(run, budget, reward_fn, absorbing_fn)
     per_seed_parameters = parameters or [run.reward_parameters(seed) for seed in seeds]
     parameters = stacked(per_seed_parameters)
-    # Each seed's policies take their keys from the run's seed, one per learned intention.
-    keys = np.stack(
-        [jax.random.split(jax.random.PRNGKey(run.spec.first_seed + s + 1000), k) for s in seeds]
-    )
+
+    # Each seed's policies take their keys from the run's seed, one per learned intention;
+    # another RL seed folds into that key, so that RL seed 0 is the key checks always had.
+    def fresh_key(seed: int):
+        key = jax.random.PRNGKey(run.spec.first_seed + seed + 1000)
+        return jax.random.fold_in(key, rl_seed) if rl_seed else key
+
+    keys = np.stack([jax.random.split(fresh_key(s), k) for s in seeds])
     fresh = train_fresh(trainer, keys, parameters, budget.iterations, "re-optimising", progress)
     iteration = run.snapshot or run.iteration
     per_seed = []
@@ -308,6 +316,7 @@ def reoptimize(
         "expert_returns": run.problem.demos.expert_returns,
         "random_returns": run.problem.random_returns,
         "seeds": list(seeds),
+        "rl_seed": rl_seed,
         "erd": erds,
         "erd_mean": None if None in erds else float(np.mean(erds)),
         "erd_std": None if None in erds else float(np.std(erds)),
@@ -491,6 +500,14 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("run_dir")
     parser.add_argument("--seed", type=int, default=None, help="one run seed (default: all)")
     parser.add_argument(
+        "--rl-seed",
+        type=int,
+        default=0,
+        metavar="R",
+        help="another draw of the fresh policies' initialisation and samples on the same "
+        "rewards (default 0)",
+    )
+    parser.add_argument(
         "--snapshot", type=int, default=None, metavar="ITER", help="the rewards of this snapshot"
     )
     parser.add_argument("--iterations", type=int, default=None, help="default: the env's budget")
@@ -546,6 +563,8 @@ def parse_args(argv=None) -> argparse.Namespace:
 def _check_options(args: argparse.Namespace) -> None:
     from emgail_jax.host.run_spec import RunError
 
+    if args.rl_seed < 0:
+        raise RunError("--rl-seed must be 0 or more")
     if args.iterations is not None and args.iterations < 1:
         raise RunError("--iterations must be at least 1")
     if args.gamma is not None and not 0 < args.gamma <= 1:
@@ -688,6 +707,7 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
         parameters=chosen.parameters,
         reward_function=chosen.function,
         absorbing_function=chosen.absorbing,
+        rl_seed=args.rl_seed,
     )
     # What the fresh agents were paid: an AIRL run's policies trained on f - log pi, its
     # fresh agents on g_i(s).
@@ -708,11 +728,13 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
 
 
 def default_name(args) -> str:
-    """``reoptimize[-seed-S][-snapshot-ITER][-consolidated-STEPS][-ensemble-N][-FORM][-env-...]
+    """``reoptimize[-seed-S][-rl-R][-snapshot-ITER][-consolidated-STEPS][-ensemble-N][-FORM][-env-...]
     .json``: a check of one seed does not overwrite the check of every seed."""
     parts = ["reoptimize"]
     if args.seed is not None:
         parts.append(f"seed-{args.seed}")
+    if args.rl_seed:
+        parts.append(f"rl-{args.rl_seed}")
     if args.snapshot is not None:
         parts.append(f"snapshot-{args.snapshot}")
     if args.consolidate:

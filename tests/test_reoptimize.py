@@ -175,6 +175,7 @@ def test_a_snapshot_is_reoptimised_on_its_own_networks(tiny_run, reoptimized):
         (["--seed", "5"], "the run has seeds 0..1"),
         (["--gamma", "0"], "--gamma must be in (0, 1]"),
         (["--iterations", "0"], "--iterations must be at least 1"),
+        (["--rl-seed", "-1"], "--rl-seed must be 0 or more"),
         (["--consolidate", "-1"], "--consolidate must be 0 (none) or more steps"),
         (["--ensemble", "3"], "--ensemble 3 needs 3 snapshots up to iteration 4;"),
         (
@@ -226,6 +227,20 @@ def test_an_ensemble_reward_is_the_mean_of_the_snapshots_rewards(tiny_run, saved
         np.testing.assert_allclose(mean, np.mean(every, 0), rtol=1e-5)
     _, last = reoptimize.ensemble_parameters(saved, [1], 1)
     assert last == [4]
+
+
+@pytest.mark.slow  # a second re-optimisation (the plain one runs always)
+def test_another_rl_seed_trains_other_fresh_agents_on_the_same_rewards(tiny_run, reoptimized):
+    first, _ = reoptimized
+    args = [str(tiny_run), "--iterations", "2", "--rl-seed", "1", "--no-baseline", "--quiet"]
+    assert reoptimize.main(args) == 0
+    result = json.loads((tiny_run / "reoptimize-rl-1.json").read_text())
+    assert result["rl_seed"] == 1 and first["rl_seed"] == 0
+    earned = lambda r: [s["learned_reward_per_step"] for s in r["per_seed"]]
+    # The same rewards on the same demonstrations; other agents earn other amounts.
+    for mine, theirs in zip(earned(result), earned(first), strict=True):
+        assert mine["demonstrations"] == theirs["demonstrations"]
+        assert mine["fresh_policies"] != theirs["fresh_policies"]
 
 
 @pytest.mark.slow  # an ensemble's re-optimisation (the plain one runs always)
@@ -285,3 +300,5 @@ def test_the_default_file_names_what_was_checked():
         ["RUN", "--seed", "1", "--reward-form", "log-d", "--snapshot", "20"]
     )
     assert reoptimize.default_name(args) == "reoptimize-seed-1-snapshot-20-log-d.json"
+    args = reoptimize.parse_args(["RUN", "--rl-seed", "2"])
+    assert reoptimize.default_name(args) == "reoptimize-rl-2.json"
