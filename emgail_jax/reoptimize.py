@@ -327,9 +327,10 @@ def reoptimize(
     }
 
 
-def baseline_key(run, budget: Budget) -> str:
-    """What the true-reward baseline depends on: the env, its options and K, the budget and
-    the TRPO settings, as a file name."""
+def baseline_key(run, budget: Budget, rl_seed: int = 0) -> str:
+    """What the true-reward baseline depends on: the env, its options and K, the budget, the
+    TRPO settings and the RL seed, as a file name (another RL seed's does not begin with
+    :func:`baseline_prefix`: the sweep's checks read RL seed 0's)."""
     config = run.config.to_dict()
     env = run.problem.env
     described = {
@@ -342,7 +343,7 @@ def baseline_key(run, budget: Budget) -> str:
     text = json.dumps(described, sort_keys=True, default=str)
     digest = hashlib.sha256(text.encode()).hexdigest()[:12]
     prefix = baseline_prefix(env.name, env.num_intentions, budget.iterations)
-    return f"{prefix}g{budget.gamma}-{digest}"
+    return (f"rl{rl_seed}-" if rl_seed else "") + f"{prefix}g{budget.gamma}-{digest}"
 
 
 def baseline_prefix(env_name: str, intentions: int, iterations: int) -> str:
@@ -351,14 +352,18 @@ def baseline_prefix(env_name: str, intentions: int, iterations: int) -> str:
     return f"{env_name}-k{intentions}-{iterations}it-"
 
 
-def true_reward_baseline(run, budget: Budget, cache: str | None, progress: bool = True) -> dict:
+def true_reward_baseline(
+    run, budget: Budget, cache: str | None, progress: bool = True, rl_seed: int = 0
+) -> dict:
     """TRPO on the env's true rewards with the fresh policies' settings and budget, policy i on
-    intention i (one RL seed), scored like them; read from ``cache`` when computed before."""
+    intention i (one RL seed, ``rl_seed``'s draw), scored like them; read from ``cache`` when
+    computed before."""
     import jax
 
     from emgail_jax.host import records
 
-    path = None if cache is None else os.path.join(cache, baseline_key(run, budget) + ".json")
+    key = baseline_key(run, budget, rl_seed)
+    path = None if cache is None else os.path.join(cache, key + ".json")
     k_true = run.problem.true_intentions
     identity = np.arange(k_true)
     if path is not None and os.path.exists(path):
@@ -368,7 +373,9 @@ def true_reward_baseline(run, budget: Budget, cache: str | None, progress: bool 
         found = stored["success"]
     else:
         trainer = _fresh_trainer(run, budget)
-        keys = jax.random.split(jax.random.PRNGKey(1000), run.num_intentions)[None]
+        key = jax.random.PRNGKey(1000)
+        key = jax.random.fold_in(key, rl_seed) if rl_seed else key
+        keys = jax.random.split(key, run.num_intentions)[None]
         fresh = train_fresh(trainer, keys, None, budget.iterations, "true reward", progress)
         returns = fresh.returns[0]
         states = jax.tree.map(lambda x: x[0], fresh.states)
@@ -719,7 +726,10 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
     result["variant"] = variant
     result["baseline"] = None
     if args.baseline:
-        result["baseline"] = true_reward_baseline(run, budget, cache, not args.quiet)
+        # The baseline's own draw: how far one RL seed's search varies on the true reward.
+        result["baseline"] = true_reward_baseline(
+            run, budget, cache, not args.quiet, rl_seed=args.rl_seed
+        )
     path = args.out or os.path.join(args.run_dir, default_name(args))
     records.write_json(path, result)
     print_result(run, records.to_json_value(result))

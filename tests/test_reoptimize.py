@@ -293,6 +293,13 @@ def test_a_variant_is_scored_against_its_own_true_reward_agent(tmp_path):
     assert plain["random_returns"] != pytest.approx(result["random_returns"])
 
 
+def test_another_rl_seeds_baseline_is_kept_apart_from_the_sweeps(saved):
+    budget = reoptimize.default_budget(saved)
+    first = reoptimize.baseline_key(saved, budget)
+    assert first.startswith(reoptimize.baseline_prefix("driver", 2, budget.iterations))
+    assert reoptimize.baseline_key(saved, budget, rl_seed=1) == "rl1-" + first
+
+
 def test_the_default_file_names_what_was_checked():
     args = reoptimize.parse_args(["RUN"])
     assert reoptimize.default_name(args) == "reoptimize.json"
