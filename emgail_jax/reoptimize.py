@@ -489,6 +489,14 @@ def print_result(run, result: dict) -> None:
             f"re-optimised ERD {result['erd_mean']:.3f} ± {result['erd_std']:.3f} over "
             f"{len(result['seeds'])} seeds"
         )
+    reference = (result.get("variant") or {}).get("reference_meets_bar")
+    if reference and None not in reference and not all(reference):
+        # ERD is |reference - return|: past a weak reference it grows, so say it is weak.
+        console.print(
+            f"the variant's true-reward agent, ERD's 0 here, meets {sum(reference)} of "
+            f"{len(reference)} of the experts' bars: agents that beat it score ERD > 0 too; "
+            "read the bars"
+        )
     for seed_result in result["per_seed"]:
         earned = seed_result["learned_reward_per_step"]
         pairs = zip(earned["fresh_policies"], earned["demonstrations"], strict=True)
@@ -704,7 +712,11 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
     variant = None
     if args.env_set:  # the variant's own expert, its true-reward agent, first
         baseline = true_reward_baseline(run, budget, cache, not args.quiet)
-        variant = {"dynamics": args.env_set, "original_experts_erd": baseline["erd"]}
+        variant = {
+            "dynamics": args.env_set,
+            "original_experts_erd": baseline["erd"],
+            "reference_meets_bar": baseline["meets_bar"],
+        }
         run.problem = with_expert_returns(run.problem, baseline["returns"])
     result = reoptimize(
         run,

@@ -283,6 +283,7 @@ def test_a_variant_is_scored_against_its_own_true_reward_agent(tmp_path):
     # The variant's expert is its true-reward agent: the returns ERD is measured from.
     assert result["expert_returns"] == pytest.approx(baseline["returns"])
     assert baseline["cache"].endswith(".json") and "swimmer-k2-2it" in baseline["cache"]
+    assert result["variant"]["reference_meets_bar"] == baseline["meets_bar"]
     # Beside it, the run's own policies deployed unchanged in the variant.
     joint = result["variant"]["joint_policies"]
     assert [r["run_seed"] for r in joint["per_seed"]] == [0] and np.isfinite(joint["erd"][0])
