@@ -45,16 +45,6 @@ COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red")
 EVALUATION_SEED = 12345  # the episodes' key: every evaluation of a run sees the same starts
 
 
-def rollouts(run, seed: int, episodes: int, key):
-    """Deterministic episodes of every learned intention: ``(returns [K, E, K], alive, trace)``."""
-    env = envs.EpisodeWrapper(run.problem.env)
-    k = run.num_intentions
-    policy = run.policy(seed)
-    rows = jnp.arange(k)[:, None]
-    act = lambda state, _: policy(state.obs, rows)
-    return jax.device_get(jax.jit(lambda key: run_episodes(env, act, key, k, episodes, True))(key))
-
-
 def expert_rollouts(run, episodes: int, key):
     """The experts' episodes, when an expert can act in the env; else None."""
     raw = run.problem.env
@@ -315,7 +305,7 @@ def evaluate_run(run: SavedRun, args: argparse.Namespace) -> None:
     key = jax.random.PRNGKey(EVALUATION_SEED)
     results = []
     for seed in range(run.spec.seeds):
-        returns, alive, trace = rollouts(run, seed, args.episodes, key)
+        returns, alive, trace = run.episodes(seed, args.episodes, key, traces=True)
         result = score(run, seed, returns)
         results.append((returns, alive, trace, result))
         print(seed_line(run, seed, result))

@@ -13,9 +13,8 @@ initialisation and samples, to tell a reward that fails from a search that did).
 deterministic episodes (as many per iteration as training evaluates, ``num_envs``) are scored
 under the true rewards; the ERD matches each true intention to the learned one the run itself
 matched it to (its jointly trained policies' matching at that iteration), one matching for
-every number reported. Each
-env's success measure (the experts' bars: velocity, upright, pitch turn, ball reached) is
-reported beside it, over the experts' 10 deterministic episodes.
+every number reported. Each env's success measure (the experts' bars: velocity, upright, pitch
+turn, ball reached) is reported beside it, over the experts' 10 deterministic episodes.
 
 Every algorithm's run is checked on the reward its own policies were trained on
 (:meth:`~emgail_jax.host.saved_run.SavedRun.reward_function`): EM-GAIL's R_i = -log(1 - D(s, a,
@@ -27,11 +26,10 @@ by the one the run matched to i. Every fresh policy has the same budget whatever
 the ``[K, num_envs]`` envs, although GAIL's single policy trained on all K rows), so that the
 algorithms' checks compare the rewards alone. A run trained with AIRL's discriminator
 (``--set discriminator_form=airl``) is checked on its state-only reward g_i(s), the one AIRL
-claims transfers, not on f - log pi (its policies' training reward, which reads the policy). A
-run trained with absorbing states
-(``--set absorbing_state=true``) is checked the same way: a fresh policy's termination is worth
-the learned reward of the absorbing state for every step left, as in the run's own B-step; the
-true-reward baseline has no absorbing state.
+claims transfers, not on f - log pi (its policies' training reward, which reads the policy).
+A run trained with absorbing states (``--set absorbing_state=true``) is checked the same way:
+a fresh policy's termination is worth the learned reward of the absorbing state for every step
+left, as in the run's own B-step; the true-reward baseline has no absorbing state.
 
 Beside the learned reward, the **true-reward baseline**: the same TRPO, settings and budget on
 the env's true rewards, the floor any learned reward is judged against (computed once per env,
@@ -97,6 +95,14 @@ RL_FIELDS = (
     "value_minibatches",
 )
 SUCCESS_EPISODES = 10  # the experts' bars are defined over 10 deterministic episodes
+
+
+def drawn(key, rl_seed: int):
+    """``key`` for RL seed ``rl_seed``: folded with it, RL seed 0 the key itself (the draw
+    every check made before there were RL seeds)."""
+    import jax
+
+    return jax.random.fold_in(key, rl_seed) if rl_seed else key
 
 
 def default_budget(run) -> Budget:
@@ -286,13 +292,9 @@ def reoptimize(
     per_seed_parameters = parameters or [run.reward_parameters(seed) for seed in seeds]
     parameters = stacked(per_seed_parameters)
 
-    # Each seed's policies take their keys from the run's seed, one per learned intention;
-    # another RL seed folds into that key, so that RL seed 0 is the key checks always had.
-    def fresh_key(seed: int):
-        key = jax.random.PRNGKey(run.spec.first_seed + seed + 1000)
-        return jax.random.fold_in(key, rl_seed) if rl_seed else key
-
-    keys = np.stack([jax.random.split(fresh_key(s), k) for s in seeds])
+    # Each seed's policies take their keys from the run's seed, one per learned intention.
+    seed_key = lambda s: drawn(jax.random.PRNGKey(run.spec.first_seed + s + 1000), rl_seed)
+    keys = np.stack([jax.random.split(seed_key(s), k) for s in seeds])
     fresh = train_fresh(trainer, keys, parameters, budget.iterations, "re-optimising", progress)
     iteration = run.snapshot or run.iteration
     per_seed = []
@@ -373,9 +375,7 @@ def true_reward_baseline(
         found = stored["success"]
     else:
         trainer = _fresh_trainer(run, budget)
-        key = jax.random.PRNGKey(1000)
-        key = jax.random.fold_in(key, rl_seed) if rl_seed else key
-        keys = jax.random.split(key, run.num_intentions)[None]
+        keys = jax.random.split(drawn(jax.random.PRNGKey(1000), rl_seed), run.num_intentions)[None]
         fresh = train_fresh(trainer, keys, None, budget.iterations, "true reward", progress)
         returns = fresh.returns[0]
         states = jax.tree.map(lambda x: x[0], fresh.states)
@@ -393,23 +393,12 @@ def joint_policies(run, seeds: list[int], iteration: int) -> dict:
     (the run's matching at ``iteration``). What a reward re-optimised in the variant is
     compared with: the policy a user would otherwise deploy there."""
     import jax
-    import jax.numpy as jnp
 
-    import envs
-    from emgail_jax.method.rollout import episodes
-
-    env = envs.EpisodeWrapper(run.problem.env)
-    k = run.num_intentions
-    rows = jnp.arange(k)[:, None]
     count = run.config.method.rollout.num_envs
     key = jax.random.PRNGKey(run.spec.first_seed + 3000)
     per_seed = []
     for seed in seeds:
-        policy = run.policy(seed)
-        act = lambda state, _, policy=policy: policy(state.obs, rows)
-        returns, _, _ = jax.device_get(
-            jax.jit(lambda key, act=act: episodes(env, act, key, k, count))(key)
-        )
+        returns, _, _ = run.episodes(seed, count, key)
         mean = np.asarray(returns, np.float64).mean(1)[None]  # [1, K learned, K env]
         scores = scored(mean, run_matching(run, seed, iteration), run, seed)
         per_seed.append({"run_seed": seed, **{n: scores[n] for n in ("erd", "returns")}})
@@ -750,8 +739,8 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
 
 
 def default_name(args) -> str:
-    """``reoptimize[-seed-S][-rl-R][-snapshot-ITER][-consolidated-STEPS][-ensemble-N][-FORM][-env-...]
-    .json``: a check of one seed does not overwrite the check of every seed."""
+    """``reoptimize[-seed-S][-rl-R][-snapshot-ITER][-consolidated-STEPS][-ensemble-N][-FORM]
+    [-env-...].json``: a check of one seed does not overwrite the check of every seed."""
     parts = ["reoptimize"]
     if args.seed is not None:
         parts.append(f"seed-{args.seed}")

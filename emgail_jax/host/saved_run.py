@@ -163,6 +163,21 @@ class SavedRun:
 
         return policy
 
+    def episodes(self, seed: int, count: int, key: jax.Array, traces: bool = False):
+        """Deterministic episodes of every learned intention of ``seed`` in the problem's env:
+        ``(returns [K, count, K], alive [T, K, count], trace)`` as
+        :func:`~emgail_jax.method.rollout.episodes` gives them."""
+        import envs
+        from emgail_jax.method.rollout import episodes
+
+        env = envs.EpisodeWrapper(self.problem.env)
+        k = self.num_intentions
+        policy = self.policy(seed)
+        rows = jnp.arange(k)[:, None]
+        act = lambda state, _: policy(state.obs, rows)
+        run = jax.jit(lambda key: episodes(env, act, key, k, count, traces))
+        return jax.device_get(run(key))
+
     def reward(self, seed: int = 0) -> Callable[[jax.Array, jax.Array, jax.Array], jax.Array]:
         """The learned pseudo-reward ``R_i(obs [..., D], action [..., A], i [...]) -> [...]``:
         -log(1 - D(s, a, i)) for EM-GAIL (eq. 20), plus lambda log P(i | s, a) for
