@@ -1,15 +1,17 @@
 """Is the learned reward a reward? Train fresh policies on it and measure their ERD (paper §5.2).
 
     python -m emgail_jax.reoptimize RUN_DIR [--seed S] [--rl-seed R] [--snapshot ITER]
-        [--ensemble N] [--iterations N] [--gamma G] [--no-baseline] [--cache DIR]
-        [--env-set KEY=FACTOR ...] [--out PATH]
+        [--ensemble N | --across-seeds] [--iterations N] [--gamma G] [--no-baseline]
+        [--cache DIR] [--env-set KEY=FACTOR ...] [--out PATH]
 
 For every run seed (or ``--seed S`` alone) and every learned intention, a new policy is trained
 from scratch with TRPO on the frozen pseudo-reward R_i(s, a) of that seed (the run's final
 networks, or those of the snapshot of ``--snapshot ITER``; with ``--ensemble N`` the mean of
-R_i over the last N snapshots up to them), never seeing the true reward; the seeds' and
-intentions' policies are vmapped in one program (``--rl-seed R``: another draw of their
-initialisation and samples, to tell a reward that fails from a search that did). Their
+R_i over the last N snapshots up to them; with ``--across-seeds`` the mean of every run seed's
+R_i, the seeds' intentions aligned by the demonstrations they hold), never seeing the true
+reward; the seeds' and intentions' policies are vmapped in one program (``--rl-seed R``:
+another draw of their initialisation and samples, to tell a reward that fails from a search
+that did). Their
 deterministic episodes (as many per iteration as training evaluates, ``num_envs``) are scored
 under the true rewards; the ERD matches each true intention to the learned one the run itself
 matched it to (its jointly trained policies' matching at that iteration), one matching for
@@ -546,6 +548,12 @@ def parse_args(argv=None) -> argparse.Namespace:
         "re-optimised (default 0: those networks' alone)",
     )
     parser.add_argument(
+        "--across-seeds",
+        action="store_true",
+        help="each seed's fresh agents train on the mean of every run seed's reward, the seeds' "
+        "intentions aligned by the demonstrations they hold (SavedRun.aligned_intentions)",
+    )
+    parser.add_argument(
         "--reward-form",
         default=None,
         choices=REWARD_FORMS,
@@ -579,6 +587,10 @@ def _check_options(args: argparse.Namespace) -> None:
         raise RunError("--consolidate-penalty is a weight >= 0 and goes with --consolidate")
     if args.ensemble < 0 or (args.ensemble and args.consolidate):
         raise RunError("--ensemble is a number of snapshots >= 0, and not with --consolidate")
+    if args.across_seeds and (args.ensemble or args.consolidate):
+        raise RunError(
+            "--across-seeds averages the run's own rewards: not with --ensemble or --consolidate"
+        )
     if args.env_set and not args.baseline:
         raise RunError(
             "--env-set scores against the variant's true-reward baseline: drop --no-baseline"
@@ -601,7 +613,7 @@ def _opened(args: argparse.Namespace):
     """``(run, seeds, Chosen)`` of the command line: the saved run with the reward form asked
     for, and its consolidated or ensemble rewards if asked."""
     from emgail_jax.host.run_spec import RunError
-    from emgail_jax.host.saved_run import SavedRun
+    from emgail_jax.host.saved_run import SavedRun, across_seeds_reward
     from emgail_jax.method.algorithms import make_algorithm
 
     _check_options(args)
@@ -618,7 +630,7 @@ def _opened(args: argparse.Namespace):
     if args.reward_form is not None:
         config = run.config
         run.algorithm = make_algorithm(config.method.algo, config.info_weight, args.reward_form)
-    chosen = Chosen(details={"consolidation": None, "ensemble": None})
+    chosen = Chosen(details={"consolidation": None, "ensemble": None, "across_seeds": None})
     if args.consolidate:
         chosen.parameters, chosen.details["consolidation"] = consolidated(
             run, seeds, args.consolidate, args.consolidate_penalty
@@ -629,6 +641,15 @@ def _opened(args: argparse.Namespace):
         if run.absorbing_reward_function() is not None:
             chosen.absorbing = ensemble_reward(run.absorbing_reward_function())
         chosen.details["ensemble"] = iterations
+    if args.across_seeds:
+        if run.spec.seeds < 2:
+            raise RunError("--across-seeds needs a run of 2 or more seeds")
+        chosen.parameters = [run.across_seeds_parameters(seed) for seed in seeds]
+        chosen.function = across_seeds_reward(run.reward_function())
+        if run.absorbing_reward_function() is not None:
+            chosen.absorbing = across_seeds_reward(run.absorbing_reward_function())
+        # [seed][t][i]: seed t's intention averaged into intention i of each checked seed
+        chosen.details["across_seeds"] = [p["intentions"] for p in chosen.parameters]
     return run, seeds, chosen
 
 
@@ -739,7 +760,8 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
 
 
 def default_name(args) -> str:
-    """``reoptimize[-seed-S][-rl-R][-snapshot-ITER][-consolidated-STEPS][-ensemble-N][-FORM]
+    """``reoptimize[-seed-S][-rl-R][-snapshot-ITER][-consolidated-STEPS][-ensemble-N]
+    [-across-seeds][-FORM]
     [-env-...].json``: a check of one seed does not overwrite the check of every seed."""
     parts = ["reoptimize"]
     if args.seed is not None:
@@ -754,6 +776,8 @@ def default_name(args) -> str:
         parts.append(f"penalty-{args.consolidate_penalty:g}")
     if args.ensemble:
         parts.append(f"ensemble-{args.ensemble}")
+    if args.across_seeds:
+        parts.append("across-seeds")
     if args.reward_form:
         parts.append(args.reward_form)
     if args.env_set:

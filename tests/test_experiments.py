@@ -673,3 +673,14 @@ def test_sweep_a_damaged_cell_without_a_checkpoint_starts_anew(tmp_path, capsys)
     status = sweep.repair_cell("c", str(tmp_path), [], str(tmp_path / "c.log"))
     assert status == "new" and "starts anew" in capsys.readouterr().err
     assert (tmp_path / "summary.json.damaged").read_text() == "{not json"
+
+
+@pytest.mark.slow  # a fresh agent's TRPO compiled and trained (the run's 4 iterations)
+def test_fresh_agent_drive_traces_each_learned_intentions_episode(tiny_run, capsys):
+    module = _load("fresh_agent_drive")
+    assert module.main([str(tiny_run), "--seed", "1", "--every", "50"]) == 0
+    out = capsys.readouterr().out
+    for intention in (0, 1):
+        assert f"learned intention {intention}: true returns [" in out
+    # the driver's episodes are 100 steps: its x, y at steps 1 and 51 of each
+    assert out.count("  step 1: x ") == 2 and out.count("  step 51: x ") == 2

@@ -183,6 +183,7 @@ def test_a_snapshot_is_reoptimised_on_its_own_networks(tiny_run, reoptimized):
             "--ensemble 2 needs 2 snapshots up to iteration 2;",
         ),
         (["--ensemble", "2", "--consolidate", "5"], "not with --consolidate"),
+        (["--across-seeds", "--ensemble", "2"], "--across-seeds averages the run's own"),
         (["--env-set", "gravity=2"], "--env-set: env 'driver' has no option 'dynamics'"),
         (["--env-set", "gravity=2", "--no-baseline"], "drop --no-baseline"),
     ],
@@ -254,6 +255,17 @@ def test_an_ensemble_reward_is_reoptimised(tiny_run, reoptimized):
     assert earned != [r["learned_reward_per_step"]["demonstrations"] for r in first["per_seed"]]
 
 
+@pytest.mark.slow  # a re-optimisation across seeds (the plain one runs always)
+def test_a_reward_across_seeds_is_reoptimised(tiny_run, reoptimized, saved):
+    first, _ = reoptimized
+    args = [str(tiny_run), "--iterations", "2", "--across-seeds", "--no-baseline", "--quiet"]
+    assert reoptimize.main(args) == 0
+    result = json.loads((tiny_run / "reoptimize-across-seeds.json").read_text())
+    assert result["across_seeds"] == [saved.aligned_intentions(s).tolist() for s in (0, 1)]
+    earned = [r["learned_reward_per_step"]["demonstrations"] for r in result["per_seed"]]
+    assert earned != [r["learned_reward_per_step"]["demonstrations"] for r in first["per_seed"]]
+
+
 @pytest.mark.slow  # consolidation, then a fresh re-optimisation (the plain one runs always)
 def test_a_consolidated_reward_in_the_logit_form(tiny_run, reoptimized):
     first, _ = reoptimized
@@ -310,3 +322,5 @@ def test_the_default_file_names_what_was_checked():
     assert reoptimize.default_name(args) == "reoptimize-seed-1-snapshot-20-log-d.json"
     args = reoptimize.parse_args(["RUN", "--rl-seed", "2"])
     assert reoptimize.default_name(args) == "reoptimize-rl-2.json"
+    args = reoptimize.parse_args(["RUN", "--across-seeds", "--rl-seed", "1"])
+    assert reoptimize.default_name(args) == "reoptimize-rl-1-across-seeds.json"

@@ -149,6 +149,32 @@ def test_reward_function_takes_any_seeds_parameters(saved):
         )
 
 
+def test_aligned_intentions_pair_the_intentions_holding_the_same_demonstrations(saved):
+    gamma = [np.asarray(saved.responsibilities(seed).gamma) for seed in (0, 1)]
+    aligned = saved.aligned_intentions(1)
+    assert aligned.shape == (2, 2)
+    np.testing.assert_array_equal(aligned[1], [0, 1])  # a seed is its own alignment
+    overlap = lambda renaming: sum(gamma[1][:, i] @ gamma[0][:, renaming[i]] for i in range(2))
+    assert overlap(aligned[0]) >= overlap(1 - aligned[0]) - 1e-6  # the other renaming's less
+
+
+@pytest.mark.parametrize("jitted", [False, True])
+def test_the_reward_across_seeds_is_the_mean_of_the_seeds_aligned_rewards(tiny_run, saved, jitted):
+    pairs = saved.demonstration_pairs
+    aligned = saved.aligned_intentions(1)
+    shared = emgail_jax.load_reward(str(tiny_run), seed=1, across_seeds=True)
+    shared = jax.jit(shared) if jitted else shared
+    for i in range(2):
+        every = [
+            saved.reward(seed)(pairs.observations, pairs.actions, aligned[seed][i])
+            for seed in (0, 1)
+        ]
+        assert not np.allclose(every[0], every[1])  # two seeds, two discriminators
+        np.testing.assert_allclose(
+            shared(pairs.observations, pairs.actions, i), np.mean(every, 0), rtol=1e-5
+        )
+
+
 @pytest.fixture(scope="module")
 def airl_run(tmp_path_factory):
     """A finished tiny EM-GAIL driver run with AIRL's discriminator, its replay and gradient

@@ -3,11 +3,14 @@
 >>> import emgail_jax
 >>> policy = emgail_jax.load_policy("runs/driver-emgail")   # pi(s, i), jittable
 >>> reward = emgail_jax.load_reward("runs/driver-emgail")   # R_i(s, a), jittable
+>>> shared = emgail_jax.load_reward("runs/driver-emgail", across_seeds=True)  # every seed's
 >>> action = policy(obs, 1)
 >>> r = reward(obs, action, 1)
 
 Intentions are the *learned* ones, numbered as the learner numbered them; ``evaluate`` prints
-which true intention each one matches.
+which true intention each one matches. ``across_seeds`` averages every run seed's reward, each
+seed's intentions renamed to the asked seed's by the demonstrations they hold
+(:meth:`SavedRun.aligned_intentions`; no hidden labels read).
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from collections.abc import Callable
 import jax
 import jax.numpy as jnp
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from emgail_jax.host import checkpoints
 from emgail_jax.host.final_results import FinalResults
@@ -178,16 +182,24 @@ class SavedRun:
         run = jax.jit(lambda key: episodes(env, act, key, k, count, traces))
         return jax.device_get(run(key))
 
-    def reward(self, seed: int = 0) -> Callable[[jax.Array, jax.Array, jax.Array], jax.Array]:
+    def reward(
+        self, seed: int = 0, across_seeds: bool = False
+    ) -> Callable[[jax.Array, jax.Array, jax.Array], jax.Array]:
         """The learned pseudo-reward ``R_i(obs [..., D], action [..., A], i [...]) -> [...]``:
         -log(1 - D(s, a, i)) for EM-GAIL (eq. 20), plus lambda log P(i | s, a) for
         Info/IntentionGAIL (eq. 23), -log(1 - D(s, a)) for GAIL. The action is clipped to the
         env's range first: the discriminator learned on executed actions. A run trained with
         AIRL's discriminator (``discriminator_form=airl``) gives its state-only reward
         g_i(s) (g(s) for GAIL), the action unread: the reward AIRL claims transfers, not the
-        f - log pi its own policies were trained on (which needs s' and the policy)."""
-        parameters = self.reward_parameters(seed)
-        reward = self.reward_function()
+        f - log pi its own policies were trained on (which needs s' and the policy).
+        ``across_seeds``: the mean of every seed's reward, in ``seed``'s intentions
+        (:func:`across_seeds_reward`)."""
+        if across_seeds:
+            parameters = self.across_seeds_parameters(seed)
+            reward = across_seeds_reward(self.reward_function())
+        else:
+            parameters = self.reward_parameters(seed)
+            reward = self.reward_function()
         return lambda obs, action, intention: reward(parameters, obs, action, intention)
 
     def reward_parameters(self, seed: int = 0) -> dict:
@@ -199,6 +211,31 @@ class SavedRun:
             "discriminator": state.discriminator.params,
             "posterior": posterior,
             "normalizer": state.normalizer,
+        }
+
+    def aligned_intentions(self, seed: int = 0) -> np.ndarray:
+        """``[S, K]``: row t names, for each learned intention i of ``seed``, seed t's
+        intention that holds the same demonstrations (the assignment maximising the overlap
+        of their responsibilities, gamma_seed^T gamma_t); no hidden labels are read. The
+        identity rows without a posterior (GAIL's one reward for every intention)."""
+        k, seeds = self.num_intentions, self.spec.seeds
+        if not self.algorithm.learns_posterior:
+            return np.tile(np.arange(k), (seeds, 1))
+        own = np.asarray(self.responsibilities(seed).gamma)  # [N, K]
+        rows = []
+        for other in range(seeds):
+            overlap = own.T @ np.asarray(self.responsibilities(other).gamma)  # [K own, K other]
+            mine, theirs = linear_sum_assignment(overlap, maximize=True)
+            rows.append(theirs[np.argsort(mine)])
+        return np.stack(rows)
+
+    def across_seeds_parameters(self, seed: int = 0) -> dict:
+        """What :func:`across_seeds_reward` reads for ``seed``: every seed's
+        :meth:`reward_parameters` stacked ``[S, ...]``, and :meth:`aligned_intentions`."""
+        every = [self.reward_parameters(other) for other in range(self.spec.seeds)]
+        return {
+            "seeds": jax.tree.map(lambda *leaves: np.stack(leaves), *every),
+            "intentions": self.aligned_intentions(seed),
         }
 
     def reward_function(self) -> Callable:
@@ -313,6 +350,27 @@ def load_policy(run_dir: str, seed: int = 0):
     return SavedRun.open(run_dir).policy(seed)
 
 
-def load_reward(run_dir: str, seed: int = 0):
-    """The learned reward of a run: jittable ``R(obs, action, intention) -> reward``."""
-    return SavedRun.open(run_dir).reward(seed)
+def load_reward(run_dir: str, seed: int = 0, across_seeds: bool = False):
+    """The learned reward of a run: jittable ``R(obs, action, intention) -> reward``; with
+    ``across_seeds``, the mean of every run seed's, named as ``seed``'s intentions."""
+    return SavedRun.open(run_dir).reward(seed, across_seeds)
+
+
+def across_seeds_reward(function: Callable) -> Callable:
+    """``function(parameters, *inputs, intention)`` (a reward, or the absorbing state's) as
+    the mean over the run's seeds: ``parameters`` are :meth:`SavedRun.across_seeds_parameters`,
+    seed t's reward read under its own name for each intention. Seeds that trained apart reach
+    off the demonstrations in different ways, so the mean pays less where one seed's reward
+    alone pays by accident (docs/rewards-that-reoptimise.md, experiment 20)."""
+
+    def mean_reward(parameters, *inputs):
+        *rest, intention = inputs
+        intention = jnp.asarray(intention, jnp.int32)
+
+        def one_seed(seed_parameters, names):
+            return function(seed_parameters, *rest, jnp.take(names, intention))
+
+        every = jax.vmap(one_seed)(parameters["seeds"], parameters["intentions"])
+        return every.mean(0)
+
+    return mean_reward

@@ -1,0 +1,72 @@
+"""Where a fresh agent trained on a learned reward goes: one run seed's reward check, traced.
+
+    python experiments/fresh_agent_drive.py RUN_DIR [--seed S] [--rl-seed R] [--every N]
+
+Trains the fresh TRPO agents of ``python -m emgail_jax.reoptimize RUN_DIR --seed S --rl-seed R``
+(the same keys, reward and budget) and prints, for each learned intention, its deterministic
+episode from the env's first reset: the true returns under every true intention, the learned
+reward per step it earns there, and the env's trace (the driver's x, y) every N steps. A
+failing agent's trace shows what the learned reward pays off the demonstrations
+(docs/rewards-that-reoptimise.md, experiment 18).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("run_dir")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--rl-seed", type=int, default=0)
+    parser.add_argument("--every", type=int, default=10, help="trace every N steps")
+    args = parser.parse_args(argv)
+
+    from emgail_jax.host import jax_setup
+
+    jax_setup.setup(host_devices=1)
+    import jax
+
+    from emgail_jax import reoptimize as check
+    from emgail_jax.host.saved_run import SavedRun
+
+    run = SavedRun.open(args.run_dir)
+    env, k = run.problem.env, run.num_intentions
+    learned, parameters = run.reward_function(), run.reward_parameters(args.seed)
+    paid = lambda obs, action, true, intention, p: learned(p, obs, action, intention)
+    budget = check.default_budget(run)
+    trainer = check._fresh_trainer(run, budget, paid)
+    seed_key = jax.random.PRNGKey(run.spec.first_seed + args.seed + 1000)
+    keys = jax.random.split(check.drawn(seed_key, args.rl_seed), k)[None]
+    fresh = check.train_fresh(
+        trainer, keys, check.stacked([parameters]), budget.iterations, "fresh agents", True
+    )
+    env_step, reset = jax.jit(env.step), jax.jit(env.reset)
+    for intention in range(k):
+        policy = jax.jit(trainer.policy(jax.tree.map(lambda x, i=intention: x[0, i], fresh.states)))
+        state = reset(jax.random.PRNGKey(0))
+        true, earned, trace = [], [], []
+        for _ in range(env.episode_length):  # until the time limit or a termination
+            action = policy(state.obs, None)
+            earned.append(float(learned(parameters, state.obs, action, intention)))
+            state = env_step(state, action)
+            true.append(np.asarray(state.reward))
+            trace.append({name: float(v) for name, v in env.trace(state).items()})
+            if float(state.done):
+                break
+        returns = [round(float(r), 1) for r in np.sum(true, 0)]
+        print(
+            f"learned intention {intention}: true returns {returns}, learned reward per step "
+            f"{np.mean(earned):.3f}"
+        )
+        for step in range(0, len(trace), args.every):
+            where = ", ".join(f"{name} {value:.2f}" for name, value in trace[step].items())
+            print(f"  step {step + 1}: {where}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
