@@ -11,8 +11,8 @@ R_i over the last N snapshots up to them; with ``--across-seeds`` the mean of ev
 R_i, the seeds' intentions aligned by the demonstrations they hold), never seeing the true
 reward; the seeds' and intentions' policies are vmapped in one program (``--rl-seed R``:
 another draw of their initialisation and samples, to tell a reward that fails from a search
-that did). Their
-deterministic episodes (as many per iteration as training evaluates, ``num_envs``) are scored
+that did). Their deterministic episodes (as many per iteration as training evaluates,
+``num_envs``) are scored
 under the true rewards; the ERD matches each true intention to the learned one the run itself
 matched it to (its jointly trained policies' matching at that iteration), one matching for
 every number reported. Each env's success measure (the experts' bars: velocity, upright, pitch
@@ -195,6 +195,30 @@ def _fresh_trainer(run, budget: Budget, reward_fn=None, absorbing_reward=None):
     return make_rl_train(config, env, reward_fn or true_reward, episodes, absorbing_reward)
 
 
+def learned_reward_trainer(run, budget: Budget, learned, absorbing_function=None):
+    """The fresh agents' trainer on ``learned(parameters, obs, action, intention)`` (the reward
+    data each row trains on is its ``parameters``), a termination paid
+    ``absorbing_function(parameters, intention)`` per step left (default the run's absorbing
+    reward, None without absorbing states)."""
+    reward_fn = lambda obs, action, true, intention, parameters: learned(
+        parameters, obs, action, intention
+    )
+    absorbing = absorbing_function or run.absorbing_reward_function()
+    absorbing_fn = None
+    if absorbing is not None:
+        absorbing_fn = lambda intention, parameters: absorbing(parameters, intention)
+    return _fresh_trainer(run, budget, reward_fn, absorbing_fn)
+
+
+def fresh_keys(run, seeds: list[int], rl_seed: int = 0) -> np.ndarray:
+    """``[S, K]`` keys of the fresh agents: each run seed's from that seed, one per learned
+    intention, drawn for ``rl_seed`` (:func:`drawn`)."""
+    import jax
+
+    seed_key = lambda s: drawn(jax.random.PRNGKey(run.spec.first_seed + s + 1000), rl_seed)
+    return np.stack([jax.random.split(seed_key(s), run.num_intentions) for s in seeds])
+
+
 def scored(returns, matching, run, seed: int | None) -> dict:
     """ERD per iteration and final (mean of the last 10) of ``returns [iterations, K, K env]``
     with ``matching [K true]`` held fixed; a true intention matched to a learned one the run
@@ -281,22 +305,13 @@ def reoptimize(
     :meth:`~emgail_jax.host.saved_run.SavedRun.absorbing_reward_function`)."""
     import jax
 
-    k = run.num_intentions
+    from emgail_jax.host.saved_run import stacked
+
     learned = reward_function or run.reward_function()
-    reward_fn = lambda obs, action, true, intention, parameters: learned(
-        parameters, obs, action, intention
-    )
-    absorbing = absorbing_function or run.absorbing_reward_function()
-    absorbing_fn = None
-    if absorbing is not None:
-        absorbing_fn = lambda intention, parameters: absorbing(parameters, intention)
-    trainer = _fresh_trainer(run, budget, reward_fn, absorbing_fn)
+    trainer = learned_reward_trainer(run, budget, learned, absorbing_function)
     per_seed_parameters = parameters or [run.reward_parameters(seed) for seed in seeds]
     parameters = stacked(per_seed_parameters)
-
-    # Each seed's policies take their keys from the run's seed, one per learned intention.
-    seed_key = lambda s: drawn(jax.random.PRNGKey(run.spec.first_seed + s + 1000), rl_seed)
-    keys = np.stack([jax.random.split(seed_key(s), k) for s in seeds])
+    keys = fresh_keys(run, seeds, rl_seed)
     fresh = train_fresh(trainer, keys, parameters, budget.iterations, "re-optimising", progress)
     iteration = run.snapshot or run.iteration
     per_seed = []
@@ -315,7 +330,7 @@ def reoptimize(
         "iteration": iteration,
         "snapshot": run.snapshot,
         "budget": dataclasses.asdict(budget),
-        "absorbing_state": absorbing is not None,
+        "absorbing_state": (absorbing_function or run.absorbing_reward_function()) is not None,
         "eval_episodes": run.config.method.rollout.num_envs,
         "expert_returns": run.problem.demos.expert_returns,
         "random_returns": run.problem.random_returns,
@@ -657,6 +672,7 @@ def ensemble_parameters(run, seeds: list[int], size: int) -> tuple[list, list[in
     """Each seed's reward parameters of the last ``size`` snapshots up to the networks ``run``
     holds, stacked ``[size, ...]``, and those snapshots' iterations."""
     from emgail_jax.host import checkpoints
+    from emgail_jax.host.saved_run import stacked
 
     last = run.snapshot or run.iteration
     kept = [i for i in checkpoints.snapshot_iterations(run.run_dir) if i <= last]
@@ -671,13 +687,6 @@ def ensemble_parameters(run, seeds: list[int], size: int) -> tuple[list, list[in
         for i in iterations
     ]
     return [stacked([r.reward_parameters(seed) for r in runs]) for seed in seeds], iterations
-
-
-def stacked(trees: list):
-    """The pytrees ``trees`` (of equal structure) as one, a new leading axis on every leaf."""
-    import jax
-
-    return jax.tree.map(lambda *x: np.stack(x), *trees)
 
 
 def ensemble_reward(reward_function):
@@ -761,8 +770,8 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
 
 def default_name(args) -> str:
     """``reoptimize[-seed-S][-rl-R][-snapshot-ITER][-consolidated-STEPS][-ensemble-N]
-    [-across-seeds][-FORM]
-    [-env-...].json``: a check of one seed does not overwrite the check of every seed."""
+    [-across-seeds][-FORM][-env-...].json``: a check of one seed does not overwrite the check
+    of every seed."""
     parts = ["reoptimize"]
     if args.seed is not None:
         parts.append(f"seed-{args.seed}")

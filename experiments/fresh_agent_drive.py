@@ -31,18 +31,16 @@ def main(argv=None) -> int:
     import jax
 
     from emgail_jax import reoptimize as check
-    from emgail_jax.host.saved_run import SavedRun
+    from emgail_jax.host.saved_run import SavedRun, stacked
 
     run = SavedRun.open(args.run_dir)
     env, k = run.problem.env, run.num_intentions
     learned, parameters = run.reward_function(), run.reward_parameters(args.seed)
-    paid = lambda obs, action, true, intention, p: learned(p, obs, action, intention)
     budget = check.default_budget(run)
-    trainer = check._fresh_trainer(run, budget, paid)
-    seed_key = jax.random.PRNGKey(run.spec.first_seed + args.seed + 1000)
-    keys = jax.random.split(check.drawn(seed_key, args.rl_seed), k)[None]
+    trainer = check.learned_reward_trainer(run, budget, learned)
+    keys = check.fresh_keys(run, [args.seed], args.rl_seed)
     fresh = check.train_fresh(
-        trainer, keys, check.stacked([parameters]), budget.iterations, "fresh agents", True
+        trainer, keys, stacked([parameters]), budget.iterations, "fresh agents", True
     )
     env_step, reset = jax.jit(env.step), jax.jit(env.reset)
     for intention in range(k):

@@ -234,7 +234,7 @@ class SavedRun:
         :meth:`reward_parameters` stacked ``[S, ...]``, and :meth:`aligned_intentions`."""
         every = [self.reward_parameters(other) for other in range(self.spec.seeds)]
         return {
-            "seeds": jax.tree.map(lambda *leaves: np.stack(leaves), *every),
+            "seeds": stacked(every),
             "intentions": self.aligned_intentions(seed),
         }
 
@@ -354,6 +354,11 @@ def load_reward(run_dir: str, seed: int = 0, across_seeds: bool = False):
     """The learned reward of a run: jittable ``R(obs, action, intention) -> reward``; with
     ``across_seeds``, the mean of every run seed's, named as ``seed``'s intentions."""
     return SavedRun.open(run_dir).reward(seed, across_seeds)
+
+
+def stacked(trees: list):
+    """The pytrees ``trees`` (of equal structure) as one, a new leading axis on every leaf."""
+    return jax.tree.map(lambda *x: np.stack(x), *trees)
 
 
 def across_seeds_reward(function: Callable) -> Callable:
