@@ -290,6 +290,9 @@ class Status(enum.StrEnum):
     DAMAGED = "damaged"  # a summary.json that is not a run's, e.g. cut short
     NEW = "new"
     CHECK = "reward check"  # trained; its reward check is still to do
+    # Trained, its reward check to do, but its networks not kept (results/ keeps no
+    # checkpoints): trained again, then checked.
+    RETRAIN = "retrain, check"
 
 
 def cell_status(run_dir: str, seeds: int, iterations: int) -> Status:
@@ -315,10 +318,13 @@ def cell_status(run_dir: str, seeds: int, iterations: int) -> Status:
 
 
 def sweep_status(cell: Cell, run_dir: str, seeds: int, iterations: int) -> Status:
-    """:func:`cell_status`, and CHECK for a trained cell whose reward check is still to do."""
+    """:func:`cell_status`, and CHECK for a trained cell whose reward check is still to do
+    (RETRAIN where the networks to check are not kept)."""
+    from emgail_jax.host.checkpoints import latest_iteration
+
     status = cell_status(run_dir, seeds, iterations)
     if status == Status.DONE and cell.reoptimized and not reward_check_done(run_dir, seeds):
-        return Status.CHECK
+        return Status.CHECK if latest_iteration(run_dir) is not None else Status.RETRAIN
     return status
 
 
@@ -375,18 +381,18 @@ def train_cell(
     log_path = cell.log_path(out)
     os.makedirs(os.path.dirname(log_path), exist_ok=True)
     python = [sys.executable, "-m"]
-    status = cell_status(run_dir, seeds, iterations)
+    status = sweep_status(cell, run_dir, seeds, iterations)
     new_args = [*cell.run_args(settings, out), "--seeds", str(seeds)]
     new_args += ["--iterations", str(iterations)]
     if status == Status.DAMAGED:
         status = repair_cell(cell.name, run_dir, new_args, log_path)
     if status == Status.RESUME:
         args = ["--resume", run_dir, "--iterations", str(iterations)]
-    elif status == Status.NEW:
+    elif status in (Status.NEW, Status.RETRAIN):
         args = list(new_args)
         write_demonstrations(cell, out)
         args += ["--out", run_dir, "--overwrite"]
-    if status != Status.DONE:
+    if status not in (Status.DONE, Status.CHECK):
         if cell.shares_programs:
             code = run_in_process([*args, "--quiet"], log_path)
         else:

@@ -320,10 +320,18 @@ def test_sweep_fig6_csv_sets_the_reward_check_beside_the_joint_erd(hopper_cells)
     assert [r["reoptimized_erd"] for r in rows if r["algo"] == "emgail"] == ["0.6000", "0.4900"]
 
 
-def test_sweep_a_cell_is_checked_until_every_seed_and_the_baseline_are(hopper_cells):
+def keep_checkpoints(monkeypatch, iteration=4):
+    """The finished cells' run directories as if they kept their final checkpoints."""
+    from emgail_jax.host import checkpoints
+
+    monkeypatch.setattr(checkpoints, "latest_iteration", lambda run_dir: iteration)
+
+
+def test_sweep_a_cell_is_checked_until_every_seed_and_the_baseline_are(hopper_cells, monkeypatch):
     """A trained cell whose check is missing or took seed 0 alone has its check to do (and only
     that); one the sweep does not check, or whose check is complete, is done."""
     sweep, _, out = hopper_cells
+    keep_checkpoints(monkeypatch)
     status = {
         name: sweep.sweep_status(cell, str(out / "runs" / name), 2, 4)
         for name, cell in ((c.name, c) for c in sweep.select(sweep.all_cells(), "hopper"))
@@ -352,6 +360,7 @@ def test_sweep_reward_check_command_is_every_seed_beside_the_cached_baseline(
     from emgail_jax import reoptimize
 
     sweep, _, out = hopper_cells
+    keep_checkpoints(monkeypatch)
     ran = []
     monkeypatch.setattr(sweep, "run_command", lambda command, log: ran.append(command) or 0)
     cell = sweep.Cell("hopper", 2, "infogail")
@@ -366,6 +375,31 @@ def test_sweep_reward_check_command_is_every_seed_beside_the_cached_baseline(
     ran.clear()
     sweep.train_cell(sweep.Cell("hopper", 2, "emgail"), str(out), 2, 4)
     assert ran == []  # its check is complete
+
+
+def test_sweep_a_cell_without_its_networks_is_trained_again_then_checked(hopper_cells, monkeypatch):
+    """A trained cell whose check is to do but whose checkpoints are not kept (results/ keeps
+    none) cannot be checked as it is: it is trained again over its directory, then checked,
+    and its estimate counts both."""
+    from emgail_jax.host import checkpoints
+
+    sweep, _, out = hopper_cells
+    monkeypatch.setattr(checkpoints, "latest_iteration", lambda run_dir: None)
+    cell, run_dir = sweep.Cell("hopper", 2, "infogail"), out / "runs" / "hopper-2-infogail"
+    assert sweep.sweep_status(cell, str(run_dir), 2, 4) == sweep.Status.RETRAIN
+    complete = sweep.Cell("hopper", 2, "emgail")
+    assert sweep.sweep_status(complete, str(out / "runs" / complete.name), 2, 4) == "done"
+    timings = sweep.measured_seconds(str(out / "runs"))
+    retrain = sweep.estimate_seconds(cell, sweep.Status.RETRAIN, 2, 4, timings)
+    assert retrain == sweep.estimate_seconds(cell, sweep.Status.NEW, 2, 4, timings)
+    ran = []
+    monkeypatch.setattr(sweep, "run_command", lambda command, log: ran.append(command) or 0)
+    monkeypatch.setattr(sweep, "write_demonstrations", lambda cell, out: None)
+    sweep.train_cell(cell, str(out), 2, 4)
+    training, check = ran
+    assert training[:3] == [sys.executable, "-m", "emgail_jax.run"]
+    assert training[training.index("--out") + 1] == str(run_dir) and "--overwrite" in training
+    assert check[:3] == [sys.executable, "-m", "emgail_jax.reoptimize"]
 
 
 def test_sweep_estimates_every_seeds_check_and_each_baseline_once(hopper_cells):
