@@ -236,6 +236,7 @@ def test_choosing_k_needs_a_posterior_and_the_mixture_prior():
         (["algo=infogail"], "takes algo emgail or gail, not infogail"),
         (["absorbing_state=true"], "does not take absorbing_state=true"),
         (["reward_form=log-d"], "reward_form applies to discriminator_form gail only"),
+        (["discriminator_support_noise=1"], "it takes discriminator_form gail"),
     ],
 )
 def test_airl_refuses_what_it_does_not_combine_with_in_one_line(settings, message):

@@ -485,6 +485,23 @@ def test_a_replay_changes_only_the_m_steps_negatives(env, expert, emgail, gail, 
     assert metrics["discriminator/loss"] != plain_metrics["discriminator/loss"]
 
 
+@pytest.mark.parametrize("algo", ["emgail", "gail"])
+def test_support_noise_changes_only_the_m_steps_negatives(env, expert, emgail, gail, algo):
+    """With ``discriminator_support_noise`` the M-step sees noisy copies of its negatives too:
+    its loss changes, while the state's structure, the E-step and every key are the run's
+    without it."""
+    config = CONFIG.with_values(algo=algo, discriminator_support_noise=0.5)
+    _, [(state, metrics), *_], _ = _train(config, env, expert, 1)
+    _, [(plain, plain_metrics), *_], _ = {"emgail": emgail, "gail": gail}[algo]
+    assert jax.tree.structure(state) == jax.tree.structure(plain)
+    np.testing.assert_array_equal(state.key, plain.key)
+    np.testing.assert_array_equal(state.env_state.obs, plain.env_state.obs)
+    if algo == "emgail":
+        for a, b in zip(_leaves(state.posterior), _leaves(plain.posterior), strict=True):
+            np.testing.assert_array_equal(a, b)
+    assert metrics["discriminator/loss"] != plain_metrics["discriminator/loss"]
+
+
 def test_absorbing_states_add_only_the_indicators_weights_and_the_replays_flags(env, expert):
     """Off, nothing of the state changes; on, the discriminator's first layer has one input
     more (so its Adam moments too) and a replay keeps each sample's termination flag."""

@@ -242,6 +242,7 @@ SETTINGS: dict[str, Setting] = {
         "method", "m_step", "gradient_penalty", domain=NON_NEGATIVE
     ),
     "discriminator_replay": _at("method", "m_step", "replay", domain=_integers(0)),
+    "discriminator_support_noise": _at("method", "m_step", "support_noise", domain=NON_NEGATIVE),
     "discriminator_form": _at("method", "m_step", "form", domain=_one_of(DiscriminatorForm)),
     "posterior_learning_rate": _at("method", "e_step", "learning_rate", domain=POSITIVE),
     "posterior_steps": _at("method", "e_step", "steps", domain=COUNT),
@@ -365,13 +366,16 @@ class MStepConfig(_Layer):
     """The M-step (:mod:`emgail_jax.method.discriminator`): full-batch Adam steps, the
     weight of a zero-centred gradient penalty on the logit (0: none), the iterations of
     past policy samples replayed as further negatives (:mod:`emgail_jax.method.replay`; 0:
-    none), and the discriminator's form (GAIL's, or AIRL's: :mod:`emgail_jax.method.airl`)."""
+    none), the standard deviation of the noise that moves a copy of every negative off the
+    run's samples (:mod:`emgail_jax.method.support`; 0: none), and the discriminator's form
+    (GAIL's, or AIRL's: :mod:`emgail_jax.method.airl`)."""
 
     PREFIX = ("method", "m_step")
     learning_rate: float = 1e-3
     steps: int = 10
     gradient_penalty: float = 0.0
     replay: int = 0
+    support_noise: float = 0.0
     form: DiscriminatorForm = DiscriminatorForm.GAIL
 
 
@@ -471,6 +475,11 @@ def _check_airl(config: MethodConfig) -> None:
         raise ValueError(
             "discriminator_form airl rewards its own logit f - log pi; reward_form applies to "
             "discriminator_form gail only"
+        )
+    if config.m_step.support_noise:
+        raise ValueError(
+            "discriminator_support_noise moves GAIL's (s, a) pairs, not AIRL's successors; "
+            "it takes discriminator_form gail"
         )
 
 

@@ -15,7 +15,8 @@ stage is steps 2-3 and the learned reward (:class:`LearnedRewardStage`, which re
    gamma = P on the expert pairs;
 3. M-step (:mod:`emgail_jax.method.discriminator`): the discriminator learns expert (weighted by
    gamma) against policy samples (with ``discriminator_replay``, past iterations' too:
-   :mod:`emgail_jax.method.replay`; with ``discriminator_form=airl``, AIRL's discriminator,
+   :mod:`emgail_jax.method.replay`; with ``discriminator_support_noise``, noisy copies of
+   them: :mod:`emgail_jax.method.support`; with ``discriminator_form=airl``, AIRL's discriminator,
    which reads each pair's successor and the current policy's log-density:
    :mod:`emgail_jax.method.airl`);
 4. B-step (:mod:`emgail_jax.method.b_step`): the samples are relabelled with the learned reward, GAE
@@ -97,6 +98,7 @@ from emgail_jax.method.rollout import (
     tree_where,
 )
 from emgail_jax.method.skeleton import PolicyStages, Rewarded, intention_rows, make_update
+from emgail_jax.method.support import KEY_STREAM, with_support_negatives
 
 
 @struct.dataclass
@@ -601,6 +603,9 @@ class LearnedRewardStage:
             raw_successors = None if seen.successor is None else successors(transitions, self.env)
             replay, negatives = with_replay(replay, seen, raw, normalize, raw_successors)
             negatives = densities(negatives)
+        if config.m_step.support_noise:
+            key = jax.random.fold_in(state.key, KEY_STREAM)
+            negatives = with_support_negatives(negatives, key, config.m_step.support_noise)
         m = self.m_step(state.discriminator, negatives, e.gamma, algorithm)
         rewarding = config.reward.source.choose(
             updated=m.discriminator, previous=state.discriminator

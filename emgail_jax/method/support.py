@@ -1,0 +1,39 @@
+"""Negatives around the run's samples for the M-step (off by default: ``--set
+discriminator_support_noise=S``).
+
+The discriminator only ever sees the demonstrations and the policies' samples, so away from
+both its logit, and with it the learned reward, is whatever the network extrapolates: nearly
+flat on the driver, where a fresh agent that strays there never finds its way back
+(docs/rewards-that-reoptimise.md, experiment 18). With a scale S, every M-step's negatives
+also hold a copy of each of its samples moved by Gaussian noise of standard deviation S (in
+the normalised observation's units, and the action's own), so that the discriminator says
+"fake" around where the run has been and the reward falls with the distance to the data.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from emgail_jax.method.batches import NormalizedBatch
+
+# Folded into the iteration's key for the noise's own key: no other key of the run changes.
+KEY_STREAM = 0x5E6
+
+
+def with_support_negatives(negatives: NormalizedBatch, key: jax.Array, scale: float):
+    """``negatives`` (``[K, M, ...]``) with a noisy copy of each of its samples appended
+    (``[K, 2M, ...]``): observation and action each plus N(0, ``scale``^2) noise. A copy's
+    transition never terminates: it brings no absorbing negative along."""
+    if negatives.successor is not None:
+        raise ValueError("support negatives are built for GAIL's discriminator, not AIRL's")
+    key_obs, key_action = jax.random.split(key)
+    moved = lambda x, k: x + scale * jax.random.normal(k, x.shape)
+    both = lambda own, copy: jnp.concatenate([own, copy], axis=1)
+    out = negatives.replace(
+        obs=both(negatives.obs, moved(negatives.obs, key_obs)),
+        executed=both(negatives.executed, moved(negatives.executed, key_action)),
+    )
+    if negatives.terminal is not None:
+        out = out.replace(terminal=both(negatives.terminal, jnp.zeros_like(negatives.terminal)))
+    return out
