@@ -159,3 +159,18 @@ class NormalizedBatch:
             chex.assert_shape(self.successor, (*self.obs.shape[:2], follows))
             chex.assert_shape(self.expert_successor, (self.expert_obs.shape[0], follows))
         return self
+
+    def with_more_samples(
+        self, obs: jax.Array, executed: jax.Array, terminal=None, successor=None
+    ) -> NormalizedBatch:
+        """This batch with further samples ``obs [K, m, D]``, ``executed [K, m, A]`` after its
+        own under each intention (``[K, M + m, ...]``), and their termination flags ``[K,
+        m]`` and successors ``[K, m, D + 1]`` where the batch keeps them: the M-step's further
+        negatives (:mod:`~emgail_jax.method.replay`, :mod:`~emgail_jax.method.support`)."""
+        both = lambda own, more: None if own is None else jnp.concatenate([own, more], axis=1)
+        return self.replace(
+            obs=both(self.obs, obs),
+            executed=both(self.executed, executed),
+            terminal=both(self.terminal, terminal),
+            successor=both(self.successor, successor),
+        )

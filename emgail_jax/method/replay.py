@@ -103,13 +103,6 @@ def with_replay(
     M-step's negatives (AIRL's log pi: the caller recomputes it on them)."""
     replay = replay.push(raw_obs, seen.executed, seen.terminal, raw_successor)
     replay, obs, executed, terminal, successor = replay.draw(raw_obs.shape[1])
-    both = lambda own, drawn: jnp.concatenate([own, drawn], axis=1)
-    negatives = seen.replace(
-        obs=both(seen.obs, normalize(obs)), executed=both(seen.executed, executed)
-    )
-    if terminal is not None:
-        negatives = negatives.replace(terminal=both(seen.terminal, terminal))
     if successor is not None:
-        drawn = jnp.concatenate([normalize(successor[..., :-1]), successor[..., -1:]], -1)
-        negatives = negatives.replace(successor=both(seen.successor, drawn))
-    return replay, negatives
+        successor = jnp.concatenate([normalize(successor[..., :-1]), successor[..., -1:]], -1)
+    return replay, seen.with_more_samples(normalize(obs), executed, terminal, successor)

@@ -29,11 +29,7 @@ def with_support_negatives(negatives: NormalizedBatch, key: jax.Array, scale: fl
         raise ValueError("support negatives are built for GAIL's discriminator, not AIRL's")
     key_obs, key_action = jax.random.split(key)
     moved = lambda x, k: x + scale * jax.random.normal(k, x.shape)
-    both = lambda own, copy: jnp.concatenate([own, copy], axis=1)
-    out = negatives.replace(
-        obs=both(negatives.obs, moved(negatives.obs, key_obs)),
-        executed=both(negatives.executed, moved(negatives.executed, key_action)),
+    terminal = None if negatives.terminal is None else jnp.zeros_like(negatives.terminal)
+    return negatives.with_more_samples(
+        moved(negatives.obs, key_obs), moved(negatives.executed, key_action), terminal
     )
-    if negatives.terminal is not None:
-        out = out.replace(terminal=both(negatives.terminal, jnp.zeros_like(negatives.terminal)))
-    return out
