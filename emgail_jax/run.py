@@ -45,6 +45,7 @@ def _parser() -> tuple[argparse.ArgumentParser, tuple[str, ...]]:
         NAMES,
         PRIORS,
         RESPONSIBILITIES,
+        REWARD_RECIPES,
         RunSchedule,
     )
 
@@ -118,6 +119,14 @@ def _parser() -> tuple[argparse.ArgumentParser, tuple[str, ...]]:
         "docs/no-empty-intention.md)",
     )
     run_option(
+        "--rewards",
+        choices=REWARD_RECIPES,
+        help="how the rewards are trained: the paper's (default), or for-reuse, rewards meant for "
+        "a fresh agent to re-optimise (log D, a replay of past samples with noise around them, a "
+        "gradient penalty, absorbing states where episodes end early; each one --set away; "
+        "docs/rewards-that-reoptimise.md)",
+    )
+    run_option(
         "--set",
         action="append",
         default=[],
@@ -178,8 +187,9 @@ def _intention_count(text: str) -> int | str:
 
 
 def spec_from_args(args: argparse.Namespace) -> RunSpec:
+    import envs
     from emgail_jax.host.demonstration_sources import canonical
-    from emgail_jax.method.config import RunConfig
+    from emgail_jax.method.config import RewardRecipe, RunConfig
 
     # What may change on resume: the host's schedule of outputs and the total.
     continued = {
@@ -218,10 +228,13 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
         "seed_batch": args.seed_batch,
     }
     config = _with_options(RunConfig(), overrides)
+    recipe = RewardRecipe(args.rewards or RewardRecipe.PAPER)
+    config = config.with_values(**recipe.settings(terminates=envs.env_class(env).terminates))
     try:
         config = config.with_settings(args.set)
     except ValueError as error:
-        raise RunError(f"--set: {error}") from None
+        given = "" if recipe is RewardRecipe.PAPER else f" (with --rewards {recipe})"
+        raise RunError(f"--set{given}: {error}") from None
     return RunSpec(
         env=env,
         intentions=intentions,

@@ -48,6 +48,8 @@ class Env(abc.ABC):
 
     name: ClassVar[str]
     intention_names: ClassVar[tuple[str, ...]]
+    # Whether an episode may end before its time limit (a fall): what an absorbing state is for.
+    terminates: ClassVar[bool] = False
 
     def __init__(self, intentions: int | None = None):
         max_k = len(self.intention_names)

@@ -39,6 +39,7 @@ from envs.mjx_base import MjxEnv, Solver
 class HopperEnv(MjxEnv):
     name = "hopper"
     intention_names = ("forward", "backward", "stand")
+    terminates = True
     xml = "hopper.xml"
     frame_skip = 4
     episode_steps = 500

@@ -22,6 +22,7 @@ from emgail_jax.method.config import (
     ResponsibilityMode,
     RewardForm,
     RewardFrom,
+    RewardRecipe,
     RunConfig,
     RunSchedule,
     SettingError,
@@ -150,6 +151,21 @@ def test_the_options_behaviour_is_their_properties():
     assert RewardFrom.UPDATED.choose(updated=1, previous=2) == 1
     assert RewardFrom.PREVIOUS.choose(updated=1, previous=2) == 2
     assert [name.learns_posterior for name in AlgorithmName] == [True, True, False]
+
+
+@pytest.mark.parametrize("terminates", [False, True])
+def test_a_reward_recipe_is_settings_every_config_takes(terminates):
+    assert RewardRecipe.PAPER.settings(terminates) == {}
+    recipe = RewardRecipe.FOR_REUSE.settings(terminates)
+    config = RunConfig().with_values(**recipe)
+    assert {key: config.value(key) for key in recipe} == recipe
+    assert config.method.reward_form is RewardForm.LOG_D
+    assert config.method.reward.absorbing_state is terminates
+    # Every algorithm takes it, and AIRL's discriminator refuses it in one line.
+    for algo in AlgorithmName:
+        assert RunConfig().with_values(algo=algo, **recipe).method.algo is algo
+    with pytest.raises(ValueError, match=r"^discriminator_form airl "):
+        RunConfig().with_values(**recipe).with_settings(["discriminator_form=airl"])
 
 
 def test_to_dict_is_the_flat_namespace_json_serialisable_and_complete():

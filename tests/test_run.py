@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from emgail_jax import run
-from emgail_jax.method.config import AlgorithmName, Prior
+from emgail_jax.method.config import AlgorithmName, Prior, RunConfig
 
 SEEDS, ITERATIONS = 2, 2
 TINY = [
@@ -174,6 +174,7 @@ def _error(capsys):
         (["--intentions", "auto", "--max-intentions", "5"], "has 4 intentions"),
         (["--set", "discriminator_form=bogus"], "discriminator_form must be one of gail, airl"),
         (["--set", "discriminator_form=airl", "--algo", "infogail"], "not infogail"),
+        (["--rewards", "for-reuse", "--set", "discriminator_form=airl"], "with --rewards"),
     ],
 )
 def test_bad_input_gives_one_line_and_exit_code_2(tmp_path, capsys, extra, message):
@@ -282,6 +283,36 @@ def test_re_seeding_is_on_by_default_and_one_flag_from_off():
     assert run.spec_from_args(run.parse_args([])).config.method.e_step.reseed
     off = run.spec_from_args(run.parse_args(["--reseed", "off"]))
     assert not off.config.method.e_step.reseed
+
+
+def test_the_reward_recipe_is_one_flag_and_each_of_its_settings_one_set_away():
+    recipe_keys = (
+        "reward_form",
+        "discriminator_replay",
+        "discriminator_support_noise",
+        "discriminator_gradient_penalty",
+        "absorbing_state",
+    )
+
+    def settings(*argv):
+        config = run.spec_from_args(run.parse_args(list(argv))).config.to_dict()
+        return {key: config[key] for key in recipe_keys}
+
+    paper = settings()
+    assert settings("--rewards", "paper") == paper
+    assert paper == {key: RunConfig().to_dict()[key] for key in recipe_keys}
+    reuse = settings("--rewards", "for-reuse")
+    assert reuse["reward_form"] == "log-d" and reuse["discriminator_replay"] == 400
+    assert reuse["discriminator_support_noise"] == 1.0
+    assert reuse["discriminator_gradient_penalty"] == 0.1
+    # An absorbing state only where an episode may end before its time limit.
+    assert not reuse["absorbing_state"]
+    assert settings("--env", "hopper", "--rewards", "for-reuse")["absorbing_state"]
+    assert not settings("--env", "swimmer", "--rewards", "for-reuse")["absorbing_state"]
+    changed = settings("--rewards", "for-reuse", "--set", "discriminator_gradient_penalty=1")
+    assert changed == {**reuse, "discriminator_gradient_penalty": 1.0}
+    with pytest.raises(run.RunError, match="drop --rewards"):
+        run.spec_from_args(run.parse_args(["--resume", "somewhere", "--rewards", "for-reuse"]))
 
 
 def test_set_reaches_the_config_and_a_resume_refuses_it(tmp_path):

@@ -135,6 +135,33 @@ class RewardFrom(enum.StrEnum):
         return updated if self is RewardFrom.UPDATED else previous
 
 
+class RewardRecipe(enum.StrEnum):
+    """``run --rewards``: how the rewards are trained, as one choice over several settings.
+    ``paper``: the paper's (the defaults). ``for-reuse``: rewards meant to be taken away and
+    re-optimised by a fresh agent (docs/rewards-that-reoptimise.md, experiments 21 and 22)."""
+
+    PAPER = "paper"
+    FOR_REUSE = "for-reuse"
+
+    def settings(self, terminates: bool) -> dict:
+        """The flat settings of the recipe for an env whose episodes may end early
+        (``terminates``) or not; each is still one ``--set`` away."""
+        if self is RewardRecipe.PAPER:
+            return {}
+        return {
+            # Below 0 wherever D < 1, so no place off the demonstrations is paid for.
+            "reward_form": RewardForm.LOG_D,
+            # Every place the run's policies went, not only the latest policy's, is learned fake.
+            "discriminator_replay": 400,
+            # And a normaliser's standard deviation around those places.
+            "discriminator_support_noise": 1.0,
+            # A reward smooth enough for a search from scratch to climb (experiment 22).
+            "discriminator_gradient_penalty": 0.1,
+            # Log D pays for falling early unless a fall leads somewhere the reward prices.
+            "absorbing_state": terminates,
+        }
+
+
 def _values(options: type[enum.Enum]) -> tuple[str, ...]:
     return tuple(option.value for option in options)
 
@@ -146,6 +173,7 @@ INTENTION_INPUTS = _values(IntentionInput)
 RESPONSIBILITIES = _values(ResponsibilityMode)
 REWARD_FROM = _values(RewardFrom)
 PRIORS = _values(Prior)
+REWARD_RECIPES = _values(RewardRecipe)
 
 
 @dataclass(frozen=True)
