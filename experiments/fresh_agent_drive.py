@@ -7,7 +7,11 @@ Trains the fresh TRPO agents of ``python -m emgail_jax.reoptimize RUN_DIR --seed
 episode from the env's first reset: the true returns under every true intention, the learned
 reward per step it earns there, and the env's trace (the driver's x, y) every N steps. A
 failing agent's trace shows what the learned reward pays off the demonstrations
-(docs/rewards-that-reoptimise.md, experiment 18).
+(docs/rewards-that-reoptimise.md, experiment 18). Then where the episode sits in the
+discriminator's input box: each observation dimension the normalisation clips (with the share
+of steps at the clip and the mean |z|), the mean |action| against the demonstrations', and the
+learned reward per step with the agent's own actions against zero actions in the same states
+(experiment 26).
 """
 
 from __future__ import annotations
@@ -46,9 +50,10 @@ def main(argv=None) -> int:
     for intention in range(k):
         policy = jax.jit(trainer.policy(jax.tree.map(lambda x, i=intention: x[0, i], fresh.states)))
         state = reset(jax.random.PRNGKey(0))
-        true, earned, trace = [], [], []
+        true, earned, trace, visited = [], [], [], []
         for _ in range(env.episode_length):  # until the time limit or a termination
             action = policy(state.obs, None)
+            visited.append((np.asarray(state.obs), np.asarray(env.clip_action(action))))
             earned.append(float(learned(parameters, state.obs, action, intention)))
             state = env_step(state, action)
             true.append(np.asarray(state.reward))
@@ -63,7 +68,30 @@ def main(argv=None) -> int:
         for step in range(0, len(trace), args.every):
             where = ", ".join(f"{name} {value:.2f}" for name, value in trace[step].items())
             print(f"  step {step + 1}: {where}")
+        print_input_box(run, parameters, learned, intention, visited)
     return 0
+
+
+def print_input_box(run, parameters, learned, intention, visited) -> None:
+    """Where the episode's ``visited`` (obs, executed action) pairs sit in the discriminator's
+    inputs: the observation dimensions at the normalisation's clip, and what the reward pays
+    for the agent's own actions there against zero actions."""
+    obs = np.stack([o for o, _ in visited])
+    actions = np.stack([a for _, a in visited])
+    stats = parameters["normalizer"]
+    z = (obs - np.asarray(stats.mean)) / np.sqrt(np.asarray(stats.var) + 1e-8)
+    clip = run.config.method.networks.obs_clip
+    at_clip = (np.abs(z) >= clip).mean(0)
+    dims = ", ".join(
+        f"{d} ({at_clip[d]:.0%}, |z| {np.abs(z[:, d]).mean():.1f})"
+        for d in np.flatnonzero(at_clip > 0)
+    )
+    demos = np.abs(np.asarray(run.demonstration_pairs.actions)).mean()
+    own = np.asarray(learned(parameters, obs, actions, intention)).mean()
+    still = np.asarray(learned(parameters, obs, np.zeros_like(actions), intention)).mean()
+    print(f"  observation dimensions at the clip ±{clip:g}: {dims or 'none'}")
+    print(f"  mean |action| {np.abs(actions).mean():.2f} (the demonstrations' {demos:.2f})")
+    print(f"  learned reward per step: own actions {own:.3f}, zero actions {still:.3f}")
 
 
 if __name__ == "__main__":

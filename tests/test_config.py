@@ -261,6 +261,16 @@ def test_airl_refuses_what_it_does_not_combine_with_in_one_line(settings, messag
     assert "\n" not in str(error.value)
 
 
+def test_support_in_box_without_the_noise_is_refused_in_one_line():
+    with pytest.raises(ValueError, match="give discriminator_support_noise=S too") as error:
+        RunConfig().with_settings(["discriminator_support_in_box=true"])
+    assert "\n" not in str(error.value)
+    config = RunConfig().with_settings(
+        ["discriminator_support_noise=3", "discriminator_support_in_box=true"]
+    )
+    assert config.method.m_step.support_in_box and config.method.m_step.support_noise == 3
+
+
 def test_airl_rewards_its_logit_and_gail_its_reward_form():
     airl = RunConfig().with_settings(["discriminator_form=airl", "algo=gail"]).method
     assert airl.m_step.form.airl and airl.reward_form is RewardForm.LOGIT

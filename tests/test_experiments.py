@@ -718,3 +718,43 @@ def test_fresh_agent_drive_traces_each_learned_intentions_episode(tiny_run, caps
         assert f"learned intention {intention}: true returns [" in out
     # the driver's episodes are 100 steps: its x, y at steps 1 and 51 of each
     assert out.count("  step 1: x ") == 2 and out.count("  step 51: x ") == 2
+    assert out.count("  observation dimensions at the clip ±5: ") == 2
+    assert out.count("  learned reward per step: own actions ") == 2
+
+
+def test_reward_generalisation_scores_every_seed_and_true_intention(tiny_run, capsys):
+    module = _load("reward_generalisation")
+    assert module.main([str(tiny_run), "--episodes", "2"]) == 0
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("seed ")]
+    assert len(lines) == 4  # 2 seeds x 2 true intentions
+    for line in lines:
+        values = [float(v) for v in line.split(": ")[1].split(" / ")]
+        # The driver has its experts; a tiny run's intention may hold no demonstration (nan).
+        assert len(values) == 4 and all(np.isfinite(values[1:]))
+
+
+def test_reward_generalisation_refuses_bad_input_in_one_line(tiny_run, tmp_path, capsys):
+    module = _load("reward_generalisation")
+    assert module.main([str(tiny_run), "--episodes", "0"]) == 2
+    assert "--episodes must be at least 1" in capsys.readouterr().err
+    assert module.main([str(tmp_path / "no-run")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1
+
+
+def test_learned_reward_per_step_is_the_mean_over_each_rows_steps():
+    """Row p's reward is p + 1 on every step: its mean per step is p + 1, whatever the
+    actions."""
+    import jax
+    import jax.numpy as jnp
+
+    import envs
+
+    module = _load("reward_generalisation")
+    env = envs.make("driver", intentions=2)
+    act = lambda state, key: jax.random.uniform(key, (*state.obs.shape[:-1], env.action_size))
+    reward = lambda obs, action, rows: rows + 1.0 + 0.0 * action[..., 0]
+    per_step = module.learned_reward_per_step(
+        env, act, reward, jax.random.PRNGKey(0), jnp.arange(2), 3
+    )
+    np.testing.assert_allclose(np.asarray(per_step), [1.0, 2.0])

@@ -502,6 +502,20 @@ def test_support_noise_changes_only_the_m_steps_negatives(env, expert, emgail, g
     assert metrics["discriminator/loss"] != plain_metrics["discriminator/loss"]
 
 
+def test_support_in_box_clips_only_the_noisy_copies(env, expert):
+    """Clipping the copies into the inputs' box changes the M-step's loss (copies of noise 3
+    leave the action box) and nothing the E-step or the keys see."""
+    free = CONFIG.with_values(discriminator_support_noise=3.0)
+    _, [(state, metrics), *_], _ = _train(
+        free.with_values(discriminator_support_in_box=True), env, expert, 1
+    )
+    _, [(plain, plain_metrics), *_], _ = _train(free, env, expert, 1)
+    np.testing.assert_array_equal(state.key, plain.key)
+    for a, b in zip(_leaves(state.posterior), _leaves(plain.posterior), strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert metrics["discriminator/loss"] != plain_metrics["discriminator/loss"]
+
+
 def test_absorbing_states_add_only_the_indicators_weights_and_the_replays_flags(env, expert):
     """Off, nothing of the state changes; on, the discriminator's first layer has one input
     more (so its Adam moments too) and a replay keeps each sample's termination flag."""

@@ -271,6 +271,7 @@ SETTINGS: dict[str, Setting] = {
     ),
     "discriminator_replay": _at("method", "m_step", "replay", domain=_integers(0)),
     "discriminator_support_noise": _at("method", "m_step", "support_noise", domain=NON_NEGATIVE),
+    "discriminator_support_in_box": _at("method", "m_step", "support_in_box", domain=BOOLEAN),
     "discriminator_form": _at("method", "m_step", "form", domain=_one_of(DiscriminatorForm)),
     "posterior_learning_rate": _at("method", "e_step", "learning_rate", domain=POSITIVE),
     "posterior_steps": _at("method", "e_step", "steps", domain=COUNT),
@@ -395,8 +396,9 @@ class MStepConfig(_Layer):
     weight of a zero-centred gradient penalty on the logit (0: none), the iterations of
     past policy samples replayed as further negatives (:mod:`emgail_jax.method.replay`; 0:
     none), the standard deviation of the noise that moves a copy of every negative off the
-    run's samples (:mod:`emgail_jax.method.support`; 0: none), and the discriminator's form
-    (GAIL's, or AIRL's: :mod:`emgail_jax.method.airl`)."""
+    run's samples (:mod:`emgail_jax.method.support`; 0: none), whether those copies are
+    clipped into the inputs' box as real inputs are, and the discriminator's form (GAIL's, or
+    AIRL's: :mod:`emgail_jax.method.airl`)."""
 
     PREFIX = ("method", "m_step")
     learning_rate: float = 1e-3
@@ -404,6 +406,7 @@ class MStepConfig(_Layer):
     gradient_penalty: float = 0.0
     replay: int = 0
     support_noise: float = 0.0
+    support_in_box: bool = False
     form: DiscriminatorForm = DiscriminatorForm.GAIL
 
 
@@ -464,6 +467,11 @@ class MethodConfig(_Layer):
             raise ValueError(
                 "choosing the number of intentions needs a posterior and the mixture prior: "
                 "an algo other than gail, and prior mixture"
+            )
+        if self.m_step.support_in_box and not self.m_step.support_noise:
+            raise ValueError(
+                "discriminator_support_in_box clips the noisy copies of the negatives: "
+                "give discriminator_support_noise=S too"
             )
         if self.m_step.form.airl:
             _check_airl(self)

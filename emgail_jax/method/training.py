@@ -98,7 +98,7 @@ from emgail_jax.method.rollout import (
     tree_where,
 )
 from emgail_jax.method.skeleton import PolicyStages, Rewarded, intention_rows, make_update
-from emgail_jax.method.support import KEY_STREAM, with_support_negatives
+from emgail_jax.method.support import KEY_STREAM, InputBox, with_support_negatives
 
 
 @struct.dataclass
@@ -605,7 +605,10 @@ class LearnedRewardStage:
             negatives = densities(negatives)
         if config.m_step.support_noise:
             key = jax.random.fold_in(state.key, KEY_STREAM)
-            negatives = with_support_negatives(negatives, key, config.m_step.support_noise)
+            box = None
+            if config.m_step.support_in_box:
+                box = InputBox(config.networks.obs_clip, self.env.action_low, self.env.action_high)
+            negatives = with_support_negatives(negatives, key, config.m_step.support_noise, box)
         m = self.m_step(state.discriminator, negatives, e.gamma, algorithm)
         rewarding = config.reward.source.choose(
             updated=m.discriminator, previous=state.discriminator

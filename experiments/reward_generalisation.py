@@ -1,0 +1,143 @@
+"""Does a run's learned reward recognise its experts beyond the demonstrations it was trained on?
+
+    python experiments/reward_generalisation.py RUN_DIR [--episodes N]
+
+Per run seed, the learned reward per step of each true intention's reward (the learned
+intention the run matched it to) earned by:
+
+- the demonstrations of that intention (weighted by the run's responsibilities, as
+  ``reoptimize`` reports them);
+- the env's own experts on fresh episodes: new resets (the reacher's balls elsewhere), the
+  shipped expert policies of the MJX envs or the driver's analytic controller, noiseless;
+- the run's jointly trained policies on fresh episodes;
+- uniformly random actions on fresh episodes.
+
+A reward that stands for the task pays the experts' fresh episodes about what it pays the
+demonstrations. One that pays them what it pays random actions has learned which episodes
+were demonstrated, not what the experts did, and a fresh agent trained on it has nothing to
+climb (docs/rewards-that-reoptimise.md, experiment 26).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def learned_reward_per_step(env, act, reward, key, rows, episodes: int):
+    """Mean of ``reward(obs, action, reward_rows) [P, E]`` over the live steps of ``episodes``
+    fresh episodes per row of ``rows [P]`` acted by ``act(state [P, E], key) -> action``:
+    ``[P]``."""
+    import jax
+    import jax.numpy as jnp
+
+    import envs
+    from emgail_jax.method.rollout import batch_reset
+
+    limited = envs.EpisodeWrapper(env)
+    p = rows.shape[0]
+    key_reset, key_steps = jax.random.split(key)
+    state = batch_reset(limited, key_reset, (p, episodes))
+    step = jax.vmap(jax.vmap(limited.step))
+    reward_rows = jnp.broadcast_to(rows[:, None], (p, episodes))
+
+    def body(carry, step_key):
+        state, alive, total = carry
+        action = act(state, step_key)
+        earned = reward(state.obs, limited.clip_action(action), reward_rows)
+        total = total + jnp.where(alive > 0, earned, 0.0)
+        next_state = step(state, action)
+        return (next_state, alive * (1.0 - next_state.done), total), alive
+
+    zeros = jnp.zeros((p, episodes))
+    steps = jax.random.split(key_steps, limited.episode_length)
+    (_, _, total), alive = jax.lax.scan(body, (state, zeros + 1.0, zeros), steps)
+    return total.sum(1) / alive.sum((0, 2))
+
+
+def expert_actor(env, rows):
+    """The env's noiseless experts as ``act(state [P, E], key)``, row p the true intention
+    ``rows[p]``; None if the env has none."""
+    import jax
+    import jax.numpy as jnp
+
+    from emgail_jax import experts
+
+    grid = lambda state: jnp.broadcast_to(rows[:, None], state.obs.shape[:2])
+    if hasattr(env, "expert_action"):  # the driver's analytic controller
+        analytic = jax.vmap(jax.vmap(env.expert_action))
+        return lambda state, _: analytic(state, grid(state))
+    policy = experts.load_expert_policy(env)
+    if policy is None:
+        return None
+    return lambda state, _: policy(state.obs, grid(state))
+
+
+def seed_columns(run, seed: int, experts, keys, episodes: int):
+    """``([demonstrations, experts, joint policies, random] each [K true], matching)`` for run
+    ``seed``: true intention i scored by the learned intention ``matching[i]`` the run matched
+    it to, whose policy also acts for it."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from emgail_jax import reoptimize as check
+    from emgail_jax.method.rollout import uniform_random_policy
+
+    env, k_true = run.problem.env, run.problem.true_intentions
+    learned, parameters = run.reward_function(), run.reward_parameters(seed)
+    matching = check.run_matching(run, seed, run.iteration)  # true -> learned
+    rows = jnp.asarray(matching)
+    reward = jax.jit(lambda obs, action, i: learned(parameters, obs, action, i))
+    policy, random = run.policy(seed), uniform_random_policy(env)
+    actors = [
+        experts,
+        lambda state, _: policy(state.obs, rows[:, None]),
+        lambda state, key: random(state.obs, key),
+    ]
+    fresh = [
+        np.asarray(learned_reward_per_step(env, act, reward, key, rows, episodes))
+        if act is not None
+        else np.full(k_true, np.nan)
+        for act, key in zip(actors, keys, strict=True)
+    ]
+    demonstrations = check.demonstrations_reward(run, seed)[np.asarray(matching)]
+    return [demonstrations, *fresh], [int(i) for i in matching]
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("run_dir")
+    parser.add_argument("--episodes", type=int, default=20, help="fresh episodes per row")
+    args = parser.parse_args(argv)
+    if args.episodes < 1:
+        print("error: --episodes must be at least 1", file=sys.stderr)
+        return 2
+
+    from emgail_jax.host import jax_setup
+
+    jax_setup.setup(host_devices=1)
+    import jax
+    import jax.numpy as jnp
+
+    from emgail_jax.host.saved_run import SavedRun
+
+    try:
+        run = SavedRun.open(args.run_dir)
+    except ValueError as error:  # the run's, its checkpoint's, env's and demonstrations' errors
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    experts = expert_actor(run.problem.env, jnp.arange(run.problem.true_intentions))
+    keys = jax.random.split(jax.random.PRNGKey(2026), 3)  # experts, joint policies, random
+    print(f"learned reward per step of each true intention's reward, {args.episodes} fresh")
+    print("episodes per row (demonstrations / experts / joint policies / random actions):")
+    for seed in range(run.spec.seeds):
+        columns, matching = seed_columns(run, seed, experts, keys, args.episodes)
+        for i, learned_intention in enumerate(matching):
+            values = " / ".join(f"{column[i]:.3f}" for column in columns)
+            print(f"seed {seed}, true intention {i} (learned {learned_intention}): {values}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
