@@ -135,7 +135,8 @@ def main(argv=None) -> int:
         columns, matching = seed_columns(run, seed, experts, keys, args.episodes)
         for i, learned_intention in enumerate(matching):
             values = " / ".join(f"{column[i]:.3f}" for column in columns)
-            print(f"seed {seed}, true intention {i} (learned {learned_intention}): {values}")
+            label = f"seed {run.spec.first_seed + seed}, true intention {i}"
+            print(f"{label} (learned {learned_intention}): {values}")
     return 0
 
 
