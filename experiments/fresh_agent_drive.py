@@ -78,8 +78,10 @@ def print_input_box(run, parameters, learned, intention, visited) -> None:
     for the agent's own actions there against zero actions."""
     obs = np.stack([o for o, _ in visited])
     actions = np.stack([a for _, a in visited])
-    stats = parameters["normalizer"]
-    z = (obs - np.asarray(stats.mean)) / np.sqrt(np.asarray(stats.var) + 1e-8)
+    from emgail_jax.method.normalizer import normalize
+
+    # Unclipped, to see how far beyond the clip the episode goes.
+    z = np.asarray(normalize(parameters["normalizer"], obs, np.inf))
     clip = run.config.method.networks.obs_clip
     at_clip = (np.abs(z) >= clip).mean(0)
     dims = ", ".join(

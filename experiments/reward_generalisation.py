@@ -15,7 +15,7 @@ intention the run matched it to) earned by:
 A reward that stands for the task pays the experts' fresh episodes about what it pays the
 demonstrations. One that pays them what it pays random actions has learned which episodes
 were demonstrated, not what the experts did, and a fresh agent trained on it has nothing to
-climb (docs/rewards-that-reoptimise.md, experiment 26).
+climb (docs/rewards-that-reoptimise.md, experiment 27).
 """
 
 from __future__ import annotations
