@@ -271,6 +271,17 @@ def test_support_in_box_without_the_noise_is_refused_in_one_line():
     assert config.method.m_step.support_in_box and config.method.m_step.support_noise == 3
 
 
+def test_a_delayed_gradient_penalty_without_its_weight_is_refused_in_one_line():
+    with pytest.raises(ValueError, match="give discriminator_gradient_penalty=W too") as error:
+        RunConfig().with_settings(["discriminator_gradient_penalty_from=100"])
+    assert "\n" not in str(error.value)
+    config = RunConfig().with_settings(
+        ["discriminator_gradient_penalty=10", "discriminator_gradient_penalty_from=100"]
+    )
+    assert config.method.m_step.gradient_penalty_from == 100
+    assert RunConfig().method.m_step.gradient_penalty_from == 0
+
+
 def test_airl_rewards_its_logit_and_gail_its_reward_form():
     airl = RunConfig().with_settings(["discriminator_form=airl", "algo=gail"]).method
     assert airl.m_step.form.airl and airl.reward_form is RewardForm.LOGIT

@@ -294,6 +294,20 @@ def test_gradient_penalty_hand_computed_on_a_linear_logit():
     assert float(penalised_metrics["discriminator/gradient_norm"]) == pytest.approx(2.0)
 
 
+@pytest.mark.parametrize("jit", [False, True])
+def test_a_delayed_gradient_penalty_weighs_nothing_before_its_iteration(jit):
+    from emgail_jax.method.config import MStepConfig
+    from emgail_jax.method.discriminator import gradient_penalty_at
+
+    delayed = MStepConfig(gradient_penalty=10.0, gradient_penalty_from=3)
+    weight_at = lambda i: gradient_penalty_at(delayed, i)
+    weights = [float((jax.jit(weight_at) if jit else weight_at)(jnp.int32(i))) for i in range(5)]
+    assert weights == [0.0, 0.0, 0.0, 10.0, 10.0]
+    # Undelayed, or without an iteration, the weight stays the config's plain number.
+    assert gradient_penalty_at(MStepConfig(gradient_penalty=10.0), jnp.int32(0)) == 10.0
+    assert gradient_penalty_at(delayed, None) == 10.0
+
+
 def test_gradient_penalty_flattens_the_trained_logit(network_batch):
     from emgail_jax.method.discriminator import input_gradient_norms
 

@@ -186,6 +186,7 @@ def test_a_snapshot_is_reoptimised_on_its_own_networks(tiny_run, reoptimized):
         (["--across-seeds", "--ensemble", "2"], "--across-seeds averages the run's own"),
         (["--env-set", "gravity=2"], "--env-set: env 'driver' has no option 'dynamics'"),
         (["--env-set", "gravity=2", "--no-baseline"], "drop --no-baseline"),
+        (["--reference-draws", "0"], "--reference-draws must be at least 1"),
     ],
 )
 def test_bad_input_gives_one_line_and_exit_code_2(tiny_run, capsys, extra, message):
@@ -288,14 +289,21 @@ def test_a_variant_is_scored_against_its_own_true_reward_agent(tmp_path):
     options = [*tiny, "--eval-every", "1", "--random-episodes", "2", "--quiet"]
     assert run.main(["--env", "swimmer", "--intentions", "2", *options, "--out", str(out)]) == 0
     args = [str(out), "--iterations", "2", "--cache", str(cache), "--quiet"]
-    assert reoptimize.main([*args, "--env-set", "viscosity=2", "mass.mid=1.5"]) == 0
+    variant = ["--env-set", "viscosity=2", "mass.mid=1.5", "--reference-draws", "2"]
+    assert reoptimize.main([*args, *variant]) == 0
     result = json.loads((out / "reoptimize-env-viscosity=2-mass.mid=1.5.json").read_text())
     assert result["variant"]["dynamics"] == ["viscosity=2", "mass.mid=1.5"]
     baseline = result["baseline"]
-    # The variant's expert is its true-reward agent: the returns ERD is measured from.
-    assert result["expert_returns"] == pytest.approx(baseline["returns"])
+    # The variant's expert is, per intention, the best of its two true-reward draws (RL seeds
+    # 0 and 1), the returns ERD is measured from; the baseline beside it is draw 0.
+    draws = np.asarray(result["variant"]["reference_returns"])
+    assert draws.shape == (2, 2) and draws[0] == pytest.approx(baseline["returns"])
+    assert result["expert_returns"] == pytest.approx(draws.max(0))
+    assert result["variant"]["reference_draw"] == list(draws.argmax(0))
+    assert len(result["variant"]["original_experts_erd"]) == 2
     assert baseline["cache"].endswith(".json") and "swimmer-k2-2it" in baseline["cache"]
-    assert result["variant"]["reference_meets_bar"] == baseline["meets_bar"]
+    assert len(list(cache.glob("*.json"))) == 2  # both draws cached
+    assert len(result["variant"]["reference_meets_bar"]) == 2
     # Beside it, the run's own policies deployed unchanged in the variant.
     joint = result["variant"]["joint_policies"]
     assert [r["run_seed"] for r in joint["per_seed"]] == [0] and np.isfinite(joint["erd"][0])

@@ -516,6 +516,25 @@ def test_support_in_box_clips_only_the_noisy_copies(env, expert):
     assert metrics["discriminator/loss"] != plain_metrics["discriminator/loss"]
 
 
+def test_a_delayed_gradient_penalty_leaves_the_updates_before_it_alone(env, expert):
+    """Penalty 10 from the second update: the first matches a run without any penalty, and
+    the second trains another discriminator (its loss metric, before the steps, still
+    matches)."""
+    delayed = CONFIG.with_values(
+        discriminator_gradient_penalty=10.0, discriminator_gradient_penalty_from=1
+    )
+    _, delayed_steps, _ = _train(delayed, env, expert, 2)
+    _, plain_steps, _ = _train(CONFIG, env, expert, 2)
+    (first, _), (second, second_metrics) = delayed_steps
+    (plain, _), (plain_second, _) = plain_steps
+    for a, b in zip(_leaves(first.discriminator), _leaves(plain.discriminator), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-7)
+    pairs = zip(_leaves(second.discriminator), _leaves(plain_second.discriminator), strict=True)
+    moved = [not np.allclose(a, b, rtol=1e-3) for a, b in pairs]
+    assert any(moved)
+    assert np.isfinite(second_metrics["discriminator/gradient_norm"])
+
+
 def test_absorbing_states_add_only_the_indicators_weights_and_the_replays_flags(env, expert):
     """Off, nothing of the state changes; on, the discriminator's first layer has one input
     more (so its Adam moments too) and a replay keeps each sample's termination flag."""

@@ -269,6 +269,9 @@ SETTINGS: dict[str, Setting] = {
     "discriminator_gradient_penalty": _at(
         "method", "m_step", "gradient_penalty", domain=NON_NEGATIVE
     ),
+    "discriminator_gradient_penalty_from": _at(
+        "method", "m_step", "gradient_penalty_from", domain=_integers(0)
+    ),
     "discriminator_replay": _at("method", "m_step", "replay", domain=_integers(0)),
     "discriminator_support_noise": _at("method", "m_step", "support_noise", domain=NON_NEGATIVE),
     "discriminator_support_in_box": _at("method", "m_step", "support_in_box", domain=BOOLEAN),
@@ -393,7 +396,8 @@ class EStepConfig(_Layer):
 @dataclass(frozen=True)
 class MStepConfig(_Layer):
     """The M-step (:mod:`emgail_jax.method.discriminator`): full-batch Adam steps, the
-    weight of a zero-centred gradient penalty on the logit (0: none), the iterations of
+    weight of a zero-centred gradient penalty on the logit (0: none) and the iteration it
+    starts at (0: the first; later lets the intentions separate before it), the iterations of
     past policy samples replayed as further negatives (:mod:`emgail_jax.method.replay`; 0:
     none), the standard deviation of the noise that moves a copy of every negative off the
     run's samples (:mod:`emgail_jax.method.support`; 0: none), whether those copies are
@@ -404,6 +408,7 @@ class MStepConfig(_Layer):
     learning_rate: float = 1e-3
     steps: int = 10
     gradient_penalty: float = 0.0
+    gradient_penalty_from: int = 0
     replay: int = 0
     support_noise: float = 0.0
     support_in_box: bool = False
@@ -472,6 +477,11 @@ class MethodConfig(_Layer):
             raise ValueError(
                 "discriminator_support_in_box clips the noisy copies of the negatives: "
                 "give discriminator_support_noise=S too"
+            )
+        if self.m_step.gradient_penalty_from and not self.m_step.gradient_penalty:
+            raise ValueError(
+                "discriminator_gradient_penalty_from delays the gradient penalty: "
+                "give discriminator_gradient_penalty=W too"
             )
         if self.m_step.form.airl:
             _check_airl(self)

@@ -89,7 +89,7 @@ def discriminator_loss(
     policy_obs: jax.Array,
     policy_actions: jax.Array,
     policy_conditions: jax.Array,
-    gradient_penalty: float = 0.0,
+    gradient_penalty: float | jax.Array = 0.0,
     expert_absorbed: jax.Array | None = None,
     policy_absorbed: jax.Array | None = None,
     expert_log_policy: jax.Array | None = None,
@@ -143,7 +143,7 @@ def discriminator_loss(
         "discriminator/policy_d": jnp.mean(jax.nn.sigmoid(fake)),
         **absorbing_metrics,
     }
-    if gradient_penalty:
+    if isinstance(gradient_penalty, jax.Array) or gradient_penalty:
         norms = input_gradient_norms(
             apply,
             params,
@@ -209,16 +209,28 @@ class MStep:
     metrics: dict
 
 
+def gradient_penalty_at(config: MStepConfig, iteration: jax.Array | None) -> float | jax.Array:
+    """The gradient penalty's weight at ``iteration`` (the updates done before this one): a
+    constant, or 0 before ``config.gradient_penalty_from``."""
+    if not config.gradient_penalty_from or iteration is None:
+        return config.gradient_penalty
+    return jnp.where(iteration >= config.gradient_penalty_from, config.gradient_penalty, 0.0)
+
+
 def make_m_step(apply: Callable, optimizer: optax.GradientTransformation, config: MStepConfig):
-    """``m_step(discriminator, batch, gamma, algorithm) -> MStep`` (Algorithm 1, M-step): the
-    discriminator (a :class:`Learner`) learns the expert pairs of ``batch`` (a
+    """``m_step(discriminator, batch, gamma, algorithm, iteration=None) -> MStep`` (Algorithm 1,
+    M-step): the discriminator (a :class:`Learner`) learns the expert pairs of ``batch`` (a
     :class:`NormalizedBatch`), weighted over intentions by ``gamma [N, K]`` as ``algorithm``
     says (eq. 19 or 22), against the policy samples under their own intention; ``config.steps``
-    full-batch steps, with the gradient penalty of weight ``config.gradient_penalty``. A batch
-    with termination flags adds the absorbing pair on both sides (module docstring)."""
+    full-batch steps, with the gradient penalty :func:`gradient_penalty_at` ``iteration`` weighs.
+    A batch with termination flags adds the absorbing pair on both sides (module docstring)."""
 
     def m_step(
-        discriminator: Learner, batch: NormalizedBatch, gamma: jax.Array, algorithm: Algorithm
+        discriminator: Learner,
+        batch: NormalizedBatch,
+        gamma: jax.Array,
+        algorithm: Algorithm,
+        iteration: jax.Array | None = None,
     ) -> MStep:
         k = batch.obs.shape[0]
         chex.assert_shape(gamma, (batch.expert_obs.shape[0], k))
@@ -242,7 +254,7 @@ def make_m_step(apply: Callable, optimizer: optax.GradientTransformation, config
             policy_obs=batch.obs,
             policy_actions=policy_inputs,
             policy_conditions=algorithm.discriminator_condition(own_intention, k),
-            gradient_penalty=config.gradient_penalty,
+            gradient_penalty=gradient_penalty_at(config, iteration),
             **absorbed,
             **batch.log_policy_offsets(),
         )

@@ -609,7 +609,7 @@ class LearnedRewardStage:
             if config.m_step.support_in_box:
                 box = InputBox(config.networks.obs_clip, self.env.action_low, self.env.action_high)
             negatives = with_support_negatives(negatives, key, config.m_step.support_noise, box)
-        m = self.m_step(state.discriminator, negatives, e.gamma, algorithm)
+        m = self.m_step(state.discriminator, negatives, e.gamma, algorithm, state.iteration)
         rewarding = config.reward.source.choose(
             updated=m.discriminator, previous=state.discriminator
         )
