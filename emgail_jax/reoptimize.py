@@ -799,14 +799,18 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
 
 
 def default_name(args) -> str:
-    """``reoptimize[-seed-S][-rl-R][-snapshot-ITER][-consolidated-STEPS][-ensemble-N]
-    [-across-seeds][-FORM][-env-...].json``: a check of one seed does not overwrite the check
-    of every seed."""
+    """``reoptimize[-seed-S][-rl-R][-it-N][-gamma-G][-snapshot-ITER][-consolidated-STEPS]
+    [-ensemble-N][-across-seeds][-FORM][-env-...].json``: a check of one seed, or at another
+    budget, does not overwrite the check of every seed at the env's budget."""
     parts = ["reoptimize"]
     if args.seed is not None:
         parts.append(f"seed-{args.seed}")
     if args.rl_seed:
         parts.append(f"rl-{args.rl_seed}")
+    if args.iterations is not None:
+        parts.append(f"it-{args.iterations}")
+    if args.gamma is not None:
+        parts.append(f"gamma-{args.gamma:g}")
     if args.snapshot is not None:
         parts.append(f"snapshot-{args.snapshot}")
     if args.consolidate:

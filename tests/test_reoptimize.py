@@ -15,7 +15,7 @@ from emgail_jax.method.metrics import reward_difference
 def reoptimized(tiny_run, tmp_path_factory):
     cache = tmp_path_factory.mktemp("baselines")
     assert reoptimize.main([str(tiny_run), "--iterations", "2", "--cache", str(cache)]) == 0
-    return json.loads((tiny_run / "reoptimize.json").read_text()), cache
+    return json.loads((tiny_run / "reoptimize-it-2.json").read_text()), cache
 
 
 @pytest.fixture(scope="module")
@@ -120,7 +120,7 @@ def test_gails_one_reward_is_reoptimised_like_emgails(tmp_path):
     args = ["--env", "driver", "--algo", "gail", *tiny, "--chunk-size", "2", "--quiet"]
     assert run.main([*args, "--out", str(out)]) == 0
     assert reoptimize.main([str(out), "--iterations", "2", "--cache", str(cache), "--quiet"]) == 0
-    result = json.loads((out / "reoptimize.json").read_text())
+    result = json.loads((out / "reoptimize-it-2.json").read_text())
     assert result["seeds"] == [0, 1] and len(result["erd"]) == 2
     for per_seed in result["per_seed"]:
         earned = per_seed["learned_reward_per_step"]["demonstrations"]
@@ -161,7 +161,7 @@ def test_a_snapshot_is_reoptimised_on_its_own_networks(tiny_run, reoptimized):
     first, _ = reoptimized
     args = [str(tiny_run), "--iterations", "2", "--snapshot", "2", "--no-baseline", "--quiet"]
     assert reoptimize.main(args) == 0
-    result = json.loads((tiny_run / "reoptimize-snapshot-2.json").read_text())
+    result = json.loads((tiny_run / "reoptimize-it-2-snapshot-2.json").read_text())
     assert result["snapshot"] == 2 and result["iteration"] == 2 and result["baseline"] is None
     earned = [r["learned_reward_per_step"]["demonstrations"] for r in result["per_seed"]]
     final = [r["learned_reward_per_step"]["demonstrations"] for r in first["per_seed"]]
@@ -236,7 +236,7 @@ def test_another_rl_seed_trains_other_fresh_agents_on_the_same_rewards(tiny_run,
     first, _ = reoptimized
     args = [str(tiny_run), "--iterations", "2", "--rl-seed", "1", "--no-baseline", "--quiet"]
     assert reoptimize.main(args) == 0
-    result = json.loads((tiny_run / "reoptimize-rl-1.json").read_text())
+    result = json.loads((tiny_run / "reoptimize-rl-1-it-2.json").read_text())
     assert result["rl_seed"] == 1 and first["rl_seed"] == 0
     earned = lambda r: [s["learned_reward_per_step"] for s in r["per_seed"]]
     # The same rewards on the same demonstrations; other agents earn other amounts.
@@ -250,7 +250,7 @@ def test_an_ensemble_reward_is_reoptimised(tiny_run, reoptimized):
     first, _ = reoptimized
     args = [str(tiny_run), "--iterations", "2", "--ensemble", "2", "--no-baseline", "--quiet"]
     assert reoptimize.main(args) == 0
-    result = json.loads((tiny_run / "reoptimize-ensemble-2.json").read_text())
+    result = json.loads((tiny_run / "reoptimize-it-2-ensemble-2.json").read_text())
     assert result["ensemble"] == [2, 4] and result["consolidation"] is None
     earned = [r["learned_reward_per_step"]["demonstrations"] for r in result["per_seed"]]
     assert earned != [r["learned_reward_per_step"]["demonstrations"] for r in first["per_seed"]]
@@ -261,7 +261,7 @@ def test_a_reward_across_seeds_is_reoptimised(tiny_run, reoptimized, saved):
     first, _ = reoptimized
     args = [str(tiny_run), "--iterations", "2", "--across-seeds", "--no-baseline", "--quiet"]
     assert reoptimize.main(args) == 0
-    result = json.loads((tiny_run / "reoptimize-across-seeds.json").read_text())
+    result = json.loads((tiny_run / "reoptimize-it-2-across-seeds.json").read_text())
     assert result["across_seeds"] == [saved.aligned_intentions(s).tolist() for s in (0, 1)]
     earned = [r["learned_reward_per_step"]["demonstrations"] for r in result["per_seed"]]
     assert earned != [r["learned_reward_per_step"]["demonstrations"] for r in first["per_seed"]]
@@ -272,7 +272,7 @@ def test_a_consolidated_reward_in_the_logit_form(tiny_run, reoptimized):
     first, _ = reoptimized
     args = [str(tiny_run), "--iterations", "2", "--consolidate", "5", "--reward-form", "logit"]
     assert reoptimize.main([*args, "--no-baseline", "--quiet"]) == 0
-    result = json.loads((tiny_run / "reoptimize-consolidated-5-logit.json").read_text())
+    result = json.loads((tiny_run / "reoptimize-it-2-consolidated-5-logit.json").read_text())
     assert result["reward_form"] == "logit" and first["reward_form"] == "gail"
     assert [c["run_seed"] for c in result["consolidation"]] == [0, 1]
     assert all(c["steps"] == 5 for c in result["consolidation"])
@@ -291,7 +291,7 @@ def test_a_variant_is_scored_against_its_own_true_reward_agent(tmp_path):
     args = [str(out), "--iterations", "2", "--cache", str(cache), "--quiet"]
     variant = ["--env-set", "viscosity=2", "mass.mid=1.5", "--reference-draws", "2"]
     assert reoptimize.main([*args, *variant]) == 0
-    result = json.loads((out / "reoptimize-env-viscosity=2-mass.mid=1.5.json").read_text())
+    result = json.loads((out / "reoptimize-it-2-env-viscosity=2-mass.mid=1.5.json").read_text())
     assert result["variant"]["dynamics"] == ["viscosity=2", "mass.mid=1.5"]
     baseline = result["baseline"]
     # The variant's expert is, per intention, the best of its two true-reward draws (RL seeds
@@ -309,7 +309,7 @@ def test_a_variant_is_scored_against_its_own_true_reward_agent(tmp_path):
     assert [r["run_seed"] for r in joint["per_seed"]] == [0] and np.isfinite(joint["erd"][0])
     assert joint["erd_mean"] == pytest.approx(joint["erd"][0])
     assert reoptimize.main(args) == 0  # the env as trained: another baseline, other references
-    plain = json.loads((out / "reoptimize.json").read_text())
+    plain = json.loads((out / "reoptimize-it-2.json").read_text())
     assert plain["variant"] is None and plain["baseline"]["cache"] != baseline["cache"]
     assert plain["random_returns"] != pytest.approx(result["random_returns"])
 
@@ -330,5 +330,7 @@ def test_the_default_file_names_what_was_checked():
     assert reoptimize.default_name(args) == "reoptimize-seed-1-snapshot-20-log-d.json"
     args = reoptimize.parse_args(["RUN", "--rl-seed", "2"])
     assert reoptimize.default_name(args) == "reoptimize-rl-2.json"
+    args = reoptimize.parse_args(["RUN", "--iterations", "1000", "--gamma", "0.999"])
+    assert reoptimize.default_name(args) == "reoptimize-it-1000-gamma-0.999.json"
     args = reoptimize.parse_args(["RUN", "--across-seeds", "--rl-seed", "1"])
     assert reoptimize.default_name(args) == "reoptimize-rl-1-across-seeds.json"

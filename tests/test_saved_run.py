@@ -224,5 +224,5 @@ def test_an_airl_runs_check_says_its_fresh_agents_were_paid_g(airl_run):
 
     args = [str(airl_run), "--seed", "0", "--iterations", "2", "--no-baseline", "--quiet"]
     assert reoptimize.main(args) == 0
-    result = json.loads((airl_run / "reoptimize-seed-0.json").read_text())
+    result = json.loads((airl_run / "reoptimize-seed-0-it-2.json").read_text())
     assert result["reward_form"] == "airl-g" and result["seeds"] == [0]
