@@ -261,25 +261,34 @@ def test_airl_refuses_what_it_does_not_combine_with_in_one_line(settings, messag
     assert "\n" not in str(error.value)
 
 
-def test_support_in_box_without_the_noise_is_refused_in_one_line():
-    with pytest.raises(ValueError, match="give discriminator_support_noise=S too") as error:
-        RunConfig().with_settings(["discriminator_support_in_box=true"])
+@pytest.mark.parametrize(
+    ("alone", "message", "with_what_it_needs", "field", "value"),
+    [
+        (
+            "discriminator_support_in_box=true",
+            "give discriminator_support_noise=S too",
+            "discriminator_support_noise=3",
+            "support_in_box",
+            True,
+        ),
+        (
+            "discriminator_gradient_penalty_from=100",
+            "give discriminator_gradient_penalty=W too",
+            "discriminator_gradient_penalty=10",
+            "gradient_penalty_from",
+            100,
+        ),
+    ],
+)
+def test_an_option_without_the_one_it_modifies_is_refused_in_one_line(
+    alone, message, with_what_it_needs, field, value
+):
+    with pytest.raises(ValueError, match=message) as error:
+        RunConfig().with_settings([alone])
     assert "\n" not in str(error.value)
-    config = RunConfig().with_settings(
-        ["discriminator_support_noise=3", "discriminator_support_in_box=true"]
-    )
-    assert config.method.m_step.support_in_box and config.method.m_step.support_noise == 3
-
-
-def test_a_delayed_gradient_penalty_without_its_weight_is_refused_in_one_line():
-    with pytest.raises(ValueError, match="give discriminator_gradient_penalty=W too") as error:
-        RunConfig().with_settings(["discriminator_gradient_penalty_from=100"])
-    assert "\n" not in str(error.value)
-    config = RunConfig().with_settings(
-        ["discriminator_gradient_penalty=10", "discriminator_gradient_penalty_from=100"]
-    )
-    assert config.method.m_step.gradient_penalty_from == 100
-    assert RunConfig().method.m_step.gradient_penalty_from == 0
+    config = RunConfig().with_settings([with_what_it_needs, alone])
+    assert getattr(config.method.m_step, field) == value
+    assert getattr(RunConfig().method.m_step, field) != value  # off by default
 
 
 def test_airl_rewards_its_logit_and_gail_its_reward_form():
