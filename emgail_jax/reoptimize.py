@@ -572,6 +572,19 @@ def parse_args(argv=None) -> argparse.Namespace:
         help="with --consolidate: the refit's gradient penalty (default 0: none)",
     )
     parser.add_argument(
+        "--consolidate-fresh",
+        action="store_true",
+        help="with --consolidate: refit from new discriminator weights, not the run's final ones",
+    )
+    parser.add_argument(
+        "--consolidate-noise",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="with --consolidate: a copy of every policy sample moved by noise of standard "
+        "deviation S is a further negative (default 0: none)",
+    )
+    parser.add_argument(
         "--ensemble",
         type=int,
         default=0,
@@ -625,6 +638,12 @@ def _check_options(args: argparse.Namespace) -> None:
         raise RunError("--consolidate must be 0 (none) or more steps")
     if args.consolidate_penalty < 0 or (args.consolidate_penalty and not args.consolidate):
         raise RunError("--consolidate-penalty is a weight >= 0 and goes with --consolidate")
+    if args.consolidate_noise < 0 or (args.consolidate_noise and not args.consolidate):
+        raise RunError(
+            "--consolidate-noise is a standard deviation >= 0 and goes with --consolidate"
+        )
+    if args.consolidate_fresh and not args.consolidate:
+        raise RunError("--consolidate-fresh goes with --consolidate STEPS")
     if args.ensemble < 0 or (args.ensemble and args.consolidate):
         raise RunError("--ensemble is a number of snapshots >= 0, and not with --consolidate")
     if args.across_seeds and (args.ensemble or args.consolidate):
@@ -675,7 +694,7 @@ def _opened(args: argparse.Namespace):
     chosen = Chosen(details={"consolidation": None, "ensemble": None, "across_seeds": None})
     if args.consolidate:
         chosen.parameters, chosen.details["consolidation"] = consolidated(
-            run, seeds, args.consolidate, args.consolidate_penalty
+            run, seeds, refit_of(args)
         )
     if args.ensemble:
         chosen.parameters, iterations = ensemble_parameters(run, seeds, args.ensemble)
@@ -799,9 +818,10 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
 
 
 def default_name(args) -> str:
-    """``reoptimize[-seed-S][-rl-R][-it-N][-gamma-G][-snapshot-ITER][-consolidated-STEPS]
-    [-ensemble-N][-across-seeds][-FORM][-env-...].json``: a check of one seed, or at another
-    budget, does not overwrite the check of every seed at the env's budget."""
+    """``reoptimize[-seed-S][-rl-R][-it-N][-gamma-G][-snapshot-ITER][-consolidated-STEPS
+    [-penalty-W][-fresh][-noise-S]][-ensemble-N][-across-seeds][-FORM][-env-...].json``: a
+    check of one seed, or at another budget, does not overwrite the check of every seed at the
+    env's budget."""
     parts = ["reoptimize"]
     if args.seed is not None:
         parts.append(f"seed-{args.seed}")
@@ -817,6 +837,10 @@ def default_name(args) -> str:
         parts.append(f"consolidated-{args.consolidate}")
     if args.consolidate_penalty:
         parts.append(f"penalty-{args.consolidate_penalty:g}")
+    if args.consolidate_fresh:
+        parts.append("fresh")
+    if args.consolidate_noise:
+        parts.append(f"noise-{args.consolidate_noise:g}")
     if args.ensemble:
         parts.append(f"ensemble-{args.ensemble}")
     if args.across_seeds:
@@ -828,7 +852,19 @@ def default_name(args) -> str:
     return "-".join(parts) + ".json"
 
 
-def consolidated(run, seeds: list[int], steps: int, gradient_penalty: float = 0.0):
+def refit_of(args):
+    """The :class:`~emgail_jax.host.consolidation.Refit` the ``--consolidate*`` options ask for."""
+    from emgail_jax.host.consolidation import Refit
+
+    return Refit(
+        steps=args.consolidate,
+        gradient_penalty=args.consolidate_penalty,
+        fresh=args.consolidate_fresh,
+        support_noise=args.consolidate_noise,
+    )
+
+
+def consolidated(run, seeds: list[int], refit):
     """Every seed's consolidated reward parameters and the refit's losses."""
     import jax
 
@@ -837,11 +873,9 @@ def consolidated(run, seeds: list[int], steps: int, gradient_penalty: float = 0.
     parameters, metrics = [], []
     for seed in seeds:
         key = jax.random.PRNGKey(run.spec.first_seed + seed + 2000)
-        found, losses = consolidated_parameters(run, seed, steps, key, gradient_penalty)
+        found, losses = consolidated_parameters(run, seed, refit, key)
         parameters.append(found)
-        metrics.append(
-            {"run_seed": seed, "steps": steps, "gradient_penalty": gradient_penalty, **losses}
-        )
+        metrics.append({"run_seed": seed, **dataclasses.asdict(refit), **losses})
     return parameters, metrics
 
 

@@ -29,18 +29,58 @@ def test_samples_come_from_every_snapshot_up_to_the_networks_held(tiny_run, save
     assert only_first.shape[1] == b * t
 
 
+def same(a, b) -> bool:
+    leaves = zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True)
+    return all(np.array_equal(x, y) for x, y in leaves)
+
+
 def test_the_refit_lowers_the_loss_and_changes_only_the_discriminator(saved):
-    parameters, metrics = consolidation.consolidated_parameters(saved, 1, 30, jax.random.PRNGKey(0))
+    refit = consolidation.Refit(steps=30)
+    parameters, metrics = consolidation.consolidated_parameters(
+        saved, 1, refit, jax.random.PRNGKey(0)
+    )
     before, after = metrics["before"], metrics["after"]
     assert after["discriminator/loss"] < before["discriminator/loss"]
     assert after["discriminator/policy_d"] < before["discriminator/policy_d"]
     original = saved.reward_parameters(1)
-    same = lambda a, b: all(
-        np.array_equal(x, y) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True)
-    )
     assert same(parameters["normalizer"], original["normalizer"])
     assert same(parameters["posterior"], original["posterior"])
     assert not same(parameters["discriminator"], original["discriminator"])
+
+
+def test_a_fresh_refit_starts_from_an_undecided_discriminator(saved):
+    key = jax.random.PRNGKey(0)
+    refit = lambda **options: consolidation.consolidated_parameters(
+        saved, 0, consolidation.Refit(steps=30, **options), key
+    )
+    from_final, final_metrics = refit()
+    from_fresh, fresh_metrics = refit(fresh=True)
+    # New weights say about 0.5 everywhere before the refit; the run's final ones do not.
+    for side in ("expert_d", "policy_d"):
+        assert abs(fresh_metrics["before"][f"discriminator/{side}"] - 0.5) < 0.1
+    assert (
+        fresh_metrics["before"]["discriminator/loss"]
+        != final_metrics["before"]["discriminator/loss"]
+    )
+    assert (
+        fresh_metrics["after"]["discriminator/loss"] < fresh_metrics["before"]["discriminator/loss"]
+    )
+    assert not same(from_fresh["discriminator"], from_final["discriminator"])
+
+
+def test_noisy_negatives_change_the_refit_and_not_the_samples(saved):
+    key = jax.random.PRNGKey(0)
+    plain, plain_metrics = consolidation.consolidated_parameters(
+        saved, 0, consolidation.Refit(steps=5), key
+    )
+    noisy, noisy_metrics = consolidation.consolidated_parameters(
+        saved, 0, consolidation.Refit(steps=5, support_noise=1.0), key
+    )
+    # The same starting weights score the demonstrations alike, and the extra negatives apart.
+    before = plain_metrics["before"], noisy_metrics["before"]
+    assert before[0]["discriminator/expert_d"] == pytest.approx(before[1]["discriminator/expert_d"])
+    assert before[0]["discriminator/policy_d"] != before[1]["discriminator/policy_d"]
+    assert not same(plain["discriminator"], noisy["discriminator"])
 
 
 def test_a_run_without_snapshots_is_a_clear_error(tiny_run, tmp_path):

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from emgail_jax import reoptimize
+from emgail_jax.host.consolidation import Refit
 from emgail_jax.method.metrics import reward_difference
 
 
@@ -177,6 +178,9 @@ def test_a_snapshot_is_reoptimised_on_its_own_networks(tiny_run, reoptimized):
         (["--iterations", "0"], "--iterations must be at least 1"),
         (["--rl-seed", "-1"], "--rl-seed must be 0 or more"),
         (["--consolidate", "-1"], "--consolidate must be 0 (none) or more steps"),
+        (["--consolidate-fresh"], "--consolidate-fresh goes with --consolidate STEPS"),
+        (["--consolidate", "5", "--consolidate-noise", "-1"], "--consolidate-noise is a"),
+        (["--consolidate-noise", "1"], "deviation >= 0 and goes with --consolidate"),
         (["--ensemble", "3"], "--ensemble 3 needs 3 snapshots up to iteration 4;"),
         (
             ["--ensemble", "2", "--snapshot", "2"],
@@ -334,3 +338,11 @@ def test_the_default_file_names_what_was_checked():
     assert reoptimize.default_name(args) == "reoptimize-it-1000-gamma-0.999.json"
     args = reoptimize.parse_args(["RUN", "--across-seeds", "--rl-seed", "1"])
     assert reoptimize.default_name(args) == "reoptimize-rl-1-across-seeds.json"
+    refit = ["--consolidate", "4000", "--consolidate-penalty", "10", "--consolidate-fresh"]
+    args = reoptimize.parse_args(["RUN", *refit, "--consolidate-noise", "1"])
+    assert reoptimize.default_name(args) == (
+        "reoptimize-consolidated-4000-penalty-10-fresh-noise-1.json"
+    )
+    assert reoptimize.refit_of(args) == Refit(
+        4000, gradient_penalty=10, fresh=True, support_noise=1
+    )

@@ -6,17 +6,28 @@ behaviour the policies left behind long ago (and any a fresh agent may find) can
 than the demonstrations. Refitting against all the run's policies at once is one way to take
 that away (the issue's "consolidated reward"); it changes nothing in training: it reads the
 snapshots (``run --snapshot-every``) after the run.
+
+The refit may also start from fresh discriminator weights rather than the final ones, and see
+a noisy copy of every policy sample as a further negative: a reward learnt in one go against
+the run's whole history, with the smoothing training may not afford (a penalty strong enough to
+generalise the reward can cost the clustering; docs/rewards-that-reoptimise.md).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import jax
 import numpy as np
 
 from emgail_jax.host import checkpoints
 from emgail_jax.method import normalizer as obs_norm
+from emgail_jax.method.batches import NormalizedBatch
 from emgail_jax.method.discriminator import discriminator_update
+from emgail_jax.method.optim import Learner
 from emgail_jax.method.rollout import batch_reset, intention_major
+from emgail_jax.method.skeleton import intention_rows
+from emgail_jax.method.support import with_support_negatives
 from emgail_jax.method.training import (
     RunData,
     make_optimizers,
@@ -24,6 +35,21 @@ from emgail_jax.method.training import (
     seed_state,
     training_env,
 )
+
+
+@dataclass(frozen=True)
+class Refit:
+    """How the discriminator is refitted: ``steps`` full-batch Adam steps (the run's optimiser
+    and learning rate) with a zero-centred gradient penalty of weight ``gradient_penalty``,
+    from the run's final weights or, ``fresh``, from new ones; ``support_noise`` > 0 adds a
+    copy of every policy sample moved by Gaussian noise of that standard deviation (in the
+    normalised observation's units and the action's own: the M-step's
+    :mod:`~emgail_jax.method.support` negatives, drawn once)."""
+
+    steps: int
+    gradient_penalty: float = 0.0
+    fresh: bool = False
+    support_noise: float = 0.0
 
 
 def snapshot_policy_samples(run, seed: int, key: jax.Array, iterations=None):
@@ -65,42 +91,53 @@ def snapshot_policy_samples(run, seed: int, key: jax.Array, iterations=None):
     return np.concatenate(obs, 1), np.concatenate(executed, 1)
 
 
-def consolidated_parameters(
-    run, seed: int, steps: int, key: jax.Array, gradient_penalty: float = 0.0
-) -> tuple[dict, dict]:
+def consolidated_parameters(run, seed: int, refit: Refit, key: jax.Array) -> tuple[dict, dict]:
     """``(reward parameters, metrics)``: :meth:`SavedRun.reward_parameters` of ``seed`` with
-    its discriminator trained ``steps`` more full-batch steps (the run's optimiser and
-    learning rate, from its final state) on the expert pairs weighted by the final
-    responsibilities against the policy samples of every snapshot, with the M-step's gradient
-    penalty of weight ``gradient_penalty``; the metrics are those of the M-step's loss before
-    and after."""
+    its discriminator refitted as ``refit`` says on the expert pairs weighted by the final
+    responsibilities against the policy samples of every snapshot; the metrics are those of
+    the M-step's loss before and after."""
+    # The samples keep ``key`` itself, so a refit without the newer options draws what it did.
+    key_init, key_noise = jax.random.fold_in(key, 1), jax.random.fold_in(key, 2)
     parameters = run.reward_parameters(seed)
     state = run.seed_state(seed)
     algorithm, config, k = run.algorithm, run.config, run.num_intentions
     pairs = run.demonstration_pairs
     obs, executed = snapshot_policy_samples(run, seed, key)
     normalize = lambda x: obs_norm.normalize(state.normalizer, x, config.method.networks.obs_clip)
+    seen = NormalizedBatch(
+        normalizer=state.normalizer,
+        obs=normalize(obs),
+        executed=executed,
+        expert_obs=normalize(pairs.observations),
+        expert_actions=pairs.actions,
+    )
+    if refit.support_noise:
+        seen = with_support_negatives(seen, key_noise, refit.support_noise)
     if algorithm.learns_posterior:
         gamma = np.asarray(run.responsibilities(seed).gamma)
     else:
         gamma = np.ones((pairs.observations.shape[0], k))
-    own = np.broadcast_to(np.arange(k)[:, None], obs.shape[:2])
     batch = dict(
-        expert_obs=normalize(pairs.observations),
-        expert_actions=pairs.actions,
+        expert_obs=seen.expert_obs,
+        expert_actions=seen.expert_actions,
         expert_weights=algorithm.expert_weights(gamma),
         conditions=algorithm.discriminator_conditions(k),
-        policy_obs=normalize(obs),
-        policy_actions=executed,
-        policy_conditions=algorithm.discriminator_condition(own, k),
-        gradient_penalty=gradient_penalty,
+        policy_obs=seen.obs,
+        policy_actions=seen.executed,
+        policy_conditions=algorithm.discriminator_condition(seen.own_intention(), k),
+        gradient_penalty=refit.gradient_penalty,
     )
     apply = run.networks.discriminator.apply
     optimizer = make_optimizers(config.method).discriminator
-    fit = jax.jit(lambda learner: discriminator_update(apply, optimizer, learner, steps, **batch))
-    trained, before = fit(state.discriminator)
-    _, after = jax.jit(lambda learner: discriminator_update(apply, optimizer, learner, 1, **batch))(
-        trained
-    )
+    start = state.discriminator
+    if refit.fresh:
+        condition = algorithm.discriminator_condition(intention_rows((1,)), k)
+        weights = run.networks.discriminator.init(
+            key_init, pairs.observations[:1], pairs.actions[:1], condition
+        )
+        start = Learner.create(weights, optimizer)
+    fit = lambda learner, steps: discriminator_update(apply, optimizer, learner, steps, **batch)
+    trained, before = jax.jit(fit, static_argnums=1)(start, refit.steps)
+    _, after = jax.jit(fit, static_argnums=1)(trained, 1)
     metrics = {"before": jax.device_get(before), "after": jax.device_get(after)}
     return {**parameters, "discriminator": trained.params}, metrics
