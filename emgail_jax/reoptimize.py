@@ -585,6 +585,14 @@ def parse_args(argv=None) -> argparse.Namespace:
         "deviation S is a further negative (default 0: none)",
     )
     parser.add_argument(
+        "--consolidate-batch",
+        type=int,
+        default=0,
+        metavar="M",
+        help="with --consolidate: every step sees M samples per intention drawn anew from the "
+        "snapshots' (default 0: all of them)",
+    )
+    parser.add_argument(
         "--ensemble",
         type=int,
         default=0,
@@ -641,6 +649,10 @@ def _check_options(args: argparse.Namespace) -> None:
     if args.consolidate_noise < 0 or (args.consolidate_noise and not args.consolidate):
         raise RunError(
             "--consolidate-noise is a standard deviation >= 0 and goes with --consolidate"
+        )
+    if args.consolidate_batch < 0 or (args.consolidate_batch and not args.consolidate):
+        raise RunError(
+            "--consolidate-batch is a number of samples >= 0 and goes with --consolidate"
         )
     if args.consolidate_fresh and not args.consolidate:
         raise RunError("--consolidate-fresh goes with --consolidate STEPS")
@@ -819,7 +831,7 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
 
 def default_name(args) -> str:
     """``reoptimize[-seed-S][-rl-R][-it-N][-gamma-G][-snapshot-ITER][-consolidated-STEPS
-    [-penalty-W][-fresh][-noise-S]][-ensemble-N][-across-seeds][-FORM][-env-...].json``: a
+    [-penalty-W][-fresh][-noise-S][-batch-M]][-ensemble-N][-across-seeds][-FORM][-env-...].json``: a
     check of one seed, or at another budget, does not overwrite the check of every seed at the
     env's budget."""
     parts = ["reoptimize"]
@@ -841,6 +853,8 @@ def default_name(args) -> str:
         parts.append("fresh")
     if args.consolidate_noise:
         parts.append(f"noise-{args.consolidate_noise:g}")
+    if args.consolidate_batch:
+        parts.append(f"batch-{args.consolidate_batch}")
     if args.ensemble:
         parts.append(f"ensemble-{args.ensemble}")
     if args.across_seeds:
@@ -861,6 +875,7 @@ def refit_of(args):
         gradient_penalty=args.consolidate_penalty,
         fresh=args.consolidate_fresh,
         support_noise=args.consolidate_noise,
+        batch=args.consolidate_batch,
     )
 
 

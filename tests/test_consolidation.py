@@ -1,5 +1,6 @@
 """The consolidated reward: the discriminator refitted against every snapshot's policy."""
 
+import dataclasses
 import shutil
 
 import jax
@@ -91,3 +92,14 @@ def test_a_run_without_snapshots_is_a_clear_error(tiny_run, tmp_path):
     shutil.rmtree(copy / "snapshots")  # as a run with --snapshot-every 0 leaves it
     with pytest.raises(CheckpointError, match="kept no snapshots"):
         consolidation.snapshot_policy_samples(SavedRun.open(str(copy)), 0, jax.random.PRNGKey(0))
+
+
+def test_a_refit_in_minibatches_draws_from_every_snapshot(saved):
+    key = jax.random.PRNGKey(0)
+    refit = consolidation.Refit(steps=20, fresh=True, support_noise=1.0, batch=7)
+    parameters, metrics = consolidation.consolidated_parameters(saved, 0, refit, key)
+    whole, _ = consolidation.consolidated_parameters(
+        saved, 0, dataclasses.replace(refit, batch=0), key
+    )
+    assert metrics["after"]["discriminator/loss"] < metrics["before"]["discriminator/loss"]
+    assert not same(parameters["discriminator"], whole["discriminator"])

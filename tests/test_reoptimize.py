@@ -181,6 +181,7 @@ def test_a_snapshot_is_reoptimised_on_its_own_networks(tiny_run, reoptimized):
         (["--consolidate-fresh"], "--consolidate-fresh goes with --consolidate STEPS"),
         (["--consolidate", "5", "--consolidate-noise", "-1"], "--consolidate-noise is a"),
         (["--consolidate-noise", "1"], "deviation >= 0 and goes with --consolidate"),
+        (["--consolidate-batch", "100"], "--consolidate-batch is a number of samples >= 0"),
         (["--ensemble", "3"], "--ensemble 3 needs 3 snapshots up to iteration 4;"),
         (
             ["--ensemble", "2", "--snapshot", "2"],
@@ -346,3 +347,6 @@ def test_the_default_file_names_what_was_checked():
     assert reoptimize.refit_of(args) == Refit(
         4000, gradient_penalty=10, fresh=True, support_noise=1
     )
+    args = reoptimize.parse_args(["RUN", *refit, "--consolidate-batch", "2500"])
+    name = "reoptimize-consolidated-4000-penalty-10-fresh-batch-2500.json"
+    assert reoptimize.default_name(args) == name and reoptimize.refit_of(args).batch == 2500

@@ -44,12 +44,16 @@ class Refit:
     from the run's final weights or, ``fresh``, from new ones; ``support_noise`` > 0 adds a
     copy of every policy sample moved by Gaussian noise of that standard deviation (in the
     normalised observation's units and the action's own: the M-step's
-    :mod:`~emgail_jax.method.support` negatives, drawn once)."""
+    :mod:`~emgail_jax.method.support` negatives). Every step sees every sample (and one draw
+    of the noisy copies) or, with ``batch`` > 0, that many samples per intention drawn anew
+    from the snapshots' pool (and their noisy copies), as training's M-step sees one
+    iteration's batch; the demonstrations are whole in every step."""
 
     steps: int
     gradient_penalty: float = 0.0
     fresh: bool = False
     support_noise: float = 0.0
+    batch: int = 0
 
 
 def snapshot_policy_samples(run, seed: int, key: jax.Array, iterations=None):
@@ -95,40 +99,69 @@ def consolidated_parameters(run, seed: int, refit: Refit, key: jax.Array) -> tup
     """``(reward parameters, metrics)``: :meth:`SavedRun.reward_parameters` of ``seed`` with
     its discriminator refitted as ``refit`` says on the expert pairs weighted by the final
     responsibilities against the policy samples of every snapshot; the metrics are those of
-    the M-step's loss before and after."""
+    the M-step's loss before (on the first step's batch) and after (on every sample)."""
     # The samples keep ``key`` itself, so a refit without the newer options draws what it did.
-    key_init, key_noise = jax.random.fold_in(key, 1), jax.random.fold_in(key, 2)
+    key_init, key_noise, key_draws = (jax.random.fold_in(key, i) for i in (1, 2, 3))
     parameters = run.reward_parameters(seed)
     state = run.seed_state(seed)
     algorithm, config, k = run.algorithm, run.config, run.num_intentions
     pairs = run.demonstration_pairs
     obs, executed = snapshot_policy_samples(run, seed, key)
     normalize = lambda x: obs_norm.normalize(state.normalizer, x, config.method.networks.obs_clip)
-    seen = NormalizedBatch(
+    pool = NormalizedBatch(
         normalizer=state.normalizer,
         obs=normalize(obs),
         executed=executed,
         expert_obs=normalize(pairs.observations),
         expert_actions=pairs.actions,
     )
-    if refit.support_noise:
-        seen = with_support_negatives(seen, key_noise, refit.support_noise)
     if algorithm.learns_posterior:
         gamma = np.asarray(run.responsibilities(seed).gamma)
     else:
         gamma = np.ones((pairs.observations.shape[0], k))
-    batch = dict(
-        expert_obs=seen.expert_obs,
-        expert_actions=seen.expert_actions,
-        expert_weights=algorithm.expert_weights(gamma),
-        conditions=algorithm.discriminator_conditions(k),
-        policy_obs=seen.obs,
-        policy_actions=seen.executed,
-        policy_conditions=algorithm.discriminator_condition(seen.own_intention(), k),
-        gradient_penalty=refit.gradient_penalty,
-    )
+
+    def with_noise(seen: NormalizedBatch, key: jax.Array) -> NormalizedBatch:
+        if not refit.support_noise:
+            return seen
+        return with_support_negatives(seen, key, refit.support_noise)
+
+    def loss_inputs(seen: NormalizedBatch) -> dict:
+        return dict(
+            expert_obs=seen.expert_obs,
+            expert_actions=seen.expert_actions,
+            expert_weights=algorithm.expert_weights(gamma),
+            conditions=algorithm.discriminator_conditions(k),
+            policy_obs=seen.obs,
+            policy_actions=seen.executed,
+            policy_conditions=algorithm.discriminator_condition(seen.own_intention(), k),
+            gradient_penalty=refit.gradient_penalty,
+        )
+
+    def drawn(pool: NormalizedBatch, key: jax.Array) -> NormalizedBatch:
+        """``refit.batch`` samples of each intention, drawn uniformly from the pool."""
+        key_draw, key_moved = jax.random.split(key)
+        rows = jax.random.randint(key_draw, (refit.batch,), 0, pool.obs.shape[1])
+        seen = pool.replace(obs=pool.obs[:, rows], executed=pool.executed[:, rows])
+        return with_noise(seen, key_moved)
+
     apply = run.networks.discriminator.apply
     optimizer = make_optimizers(config.method).discriminator
+    fit = lambda learner, steps, seen: discriminator_update(
+        apply, optimizer, learner, steps, **loss_inputs(seen)
+    )
+
+    # The pool is an argument, not a constant the compiler would fold into the program.
+    @jax.jit
+    def refitted(learner: Learner, pool: NormalizedBatch) -> tuple[Learner, dict]:
+        if not refit.batch:
+            return fit(learner, refit.steps, with_noise(pool, key_noise))
+
+        def step(learner, key):
+            return fit(learner, 1, drawn(pool, key))
+
+        learner, metrics = jax.lax.scan(step, learner, jax.random.split(key_draws, refit.steps))
+        return learner, jax.tree.map(lambda m: m[0], metrics)
+
     start = state.discriminator
     if refit.fresh:
         condition = algorithm.discriminator_condition(intention_rows((1,)), k)
@@ -136,8 +169,9 @@ def consolidated_parameters(run, seed: int, refit: Refit, key: jax.Array) -> tup
             key_init, pairs.observations[:1], pairs.actions[:1], condition
         )
         start = Learner.create(weights, optimizer)
-    fit = lambda learner, steps: discriminator_update(apply, optimizer, learner, steps, **batch)
-    trained, before = jax.jit(fit, static_argnums=1)(start, refit.steps)
-    _, after = jax.jit(fit, static_argnums=1)(trained, 1)
+    trained, before = refitted(start, pool)
+    _, after = jax.jit(lambda learner, pool: fit(learner, 1, with_noise(pool, key_noise)))(
+        trained, pool
+    )
     metrics = {"before": jax.device_get(before), "after": jax.device_get(after)}
     return {**parameters, "discriminator": trained.params}, metrics
