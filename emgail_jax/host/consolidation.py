@@ -150,17 +150,20 @@ def consolidated_parameters(run, seed: int, refit: Refit, key: jax.Array) -> tup
         apply, optimizer, learner, steps, **loss_inputs(seen)
     )
 
-    # The pool is an argument, not a constant the compiler would fold into the program.
+    # The pool is an argument, not a constant the compiler would fold into the program; the
+    # loss after the refit is measured in the same program, compiled once.
     @jax.jit
-    def refitted(learner: Learner, pool: NormalizedBatch) -> tuple[Learner, dict]:
-        if not refit.batch:
-            return fit(learner, refit.steps, with_noise(pool, key_noise))
-
-        def step(learner, key):
-            return fit(learner, 1, drawn(pool, key))
-
-        learner, metrics = jax.lax.scan(step, learner, jax.random.split(key_draws, refit.steps))
-        return learner, jax.tree.map(lambda m: m[0], metrics)
+    def refitted(learner: Learner, pool: NormalizedBatch) -> tuple[Learner, dict, dict]:
+        whole = with_noise(pool, key_noise)
+        if refit.batch:
+            step = lambda learner, key: fit(learner, 1, drawn(pool, key))
+            keys = jax.random.split(key_draws, refit.steps)
+            learner, metrics = jax.lax.scan(step, learner, keys)
+            before = jax.tree.map(lambda m: m[0], metrics)
+        else:
+            learner, before = fit(learner, refit.steps, whole)
+        _, after = fit(learner, 1, whole)
+        return learner, before, after
 
     start = state.discriminator
     if refit.fresh:
@@ -169,9 +172,6 @@ def consolidated_parameters(run, seed: int, refit: Refit, key: jax.Array) -> tup
             key_init, pairs.observations[:1], pairs.actions[:1], condition
         )
         start = Learner.create(weights, optimizer)
-    trained, before = refitted(start, pool)
-    _, after = jax.jit(lambda learner, pool: fit(learner, 1, with_noise(pool, key_noise)))(
-        trained, pool
-    )
+    trained, before, after = refitted(start, pool)
     metrics = {"before": jax.device_get(before), "after": jax.device_get(after)}
     return {**parameters, "discriminator": trained.params}, metrics
