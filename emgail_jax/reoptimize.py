@@ -1,19 +1,21 @@
 """Is the learned reward a reward? Train fresh policies on it and measure their ERD (paper §5.2).
 
     python -m emgail_jax.reoptimize RUN_DIR [--seed S] [--rl-seed R] [--snapshot ITER]
-        [--ensemble N | --across-seeds] [--iterations N] [--gamma G] [--no-baseline]
+        [--ensemble N | --across-seeds | --consolidate STEPS [--consolidate-*]]
+        [--reward-form FORM] [--iterations N] [--gamma G] [--no-baseline]
         [--cache DIR] [--env-set KEY=FACTOR ...] [--out PATH]
 
 For every run seed (or ``--seed S`` alone) and every learned intention, a new policy is trained
 from scratch with TRPO on the frozen pseudo-reward R_i(s, a) of that seed (the run's final
 networks, or those of the snapshot of ``--snapshot ITER``; with ``--ensemble N`` the mean of
 R_i over the last N snapshots up to them; with ``--across-seeds`` the mean of every run seed's
-R_i, the seeds' intentions aligned by the demonstrations they hold), never seeing the true
-reward; the seeds' and intentions' policies are vmapped in one program (``--rl-seed R``:
-another draw of their initialisation and samples, to tell a reward that fails from a search
-that did). Their deterministic episodes (as many per iteration as training evaluates,
-``num_envs``) are scored
-under the true rewards; the ERD matches each true intention to the learned one the run itself
+R_i, the seeds' intentions aligned by the demonstrations they hold; with ``--consolidate`` each
+seed's discriminator refitted against every snapshot's policy, saved as ``RUN_DIR/rewards/NAME``
+for ``load_reward(RUN_DIR, refit=NAME)`` and reused by the next check that asks for it), never
+seeing the true reward; the seeds' and intentions' policies are vmapped in one program
+(``--rl-seed R``: another draw of their initialisation and samples, to tell a reward that fails
+from a search that did). Their deterministic episodes (as many per iteration as training
+evaluates, ``num_envs``) are scored under the true rewards; the ERD matches each true intention to the learned one the run itself
 matched it to (its jointly trained policies' matching at that iteration), one matching for
 every number reported. Each env's success measure (the experts' bars: velocity, upright, pitch
 turn, ball reached) is reported beside it, over the experts' 10 deterministic episodes.
@@ -687,7 +689,6 @@ def _opened(args: argparse.Namespace):
     for, and its consolidated or ensemble rewards if asked."""
     from emgail_jax.host.run_spec import RunError
     from emgail_jax.host.saved_run import SavedRun, across_seeds_reward
-    from emgail_jax.method.algorithms import make_algorithm
 
     _check_options(args)
     run = SavedRun.open(args.run_dir, snapshot=args.snapshot)
@@ -701,13 +702,14 @@ def _opened(args: argparse.Namespace):
             "an AIRL run's reward is g_i(s): --reward-form and --consolidate do not apply"
         )
     if args.reward_form is not None:
-        config = run.config
-        run.algorithm = make_algorithm(config.method.algo, config.info_weight, args.reward_form)
+        run = run.with_reward_form(args.reward_form)
     chosen = Chosen(details={"consolidation": None, "ensemble": None, "across_seeds": None})
     if args.consolidate:
+        name = "-".join(reward_parts(args))
         chosen.parameters, chosen.details["consolidation"] = consolidated(
-            run, seeds, refit_of(args)
+            run, seeds, refit_of(args), name, progress=not args.quiet
         )
+        chosen.details["saved_reward"] = name
     if args.ensemble:
         chosen.parameters, iterations = ensemble_parameters(run, seeds, args.ensemble)
         chosen.function = ensemble_reward(run.reward_function())
@@ -843,6 +845,17 @@ def default_name(args) -> str:
         parts.append(f"it-{args.iterations}")
     if args.gamma is not None:
         parts.append(f"gamma-{args.gamma:g}")
+    parts += reward_parts(args)
+    if args.env_set:
+        parts.append("env-" + "-".join(args.env_set))
+    return "-".join(parts) + ".json"
+
+
+def reward_parts(args) -> list[str]:
+    """The parts of :func:`default_name` that say which reward was checked: the snapshot, the
+    refit or ensemble, the reward form. A refit's parts (``consolidated-...``) name the
+    reward it saves (``RUN/rewards/NAME``)."""
+    parts = []
     if args.snapshot is not None:
         parts.append(f"snapshot-{args.snapshot}")
     if args.consolidate:
@@ -861,9 +874,7 @@ def default_name(args) -> str:
         parts.append("across-seeds")
     if args.reward_form:
         parts.append(args.reward_form)
-    if args.env_set:
-        parts.append("env-" + "-".join(args.env_set))
-    return "-".join(parts) + ".json"
+    return parts
 
 
 def refit_of(args):
@@ -879,19 +890,51 @@ def refit_of(args):
     )
 
 
-def consolidated(run, seeds: list[int], refit):
-    """Every seed's consolidated reward parameters and the refit's losses."""
+def consolidated(run, seeds: list[int], refit, name: str, progress: bool = True):
+    """Every seed's consolidated reward parameters and the refit's losses; each seed's refit is
+    read from the run's saved reward ``name`` when it was made before, and saved there when
+    not (:mod:`~emgail_jax.host.consolidation`)."""
     import jax
 
-    from emgail_jax.host.consolidation import consolidated_parameters
+    from emgail_jax.host import consolidation
+    from emgail_jax.host.run_spec import RunError
 
+    description = consolidation.refit_description(refit, run.algorithm.reward_form, run.snapshot)
+    saved_before = name in consolidation.saved_refits(run.run_dir)
+    if saved_before and consolidation.read_description(run.run_dir, name) != records_value(
+        description
+    ):
+        raise RunError(
+            f"the saved reward '{name}' of '{run.run_dir}' was refitted otherwise: "
+            "delete its directory under rewards/ to refit it"
+        )
     parameters, metrics = [], []
     for seed in seeds:
-        key = jax.random.PRNGKey(run.spec.first_seed + seed + 2000)
-        found, losses = consolidated_parameters(run, seed, refit, key)
+        own = run.reward_parameters(seed)
+        saved = consolidation.load_refitted(run.run_dir, name, seed, own["discriminator"])
+        if saved is not None:
+            losses = consolidation.read_losses(run.run_dir, name, seed)
+            found = {**own, "discriminator": saved}
+            if progress:
+                print(f"seed {seed}: the refitted reward '{name}' saved before, reused")
+        else:
+            key = jax.random.PRNGKey(run.spec.first_seed + seed + 2000)
+            found, losses = consolidation.consolidated_parameters(run, seed, refit, key)
+            consolidation.save_refitted(
+                run.run_dir, name, seed, found["discriminator"], description, losses
+            )
         parameters.append(found)
         metrics.append({"run_seed": seed, **dataclasses.asdict(refit), **losses})
     return parameters, metrics
+
+
+def records_value(value):
+    """``value`` as it reads back from JSON."""
+    import json
+
+    from emgail_jax.host import records
+
+    return json.loads(json.dumps(records.to_json_value(value)))
 
 
 if __name__ == "__main__":

@@ -103,3 +103,57 @@ def test_a_refit_in_minibatches_draws_from_every_snapshot(saved):
     )
     assert metrics["after"]["discriminator/loss"] < metrics["before"]["discriminator/loss"]
     assert not same(parameters["discriminator"], whole["discriminator"])
+
+
+@pytest.fixture
+def copied_run(tiny_run, tmp_path):
+    """A copy of the tiny run that a test may write rewards into."""
+    copy = tmp_path / "run"
+    shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("rewards"))
+    return copy
+
+
+def test_a_saved_refit_is_the_reward_load_reward_returns(copied_run):
+    import emgail_jax
+
+    run = SavedRun.open(str(copied_run))
+    refit = consolidation.Refit(steps=5, fresh=True)
+    parameters, losses = consolidation.consolidated_parameters(run, 1, refit, jax.random.PRNGKey(0))
+    description = consolidation.refit_description(refit, "log-d", None)
+    consolidation.save_refitted(
+        str(copied_run), "mine", 1, parameters["discriminator"], description, losses
+    )
+    assert consolidation.saved_refits(str(copied_run)) == ["mine"]
+    assert consolidation.read_losses(str(copied_run), "mine", 1)["after"]
+
+    pairs = run.demonstration_pairs
+    obs, actions = pairs.observations[:50], pairs.actions[:50]
+    expected = run.with_reward_form("log-d").reward_function()(parameters, obs, actions, 1)
+    reward = emgail_jax.load_reward(str(copied_run), seed=1, refit="mine")
+    for read in (reward, jax.jit(reward)):
+        np.testing.assert_allclose(read(obs, actions, 1), expected, rtol=1e-6, atol=1e-6)
+    # log(D) is never positive; the run's own -log(1 - D) never negative: the form was kept.
+    assert np.all(np.asarray(expected) <= 0)
+    own = emgail_jax.load_reward(str(copied_run), seed=1)(obs, actions, 1)
+    assert not np.allclose(own, expected)
+
+
+def test_a_saved_refit_refuses_what_it_cannot_give(copied_run):
+    from emgail_jax.host.checkpoints import CheckpointError
+    from emgail_jax.host.run_spec import RunError
+
+    run = SavedRun.open(str(copied_run))
+    with pytest.raises(CheckpointError, match=r"saved no refitted reward 'mine' .saved: none"):
+        run.reward(0, refit="mine")
+    discriminator = run.reward_parameters(0)["discriminator"]
+    description = consolidation.refit_description(consolidation.Refit(steps=5), "gail", None)
+    consolidation.save_refitted(str(copied_run), "mine", 0, discriminator, description, {})
+    with pytest.raises(RunError, match=r"seed 1 .* has no refitted reward 'mine'.*--seed 1"):
+        run.reward(1, refit="mine")
+    with pytest.raises(RunError, match="not a refitted one"):
+        run.reward(0, across_seeds=True, refit="mine")
+    with pytest.raises(RunError, match="refitted from snapshot None; this run was opened at 2"):
+        SavedRun.open(str(copied_run), snapshot=2).reward(0, refit="mine")
+    (copied_run / "rewards" / "mine" / "seed-0.msgpack").write_bytes(b"not a reward")
+    with pytest.raises(CheckpointError, match="cannot be read"):
+        run.reward(0, refit="mine")

@@ -4,6 +4,7 @@ one matching, the success measures, snapshots."""
 import dataclasses
 import json
 
+import jax
 import numpy as np
 import pytest
 
@@ -283,6 +284,33 @@ def test_a_consolidated_reward_in_the_logit_form(tiny_run, reoptimized):
     assert all(c["steps"] == 5 for c in result["consolidation"])
     earned = result["per_seed"][0]["learned_reward_per_step"]["demonstrations"]
     assert earned != first["per_seed"][0]["learned_reward_per_step"]["demonstrations"]
+    assert result["saved_reward"] == "consolidated-5-logit"
+    saved = sorted(p.name for p in (tiny_run / "rewards" / "consolidated-5-logit").iterdir())
+    seeds = ["seed-0.json", "seed-0.msgpack", "seed-1.json", "seed-1.msgpack"]
+    assert saved == ["reward.json", *seeds]
+
+
+def test_a_refit_is_saved_once_and_reused(tiny_run, tmp_path, capsys):
+    import shutil
+
+    from emgail_jax.host.run_spec import RunError
+    from emgail_jax.host.saved_run import SavedRun
+
+    copy = tmp_path / "run"
+    shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("rewards"))
+    run = SavedRun.open(str(copy))
+    first, first_losses = reoptimize.consolidated(run, [1], Refit(steps=3), "consolidated-3")
+    assert "reused" not in capsys.readouterr().out
+    again, again_losses = reoptimize.consolidated(run, [1], Refit(steps=3), "consolidated-3")
+    assert "seed 1: the refitted reward 'consolidated-3' saved before, reused" in (
+        capsys.readouterr().out
+    )
+    for a, b in zip(jax.tree.leaves(first), jax.tree.leaves(again), strict=True):
+        np.testing.assert_array_equal(a, b)
+    loss = lambda losses: losses[0]["after"]["discriminator/loss"]
+    assert loss(again_losses) == pytest.approx(float(loss(first_losses)))
+    with pytest.raises(RunError, match=r"'consolidated-3' .* was refitted otherwise"):
+        reoptimize.consolidated(run, [1], Refit(steps=4), "consolidated-3")
 
 
 @pytest.mark.slow  # a tiny swimmer run and its re-optimisation in a variant: two compiles

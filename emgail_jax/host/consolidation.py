@@ -7,6 +7,11 @@ than the demonstrations. Refitting against all the run's policies at once is one
 that away (the issue's "consolidated reward"); it changes nothing in training: it reads the
 snapshots (``run --snapshot-every``) after the run.
 
+A refitted reward is saved in the run directory, ``RUN/rewards/NAME/seed-S.msgpack`` (the
+discriminator's parameters) beside ``reward.json`` (the refit's options and the reward form it
+is read with), so that ``load_reward(RUN, refit=NAME)`` returns it and a later check (another
+RL seed, a changed env) reuses it rather than refitting.
+
 The refit may also start from fresh discriminator weights rather than the final ones, and see
 a noisy copy of every policy sample as a further negative: a reward learnt in one go against
 the run's whole history, with the smoothing training may not afford (a penalty strong enough to
@@ -15,12 +20,14 @@ generalise the reward can cost the clustering; docs/rewards-that-reoptimise.md).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import json
+import os
+from dataclasses import asdict, dataclass
 
 import jax
 import numpy as np
 
-from emgail_jax.host import checkpoints
+from emgail_jax.host import checkpoints, records
 from emgail_jax.method import normalizer as obs_norm
 from emgail_jax.method.batches import NormalizedBatch
 from emgail_jax.method.discriminator import discriminator_update
@@ -175,3 +182,92 @@ def consolidated_parameters(run, seed: int, refit: Refit, key: jax.Array) -> tup
     trained, before, after = refitted(start, pool)
     metrics = {"before": jax.device_get(before), "after": jax.device_get(after)}
     return {**parameters, "discriminator": trained.params}, metrics
+
+
+def rewards_directory(run_dir: str) -> str:
+    return os.path.join(os.path.abspath(run_dir), "rewards")
+
+
+def saved_refits(run_dir: str) -> list[str]:
+    """The names of the refitted rewards saved in ``run_dir``, in order."""
+    root = rewards_directory(run_dir)
+    if not os.path.isdir(root):
+        return []
+    names = os.listdir(root)
+    return sorted(n for n in names if os.path.exists(os.path.join(root, n, "reward.json")))
+
+
+def _seed_path(run_dir: str, name: str, seed: int) -> str:
+    return os.path.join(rewards_directory(run_dir), name, f"seed-{seed}.msgpack")
+
+
+def save_refitted(
+    run_dir: str, name: str, seed: int, discriminator, description: dict, losses: dict
+) -> None:
+    """Writes ``seed``'s refitted discriminator parameters as the saved reward ``name``, with
+    ``description`` (``reward.json``: the refit's options, the reward form, the snapshot) and
+    the refit's ``losses`` (``seed-S.json``); each file renamed into place once written."""
+    from flax import serialization
+
+    directory = os.path.join(rewards_directory(run_dir), name)
+    os.makedirs(directory, exist_ok=True)
+    path = _seed_path(run_dir, name, seed)
+    with open(path + ".tmp", "wb") as f:
+        f.write(serialization.to_bytes(jax.device_get(discriminator)))
+    os.replace(path + ".tmp", path)
+    records.write_json(path.removesuffix(".msgpack") + ".json", losses)
+    records.write_json(os.path.join(directory, "reward.json"), description)
+
+
+def read_losses(run_dir: str, name: str, seed: int) -> dict:
+    """The refit's losses of ``seed`` saved with the reward ``name`` (empty if none)."""
+    path = _seed_path(run_dir, name, seed).removesuffix(".msgpack") + ".json"
+    if not os.path.exists(path):
+        return {}
+    with open(path) as f:
+        return json.load(f)
+
+
+def refit_description(refit: Refit, reward_form: str, snapshot: int | None) -> dict:
+    """What ``reward.json`` says of a saved refit."""
+    return {"refit": asdict(refit), "reward_form": reward_form, "snapshot": snapshot}
+
+
+def read_description(run_dir: str, name: str) -> dict:
+    """The ``reward.json`` of the saved reward ``name``.
+
+    Raises:
+      CheckpointError: ``run_dir`` saved no reward of that name (the message lists those it did).
+    """
+    path = os.path.join(rewards_directory(run_dir), name, "reward.json")
+    if not os.path.exists(path):
+        saved = ", ".join(saved_refits(run_dir)) or "none; reoptimize --consolidate saves one"
+        raise checkpoints.CheckpointError(
+            f"'{run_dir}' saved no refitted reward '{name}' (saved: {saved})"
+        )
+    with open(path) as f:
+        return json.load(f)
+
+
+def load_refitted(run_dir: str, name: str, seed: int, template):
+    """``seed``'s refitted discriminator parameters of the saved reward ``name``, in the
+    structure of ``template`` (the run's discriminator parameters of one seed); None when that
+    seed was not refitted under that name.
+
+    Raises:
+      CheckpointError: a file that cannot be read or does not fit the run's discriminator.
+    """
+    from flax import serialization
+
+    path = _seed_path(run_dir, name, seed)
+    if not os.path.exists(path):
+        return None
+    target = jax.tree.map(np.asarray, template)
+    try:
+        with open(path, "rb") as f:
+            loaded = serialization.from_bytes(target, f.read())
+    except Exception as error:  # msgpack and flax raise many types for foreign files
+        raise checkpoints.CheckpointError(f"the reward '{path}' cannot be read ({error})") from None
+    if jax.tree.map(np.shape, loaded) != jax.tree.map(np.shape, target):
+        raise checkpoints.CheckpointError(f"the reward '{path}' does not fit this run's networks")
+    return loaded

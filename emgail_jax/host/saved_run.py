@@ -182,8 +182,40 @@ class SavedRun:
         run = jax.jit(lambda key: episodes(env, act, key, k, count, traces))
         return jax.device_get(run(key))
 
+    def with_reward_form(self, form: str) -> SavedRun:
+        """This run with its discriminator read as the reward ``form`` (``REWARD_FORMS``)."""
+        method, weight = self.config.method, self.config.info_weight
+        return dataclasses.replace(self, algorithm=make_algorithm(method.algo, weight, form))
+
+    def refitted(self, name: str, seed: int = 0) -> tuple[SavedRun, dict]:
+        """``(run, parameters)``: the saved refitted reward ``name`` of ``seed``
+        (``reoptimize --consolidate``, :mod:`~emgail_jax.host.consolidation`) as
+        :meth:`reward_parameters`, and this run read with the reward form it was checked with.
+
+        Raises:
+          RunError: the refit was made from another snapshot, or not for ``seed``.
+          CheckpointError: no saved reward ``name``, or one that does not fit.
+        """
+        from emgail_jax.host import consolidation
+
+        description = consolidation.read_description(self.run_dir, name)
+        if description["snapshot"] != self.snapshot:
+            raise RunError(
+                f"the reward '{name}' was refitted from snapshot {description['snapshot']}; "
+                f"this run was opened at {self.snapshot}"
+            )
+        own = self.reward_parameters(seed)
+        saved = consolidation.load_refitted(self.run_dir, name, seed, own["discriminator"])
+        if saved is None:
+            raise RunError(
+                f"seed {seed} of '{self.run_dir}' has no refitted reward '{name}': "
+                f"reoptimize it with --seed {seed} and the same --consolidate options"
+            )
+        run = self.with_reward_form(description["reward_form"])
+        return run, {**own, "discriminator": saved}
+
     def reward(
-        self, seed: int = 0, across_seeds: bool = False
+        self, seed: int = 0, across_seeds: bool = False, refit: str | None = None
     ) -> Callable[[jax.Array, jax.Array, jax.Array], jax.Array]:
         """The learned pseudo-reward ``R_i(obs [..., D], action [..., A], i [...]) -> [...]``:
         -log(1 - D(s, a, i)) for EM-GAIL (eq. 20), plus lambda log P(i | s, a) for
@@ -193,8 +225,14 @@ class SavedRun:
         g_i(s) (g(s) for GAIL), the action unread: the reward AIRL claims transfers, not the
         f - log pi its own policies were trained on (which needs s' and the policy).
         ``across_seeds``: the mean of every seed's reward, in ``seed``'s intentions
-        (:func:`across_seeds_reward`)."""
-        if across_seeds:
+        (:func:`across_seeds_reward`). ``refit``: the name of a saved refitted reward
+        (:meth:`refitted`) in place of the run's own."""
+        if refit is not None:
+            if across_seeds:
+                raise RunError("across_seeds averages the run's own rewards, not a refitted one")
+            run, parameters = self.refitted(refit, seed)
+            reward = run.reward_function()
+        elif across_seeds:
             parameters = self.across_seeds_parameters(seed)
             reward = across_seeds_reward(self.reward_function())
         else:
@@ -350,10 +388,17 @@ def load_policy(run_dir: str, seed: int = 0):
     return SavedRun.open(run_dir).policy(seed)
 
 
-def load_reward(run_dir: str, seed: int = 0, across_seeds: bool = False):
+def load_reward(run_dir: str, seed: int = 0, across_seeds: bool = False, refit: str | None = None):
     """The learned reward of a run: jittable ``R(obs, action, intention) -> reward``; with
-    ``across_seeds``, the mean of every run seed's, named as ``seed``'s intentions."""
-    return SavedRun.open(run_dir).reward(seed, across_seeds)
+    ``across_seeds``, the mean of every run seed's, named as ``seed``'s intentions; with
+    ``refit``, the refitted reward of that name that ``reoptimize --consolidate`` saved under
+    ``RUN/rewards/`` (``emgail_jax.host.consolidation.saved_refits`` lists them)."""
+    snapshot = None
+    if refit is not None:
+        from emgail_jax.host.consolidation import read_description
+
+        snapshot = read_description(run_dir, refit)["snapshot"]
+    return SavedRun.open(run_dir, snapshot=snapshot).reward(seed, across_seeds, refit)
 
 
 def stacked(trees: list):
