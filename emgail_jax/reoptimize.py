@@ -15,10 +15,11 @@ for ``load_reward(RUN_DIR, refit=NAME)`` and reused by the next check that asks 
 seeing the true reward; the seeds' and intentions' policies are vmapped in one program
 (``--rl-seed R``: another draw of their initialisation and samples, to tell a reward that fails
 from a search that did). Their deterministic episodes (as many per iteration as training
-evaluates, ``num_envs``) are scored under the true rewards; the ERD matches each true intention to the learned one the run itself
-matched it to (its jointly trained policies' matching at that iteration), one matching for
-every number reported. Each env's success measure (the experts' bars: velocity, upright, pitch
-turn, ball reached) is reported beside it, over the experts' 10 deterministic episodes.
+evaluates, ``num_envs``) are scored under the true rewards; the ERD matches each true intention
+to the learned one the run itself matched it to (its jointly trained policies' matching at that
+iteration), one matching for every number reported. Each env's success measure (the experts'
+bars: velocity, upright, pitch turn, ball reached) is reported beside it, over the experts' 10
+deterministic episodes.
 
 Every algorithm's run is checked on the reward its own policies were trained on
 (:meth:`~emgail_jax.host.saved_run.SavedRun.reward_function`): EM-GAIL's R_i = -log(1 - D(s, a,

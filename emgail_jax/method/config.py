@@ -381,7 +381,9 @@ class EStepConfig(_Layer):
     steps: int = 20
     reseed: bool = True
     reseed_patience: int = 10
-    reseed_window: int = 10
+    # Long enough for the re-seeded intention's policy to reach its demonstrations before the
+    # posterior, which learns from the policies' samples, judges the split again.
+    reseed_window: int = 30
     reseed_attempts: int = 3
 
     def __post_init__(self):

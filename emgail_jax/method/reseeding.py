@@ -81,9 +81,9 @@ class ReseedingRule:
     """When to re-seed: after ``patience`` E-steps below the threshold; for ``window`` E-steps;
     at most ``attempts`` times per intention."""
 
-    patience: int = struct.field(pytree_node=False, default=10)
-    window: int = struct.field(pytree_node=False, default=10)
-    attempts: int = struct.field(pytree_node=False, default=3)
+    patience: int = struct.field(pytree_node=False)
+    window: int = struct.field(pytree_node=False)
+    attempts: int = struct.field(pytree_node=False)
 
 
 def demonstration_responsibilities(
