@@ -11,7 +11,7 @@ networks, or those of the snapshot of ``--snapshot ITER``; with ``--ensemble N``
 R_i over the last N snapshots up to them; with ``--across-seeds`` the mean of every run seed's
 R_i, the seeds' intentions aligned by the demonstrations they hold; with ``--consolidate`` each
 seed's discriminator refitted against every snapshot's policy, saved as ``RUN_DIR/rewards/NAME``
-for ``load_reward(RUN_DIR, refit=NAME)`` and reused by the next check that asks for it), never
+for ``load_reward(RUN_DIR, refit=NAME)`` and reused by any later check of it), never
 seeing the true reward; the seeds' and intentions' policies are vmapped in one program
 (``--rl-seed R``: another draw of their initialisation and samples, to tell a reward that fails
 from a search that did). Their deterministic episodes (as many per iteration as training
@@ -706,7 +706,7 @@ def _opened(args: argparse.Namespace):
         run = run.with_reward_form(args.reward_form)
     chosen = Chosen(details={"consolidation": None, "ensemble": None, "across_seeds": None})
     if args.consolidate:
-        name = "-".join(reward_parts(args))
+        name = "-".join(refit_parts(args))
         chosen.parameters, chosen.details["consolidation"] = consolidated(
             run, seeds, refit_of(args), name, progress=not args.quiet
         )
@@ -854,8 +854,20 @@ def default_name(args) -> str:
 
 def reward_parts(args) -> list[str]:
     """The parts of :func:`default_name` that say which reward was checked: the snapshot, the
-    refit or ensemble, the reward form. A refit's parts (``consolidated-...``) name the
-    reward it saves (``RUN/rewards/NAME``)."""
+    refit or ensemble, the reward form."""
+    parts = refit_parts(args)
+    if args.ensemble:
+        parts.append(f"ensemble-{args.ensemble}")
+    if args.across_seeds:
+        parts.append("across-seeds")
+    if args.reward_form:
+        parts.append(args.reward_form)
+    return parts
+
+
+def refit_parts(args) -> list[str]:
+    """The snapshot and the refit's options: with ``--consolidate``, the name of the refitted
+    discriminator it saves (``RUN/rewards/NAME``), whatever reward form reads it."""
     parts = []
     if args.snapshot is not None:
         parts.append(f"snapshot-{args.snapshot}")
@@ -869,12 +881,6 @@ def reward_parts(args) -> list[str]:
         parts.append(f"noise-{args.consolidate_noise:g}")
     if args.consolidate_batch:
         parts.append(f"batch-{args.consolidate_batch}")
-    if args.ensemble:
-        parts.append(f"ensemble-{args.ensemble}")
-    if args.across_seeds:
-        parts.append("across-seeds")
-    if args.reward_form:
-        parts.append(args.reward_form)
     return parts
 
 
@@ -900,7 +906,7 @@ def consolidated(run, seeds: list[int], refit, name: str, progress: bool = True)
     from emgail_jax.host import consolidation
     from emgail_jax.host.run_spec import RunError
 
-    description = consolidation.refit_description(refit, run.algorithm.reward_form, run.snapshot)
+    description = consolidation.refit_description(refit, run.snapshot)
     saved_before = name in consolidation.saved_refits(run.run_dir)
     if saved_before and consolidation.read_description(run.run_dir, name) != records_value(
         description

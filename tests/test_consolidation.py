@@ -119,7 +119,7 @@ def test_a_saved_refit_is_the_reward_load_reward_returns(copied_run):
     run = SavedRun.open(str(copied_run))
     refit = consolidation.Refit(steps=5, fresh=True)
     parameters, losses = consolidation.consolidated_parameters(run, 1, refit, jax.random.PRNGKey(0))
-    description = consolidation.refit_description(refit, "log-d", None)
+    description = consolidation.refit_description(refit, None)
     consolidation.save_refitted(
         str(copied_run), "mine", 1, parameters["discriminator"], description, losses
     )
@@ -129,13 +129,15 @@ def test_a_saved_refit_is_the_reward_load_reward_returns(copied_run):
     pairs = run.demonstration_pairs
     obs, actions = pairs.observations[:50], pairs.actions[:50]
     expected = run.with_reward_form("log-d").reward_function()(parameters, obs, actions, 1)
-    reward = emgail_jax.load_reward(str(copied_run), seed=1, refit="mine")
+    reward = emgail_jax.load_reward(str(copied_run), seed=1, refit="mine", reward_form="log-d")
     for read in (reward, jax.jit(reward)):
         np.testing.assert_allclose(read(obs, actions, 1), expected, rtol=1e-6, atol=1e-6)
-    # log(D) is never positive; the run's own -log(1 - D) never negative: the form was kept.
+    # log(D) is never positive, the run's own -log(1 - D) never negative: the form was read.
     assert np.all(np.asarray(expected) <= 0)
+    as_run = emgail_jax.load_reward(str(copied_run), seed=1, refit="mine")(obs, actions, 1)
+    assert np.all(np.asarray(as_run) >= 0)
     own = emgail_jax.load_reward(str(copied_run), seed=1)(obs, actions, 1)
-    assert not np.allclose(own, expected)
+    assert not np.allclose(own, as_run)
 
 
 def test_a_saved_refit_refuses_what_it_cannot_give(copied_run):
@@ -146,7 +148,7 @@ def test_a_saved_refit_refuses_what_it_cannot_give(copied_run):
     with pytest.raises(CheckpointError, match=r"saved no refitted reward 'mine' .saved: none"):
         run.reward(0, refit="mine")
     discriminator = run.reward_parameters(0)["discriminator"]
-    description = consolidation.refit_description(consolidation.Refit(steps=5), "gail", None)
+    description = consolidation.refit_description(consolidation.Refit(steps=5), None)
     consolidation.save_refitted(str(copied_run), "mine", 0, discriminator, description, {})
     with pytest.raises(RunError, match=r"seed 1 .* has no refitted reward 'mine'.*--seed 1"):
         run.reward(1, refit="mine")

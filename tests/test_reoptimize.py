@@ -284,8 +284,8 @@ def test_a_consolidated_reward_in_the_logit_form(tiny_run, reoptimized):
     assert all(c["steps"] == 5 for c in result["consolidation"])
     earned = result["per_seed"][0]["learned_reward_per_step"]["demonstrations"]
     assert earned != first["per_seed"][0]["learned_reward_per_step"]["demonstrations"]
-    assert result["saved_reward"] == "consolidated-5-logit"
-    saved = sorted(p.name for p in (tiny_run / "rewards" / "consolidated-5-logit").iterdir())
+    assert result["saved_reward"] == "consolidated-5"  # whatever form reads it
+    saved = sorted(p.name for p in (tiny_run / "rewards" / "consolidated-5").iterdir())
     seeds = ["seed-0.json", "seed-0.msgpack", "seed-1.json", "seed-1.msgpack"]
     assert saved == ["reward.json", *seeds]
 
@@ -378,3 +378,9 @@ def test_the_default_file_names_what_was_checked():
     args = reoptimize.parse_args(["RUN", *refit, "--consolidate-batch", "2500"])
     name = "reoptimize-consolidated-4000-penalty-10-fresh-batch-2500.json"
     assert reoptimize.default_name(args) == name and reoptimize.refit_of(args).batch == 2500
+    # The saved refit is named by the refit alone: any reward form reads the same one.
+    args = reoptimize.parse_args(["RUN", *refit, "--reward-form", "log-d", "--snapshot", "20"])
+    assert reoptimize.refit_parts(args) == [
+        "snapshot-20",
+        *("consolidated-4000", "penalty-10", "fresh"),
+    ]

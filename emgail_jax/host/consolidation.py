@@ -8,9 +8,9 @@ that away (the issue's "consolidated reward"); it changes nothing in training: i
 snapshots (``run --snapshot-every``) after the run.
 
 A refitted reward is saved in the run directory, ``RUN/rewards/NAME/seed-S.msgpack`` (the
-discriminator's parameters) beside ``reward.json`` (the refit's options and the reward form it
-is read with), so that ``load_reward(RUN, refit=NAME)`` returns it and a later check (another
-RL seed, a changed env) reuses it rather than refitting.
+discriminator's parameters) beside ``reward.json`` (the refit's options), so that
+``load_reward(RUN, refit=NAME)`` returns it and a later check (another RL seed, reward form or
+changed env) reuses it rather than refitting.
 
 The refit may also start from fresh discriminator weights rather than the final ones, and see
 a noisy copy of every policy sample as a further negative: a reward learnt in one go against
@@ -205,7 +205,7 @@ def save_refitted(
     run_dir: str, name: str, seed: int, discriminator, description: dict, losses: dict
 ) -> None:
     """Writes ``seed``'s refitted discriminator parameters as the saved reward ``name``, with
-    ``description`` (``reward.json``: the refit's options, the reward form, the snapshot) and
+    ``description`` (``reward.json``: :func:`refit_description`) and
     the refit's ``losses`` (``seed-S.json``); each file renamed into place once written."""
     from flax import serialization
 
@@ -228,9 +228,10 @@ def read_losses(run_dir: str, name: str, seed: int) -> dict:
         return json.load(f)
 
 
-def refit_description(refit: Refit, reward_form: str, snapshot: int | None) -> dict:
-    """What ``reward.json`` says of a saved refit."""
-    return {"refit": asdict(refit), "reward_form": reward_form, "snapshot": snapshot}
+def refit_description(refit: Refit, snapshot: int | None) -> dict:
+    """What ``reward.json`` says of a saved refit: its options, and the snapshot whose
+    networks (observation statistics, posterior) the reward reads beside the refit."""
+    return {"refit": asdict(refit), "snapshot": snapshot}
 
 
 def read_description(run_dir: str, name: str) -> dict:

@@ -187,10 +187,9 @@ class SavedRun:
         method, weight = self.config.method, self.config.info_weight
         return dataclasses.replace(self, algorithm=make_algorithm(method.algo, weight, form))
 
-    def refitted(self, name: str, seed: int = 0) -> tuple[SavedRun, dict]:
-        """``(run, parameters)``: the saved refitted reward ``name`` of ``seed``
-        (``reoptimize --consolidate``, :mod:`~emgail_jax.host.consolidation`) as
-        :meth:`reward_parameters`, and this run read with the reward form it was checked with.
+    def refitted_parameters(self, name: str, seed: int = 0) -> dict:
+        """:meth:`reward_parameters` of ``seed`` with the discriminator of the saved refitted
+        reward ``name`` (``reoptimize --consolidate``, :mod:`~emgail_jax.host.consolidation`).
 
         Raises:
           RunError: the refit was made from another snapshot, or not for ``seed``.
@@ -211,8 +210,7 @@ class SavedRun:
                 f"seed {seed} of '{self.run_dir}' has no refitted reward '{name}': "
                 f"reoptimize it with --seed {seed} and the same --consolidate options"
             )
-        run = self.with_reward_form(description["reward_form"])
-        return run, {**own, "discriminator": saved}
+        return {**own, "discriminator": saved}
 
     def reward(
         self, seed: int = 0, across_seeds: bool = False, refit: str | None = None
@@ -230,8 +228,8 @@ class SavedRun:
         if refit is not None:
             if across_seeds:
                 raise RunError("across_seeds averages the run's own rewards, not a refitted one")
-            run, parameters = self.refitted(refit, seed)
-            reward = run.reward_function()
+            parameters = self.refitted_parameters(refit, seed)
+            reward = self.reward_function()
         elif across_seeds:
             parameters = self.across_seeds_parameters(seed)
             reward = across_seeds_reward(self.reward_function())
@@ -388,17 +386,28 @@ def load_policy(run_dir: str, seed: int = 0):
     return SavedRun.open(run_dir).policy(seed)
 
 
-def load_reward(run_dir: str, seed: int = 0, across_seeds: bool = False, refit: str | None = None):
+def load_reward(
+    run_dir: str,
+    seed: int = 0,
+    across_seeds: bool = False,
+    refit: str | None = None,
+    reward_form: str | None = None,
+):
     """The learned reward of a run: jittable ``R(obs, action, intention) -> reward``; with
     ``across_seeds``, the mean of every run seed's, named as ``seed``'s intentions; with
     ``refit``, the refitted reward of that name that ``reoptimize --consolidate`` saved under
-    ``RUN/rewards/`` (``emgail_jax.host.consolidation.saved_refits`` lists them)."""
+    ``RUN/rewards/`` (``emgail_jax.host.consolidation.saved_refits`` lists them);
+    ``reward_form`` reads the discriminator as another of ``REWARD_FORMS`` than the run's
+    (``log-d``: below 0 wherever D < 1, as ``reoptimize --reward-form log-d``)."""
     snapshot = None
     if refit is not None:
         from emgail_jax.host.consolidation import read_description
 
         snapshot = read_description(run_dir, refit)["snapshot"]
-    return SavedRun.open(run_dir, snapshot=snapshot).reward(seed, across_seeds, refit)
+    run = SavedRun.open(run_dir, snapshot=snapshot)
+    if reward_form is not None:
+        run = run.with_reward_form(reward_form)
+    return run.reward(seed, across_seeds, refit)
 
 
 def stacked(trees: list):
