@@ -224,7 +224,7 @@ class SavedRun:
         f - log pi its own policies were trained on (which needs s' and the policy).
         ``across_seeds``: the mean of every seed's reward, in ``seed``'s intentions
         (:func:`across_seeds_reward`). ``refit``: the name of a saved refitted reward
-        (:meth:`refitted`) in place of the run's own."""
+        (:meth:`refitted_parameters`) in place of the run's own."""
         if refit is not None:
             if across_seeds:
                 raise RunError("across_seeds averages the run's own rewards, not a refitted one")
