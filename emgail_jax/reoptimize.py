@@ -908,20 +908,16 @@ def consolidated(run, seeds: list[int], refit, name: str, progress: bool = True)
 
     description = consolidation.refit_description(refit, run.snapshot)
     saved_before = name in consolidation.saved_refits(run.run_dir)
-    if saved_before and consolidation.read_description(run.run_dir, name) != records_value(
-        description
-    ):
+    if saved_before and consolidation.read_description(run.run_dir, name) != description:
         raise RunError(
             f"the saved reward '{name}' of '{run.run_dir}' was refitted otherwise: "
             "delete its directory under rewards/ to refit it"
         )
     parameters, metrics = [], []
     for seed in seeds:
-        own = run.reward_parameters(seed)
-        saved = consolidation.load_refitted(run.run_dir, name, seed, own["discriminator"])
-        if saved is not None:
+        found = consolidation.saved_parameters(run, name, seed)
+        if found is not None:
             losses = consolidation.read_losses(run.run_dir, name, seed)
-            found = {**own, "discriminator": saved}
             if progress:
                 print(f"seed {seed}: the refitted reward '{name}' saved before, reused")
         else:
@@ -933,15 +929,6 @@ def consolidated(run, seeds: list[int], refit, name: str, progress: bool = True)
         parameters.append(found)
         metrics.append({"run_seed": seed, **dataclasses.asdict(refit), **losses})
     return parameters, metrics
-
-
-def records_value(value):
-    """``value`` as it reads back from JSON."""
-    import json
-
-    from emgail_jax.host import records
-
-    return json.loads(json.dumps(records.to_json_value(value)))
 
 
 if __name__ == "__main__":

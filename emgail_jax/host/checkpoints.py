@@ -254,13 +254,41 @@ def snapshot_of(state) -> dict:
 def save_snapshot(run_dir: str, iteration: int, snapshot: dict) -> None:
     """Writes :func:`snapshot_of`'s host arrays for ``iteration``, atomically (renamed into
     place once written)."""
+    os.makedirs(snapshot_directory(run_dir), exist_ok=True)
+    write_tree(_snapshot_path(run_dir, iteration), snapshot)
+
+
+def write_tree(path: str, tree) -> None:
+    """Writes the pytree ``tree`` (host arrays) to ``path`` as msgpack, renamed into place
+    once written."""
     from flax import serialization
 
-    os.makedirs(snapshot_directory(run_dir), exist_ok=True)
-    path = _snapshot_path(run_dir, iteration)
     with open(path + ".tmp", "wb") as f:
-        f.write(serialization.to_bytes(snapshot))
+        f.write(serialization.to_bytes(tree))
     os.replace(path + ".tmp", path)
+
+
+def read_tree(path: str, target, what: str):
+    """The pytree :func:`write_tree` wrote to ``path``, in the structure of ``target``.
+
+    Raises:
+      CheckpointError: a file that cannot be read, or does not fit ``target``'s shapes
+        (``what`` names the file in the message: "the snapshot", "the reward").
+    """
+    from flax import serialization
+
+    target = jax.tree.map(np.asarray, target)
+    try:
+        with open(path, "rb") as f:
+            tree = serialization.from_bytes(target, f.read())
+    except Exception as error:  # msgpack and flax raise many types for foreign files
+        raise CheckpointError(f"{what} '{path}' cannot be read ({error})") from None
+    leaves, expected = jax.tree.leaves(tree), jax.tree.leaves(target)
+    if len(leaves) != len(expected) or any(
+        np.shape(a) != np.shape(b) for a, b in zip(leaves, expected, strict=False)
+    ):
+        raise CheckpointError(f"{what} '{path}' does not fit this run's networks")
+    return tree
 
 
 def snapshot_iterations(run_dir: str) -> list[int]:
@@ -282,8 +310,6 @@ def restore_snapshot(run_dir: str, iteration: int, state):
     Raises:
       CheckpointError: no snapshot of that iteration, or one that does not fit ``state``.
     """
-    from flax import serialization
-
     path = _snapshot_path(run_dir, iteration)
     if not os.path.exists(path):
         kept = snapshot_iterations(run_dir)
@@ -291,17 +317,7 @@ def restore_snapshot(run_dir: str, iteration: int, state):
         raise CheckpointError(
             f"'{run_dir}' holds no snapshot of iteration {iteration} (snapshots kept: {listed})"
         )
-    target = jax.tree.map(np.asarray, snapshot_of(state))
-    try:
-        with open(path, "rb") as f:
-            learned = serialization.from_bytes(target, f.read())
-    except Exception as error:  # msgpack and flax raise many types for foreign files
-        raise CheckpointError(f"the snapshot '{path}' cannot be read ({error})") from None
-    leaves, expected = jax.tree.leaves(learned), jax.tree.leaves(target)
-    if len(leaves) != len(expected) or any(
-        np.shape(a) != np.shape(b) for a, b in zip(leaves, expected, strict=False)
-    ):
-        raise CheckpointError(f"the snapshot '{path}' does not fit this run's networks")
+    learned = read_tree(path, snapshot_of(state), "the snapshot")
     replaced = dict(learned)
     replaced["discriminator"] = state.discriminator.replace(params=learned["discriminator"])
     if state.posterior is not None:

@@ -207,14 +207,10 @@ def save_refitted(
     """Writes ``seed``'s refitted discriminator parameters as the saved reward ``name``, with
     ``description`` (``reward.json``: :func:`refit_description`) and
     the refit's ``losses`` (``seed-S.json``); each file renamed into place once written."""
-    from flax import serialization
-
     directory = os.path.join(rewards_directory(run_dir), name)
     os.makedirs(directory, exist_ok=True)
     path = _seed_path(run_dir, name, seed)
-    with open(path + ".tmp", "wb") as f:
-        f.write(serialization.to_bytes(jax.device_get(discriminator)))
-    os.replace(path + ".tmp", path)
+    checkpoints.write_tree(path, jax.device_get(discriminator))
     records.write_json(path.removesuffix(".msgpack") + ".json", losses)
     records.write_json(os.path.join(directory, "reward.json"), description)
 
@@ -250,25 +246,16 @@ def read_description(run_dir: str, name: str) -> dict:
         return json.load(f)
 
 
-def load_refitted(run_dir: str, name: str, seed: int, template):
-    """``seed``'s refitted discriminator parameters of the saved reward ``name``, in the
-    structure of ``template`` (the run's discriminator parameters of one seed); None when that
-    seed was not refitted under that name.
+def saved_parameters(run, name: str, seed: int) -> dict | None:
+    """:meth:`SavedRun.reward_parameters` of ``seed`` with the discriminator of the saved
+    refitted reward ``name``; None when that seed was not refitted under that name.
 
     Raises:
       CheckpointError: a file that cannot be read or does not fit the run's discriminator.
     """
-    from flax import serialization
-
-    path = _seed_path(run_dir, name, seed)
+    path = _seed_path(run.run_dir, name, seed)
     if not os.path.exists(path):
         return None
-    target = jax.tree.map(np.asarray, template)
-    try:
-        with open(path, "rb") as f:
-            loaded = serialization.from_bytes(target, f.read())
-    except Exception as error:  # msgpack and flax raise many types for foreign files
-        raise checkpoints.CheckpointError(f"the reward '{path}' cannot be read ({error})") from None
-    if jax.tree.map(np.shape, loaded) != jax.tree.map(np.shape, target):
-        raise checkpoints.CheckpointError(f"the reward '{path}' does not fit this run's networks")
-    return loaded
+    own = run.reward_parameters(seed)
+    saved = checkpoints.read_tree(path, own["discriminator"], "the reward")
+    return {**own, "discriminator": saved}

@@ -203,14 +203,13 @@ class SavedRun:
                 f"the reward '{name}' was refitted from snapshot {description['snapshot']}; "
                 f"this run was opened at {self.snapshot}"
             )
-        own = self.reward_parameters(seed)
-        saved = consolidation.load_refitted(self.run_dir, name, seed, own["discriminator"])
-        if saved is None:
+        parameters = consolidation.saved_parameters(self, name, seed)
+        if parameters is None:
             raise RunError(
                 f"seed {seed} of '{self.run_dir}' has no refitted reward '{name}': "
                 f"reoptimize it with --seed {seed} and the same --consolidate options"
             )
-        return {**own, "discriminator": saved}
+        return parameters
 
     def reward(
         self, seed: int = 0, across_seeds: bool = False, refit: str | None = None
