@@ -12,6 +12,7 @@ import pytest
 import envs
 from emgail_jax.method.config import (
     DOMAINS,
+    RESEED_WINDOWS,
     SETTINGS,
     AlgorithmName,
     BStepConfig,
@@ -62,7 +63,22 @@ def test_resolved_fills_the_driver_defaults():
     rollout = resolved.method.rollout
     assert (rollout.num_envs, rollout.rollout_length) == (5, 100)
     # Everything else is unchanged.
-    assert resolved.with_values(num_envs=None, rollout_length=None) == RunConfig()
+    assert resolved.with_values(num_envs=None, rollout_length=None, reseed_window=None) == (
+        RunConfig()
+    )
+
+
+@pytest.mark.parametrize(
+    ("algo", "window"), [("emgail", 30), ("infogail", 10), ("gail", RESEED_WINDOWS["gail"])]
+)
+def test_the_reseeding_window_is_the_algorithms_unless_given(algo, window):
+    driver = _fake_env("driver", 100)
+    config = RunConfig().with_values(algo=algo)
+    assert config.value("reseed_window") is None
+    assert config.resolved(driver).value("reseed_window") == window
+    given = config.with_values(reseed_window=7).resolved(driver)
+    assert given.value("reseed_window") == 7
+    assert given.resolved(driver) == given  # idempotent once filled
 
 
 def test_resolved_follows_the_env_episode_length_and_wrappers():

@@ -253,7 +253,7 @@ SETTINGS: dict[str, Setting] = {
     "prior": _at("method", "e_step", "prior", domain=_one_of(Prior)),
     "reseed": _at("method", "e_step", "reseed", domain=BOOLEAN),
     "reseed_patience": _at("method", "e_step", "reseed_patience", domain=COUNT),
-    "reseed_window": _at("method", "e_step", "reseed_window", domain=COUNT),
+    "reseed_window": _at("method", "e_step", "reseed_window", domain=_or_default(COUNT)),
     "reseed_attempts": _at("method", "e_step", "reseed_attempts", domain=_integers(0)),
     "choose_intentions": _at("method", "choose_intentions", domain=BOOLEAN),
     "init_log_std": _at("method", "networks", "init_log_std", domain=FINITE),
@@ -365,6 +365,14 @@ class NetworkConfig(_Layer):
     obs_clip: float = 5.0
 
 
+# E-steps a re-seeded intention is held to the demonstrations it took, by algorithm
+# (docs/no-empty-intention.md). EM-GAIL's re-seeded policy needs the time to reach its
+# demonstrations before its posterior judges the split again; Info/IntentionGAIL's shared
+# discriminator lets a longer hold drift back onto the other path, and ended worse. GAIL has
+# no posterior and never re-seeds.
+RESEED_WINDOWS = {AlgorithmName.EMGAIL: 30, AlgorithmName.INFOGAIL: 10, AlgorithmName.GAIL: 10}
+
+
 @dataclass(frozen=True)
 class EStepConfig(_Layer):
     """The E-step (:mod:`emgail_jax.method.posterior`): the responsibilities, the prior, the
@@ -381,9 +389,7 @@ class EStepConfig(_Layer):
     steps: int = 20
     reseed: bool = True
     reseed_patience: int = 10
-    # Long enough for the re-seeded intention's policy to reach its demonstrations before the
-    # posterior, which learns from the policies' samples, judges the split again.
-    reseed_window: int = 30
+    reseed_window: int | None = None  # None: the algorithm's, RESEED_WINDOWS
     reseed_attempts: int = 3
 
     def __post_init__(self):
@@ -489,13 +495,15 @@ class MethodConfig(_Layer):
             _check_airl(self)
 
     def resolved(self, env) -> MethodConfig:
-        """Fills the env-dependent rollout sizes from ``env``."""
+        """Fills the env-dependent rollout sizes from ``env`` and the algorithm's re-seeding
+        window."""
         defaults = rollout_defaults(env.name, env.episode_length)
         rollout = RolloutConfig(
             num_envs=self.rollout.num_envs or defaults["num_envs"],
             rollout_length=self.rollout.rollout_length or defaults["rollout_length"],
         )
-        return self.replace(rollout=rollout)
+        window = self.e_step.reseed_window or RESEED_WINDOWS[self.algo]
+        return self.replace(rollout=rollout, e_step=self.e_step.replace(reseed_window=window))
 
     @property
     def reward_form(self) -> RewardForm:
