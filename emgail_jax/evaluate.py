@@ -252,7 +252,8 @@ def write_figures(
     run, run_dir: str, out: str, seed_results: tuple, seed: int, episodes: int
 ) -> list[str]:
     """The learning curves, and the paths (driver) or traces (MJX, beside ``episodes`` of the
-    experts' own) of ``seed``, whose rollouts and scores are ``seed_results``."""
+    experts' own) of the run's seed numbered ``seed``, whose rollouts and scores are
+    ``seed_results``."""
     os.makedirs(out, exist_ok=True)
     written = [os.path.join(out, "learning_curves.png")]
     plot_learning_curves(run_dir, written[-1])
@@ -278,7 +279,12 @@ def main(argv=None) -> int:
     )
     parser.add_argument("run_dir")
     parser.add_argument("--episodes", type=int, default=10, help="per learned intention")
-    parser.add_argument("--seed", type=int, default=0, help="the seed whose figures are drawn")
+    parser.add_argument(
+        "--seed",
+        type=int,
+        default=None,
+        help="the run seed whose figures are drawn, as run --seed numbers it (default: the first)",
+    )
     parser.add_argument("--out", default=None, help="figure directory (default RUN_DIR/figures)")
     args = parser.parse_args(argv)
     jax_setup.setup(host_devices=1)
@@ -288,17 +294,17 @@ def main(argv=None) -> int:
         try:
             held.enter_context(run_lock.reading(args.run_dir))  # no live run writes it
             run = SavedRun.open(args.run_dir)
-            run.seed_state(args.seed)
+            drawn = run.seed_index(args.seed)
         except (RunError, CheckpointError, envs.EnvError, DemonstrationError) as error:
             print(f"error: {error}", file=sys.stderr)
             return 2
-        evaluate_run(run, args)
+        evaluate_run(run, args, drawn)
     return 0
 
 
-def evaluate_run(run: SavedRun, args: argparse.Namespace) -> None:
+def evaluate_run(run: SavedRun, args: argparse.Namespace, drawn: int = 0) -> None:
     """The command's work on the opened run: every seed's deterministic episodes scored,
-    ``evaluation.json`` and the figures written."""
+    ``evaluation.json`` and the figures of its ``drawn``-th seed written."""
     env = run.problem.env
     print(f"{run.spec.algo} on {env.name} (K={run.num_intentions}), iteration {run.iteration}, "
           f"{args.episodes} deterministic episodes per learned intention")  # fmt: skip
@@ -321,7 +327,9 @@ def evaluate_run(run: SavedRun, args: argparse.Namespace) -> None:
     )
 
     out = args.out or os.path.join(args.run_dir, "figures")
-    figures = write_figures(run, args.run_dir, out, results[args.seed], args.seed, args.episodes)
+    figures = write_figures(
+        run, args.run_dir, out, results[drawn], run.seed_number(drawn), args.episodes
+    )
     written = [evaluation_path, *figures]
     for path in written:
         print(f"wrote {path}")

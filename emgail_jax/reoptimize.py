@@ -321,7 +321,8 @@ def reoptimize(
     per_seed = []
     for row, seed in enumerate(seeds):
         matching = run_matching(run, seed, iteration)
-        result = {"run_seed": seed, **scored(fresh.returns[row], matching, run, seed)}
+        scores = scored(fresh.returns[row], matching, run, seed)
+        result = {"run_seed": run.seed_number(seed), **scores}
         states = jax.tree.map(lambda x, r=row: x[r], fresh.states)
         result["success"] = success(run.problem.env, trainer, states, matching)
         result["learned_reward_per_step"] = {  # learned intentions' order
@@ -338,7 +339,7 @@ def reoptimize(
         "eval_episodes": run.config.method.rollout.num_envs,
         "expert_returns": run.problem.demos.expert_returns,
         "random_returns": run.problem.random_returns,
-        "seeds": list(seeds),
+        "seeds": [run.seed_number(seed) for seed in seeds],
         "rl_seed": rl_seed,
         "erd": erds,
         "erd_mean": None if None in erds else float(np.mean(erds)),
@@ -438,7 +439,9 @@ def joint_policies(run, seeds: list[int], iteration: int) -> dict:
         returns, _, _ = run.episodes(seed, count, key)
         mean = np.asarray(returns, np.float64).mean(1)[None]  # [1, K learned, K env]
         scores = scored(mean, run_matching(run, seed, iteration), run, seed)
-        per_seed.append({"run_seed": seed, **{n: scores[n] for n in ("erd", "returns")}})
+        per_seed.append(
+            {"run_seed": run.seed_number(seed), **{n: scores[n] for n in ("erd", "returns")}}
+        )
     erds = [r["erd"] for r in per_seed]
     return {
         "erd": erds,
@@ -539,7 +542,12 @@ def parse_args(argv=None) -> argparse.Namespace:
         prog="python -m emgail_jax.reoptimize", description=__doc__.split("\n")[0]
     )
     parser.add_argument("run_dir")
-    parser.add_argument("--seed", type=int, default=None, help="one run seed (default: all)")
+    parser.add_argument(
+        "--seed",
+        type=int,
+        default=None,
+        help="one run seed, as run --seed numbers it (default: all)",
+    )
     parser.add_argument(
         "--rl-seed",
         type=int,
@@ -695,8 +703,7 @@ def _opened(args: argparse.Namespace):
     run = SavedRun.open(args.run_dir, snapshot=args.snapshot)
     if args.env_set:
         run.problem = variant_problem(run, args.env_set)
-    seeds = list(range(run.spec.seeds)) if args.seed is None else [args.seed]
-    run.seed_state(seeds[0])  # checks --seed
+    seeds = list(range(run.spec.seeds)) if args.seed is None else [run.seed_index(args.seed)]
     if run.config.method.m_step.form.airl and (args.reward_form or args.consolidate):
         # Its reward is g_i(s), no reading of a GAIL discriminator's logit, nor refitted as one.
         raise RunError(
@@ -915,19 +922,20 @@ def consolidated(run, seeds: list[int], refit, name: str, progress: bool = True)
         )
     parameters, metrics = [], []
     for seed in seeds:
+        number = run.seed_number(seed)
         found = consolidation.saved_parameters(run, name, seed)
         if found is not None:
-            losses = consolidation.read_losses(run.run_dir, name, seed)
+            losses = consolidation.read_losses(run.run_dir, name, number)
             if progress:
-                print(f"seed {seed}: the refitted reward '{name}' saved before, reused")
+                print(f"seed {number}: the refitted reward '{name}' saved before, reused")
         else:
-            key = jax.random.PRNGKey(run.spec.first_seed + seed + 2000)
+            key = jax.random.PRNGKey(number + 2000)
             found, losses = consolidation.consolidated_parameters(run, seed, refit, key)
             consolidation.save_refitted(
-                run.run_dir, name, seed, found["discriminator"], description, losses
+                run.run_dir, name, number, found["discriminator"], description, losses
             )
         parameters.append(found)
-        metrics.append({"run_seed": seed, **dataclasses.asdict(refit), **losses})
+        metrics.append({"run_seed": number, **dataclasses.asdict(refit), **losses})
     return parameters, metrics
 
 

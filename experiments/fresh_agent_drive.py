@@ -24,7 +24,9 @@ import numpy as np
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("run_dir")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--seed", type=int, default=None, help="as run --seed numbers it (default: the first)"
+    )
     parser.add_argument("--rl-seed", type=int, default=0)
     parser.add_argument("--every", type=int, default=10, help="trace every N steps")
     args = parser.parse_args(argv)
@@ -39,10 +41,11 @@ def main(argv=None) -> int:
 
     run = SavedRun.open(args.run_dir)
     env, k = run.problem.env, run.num_intentions
-    learned, parameters = run.reward_function(), run.reward_parameters(args.seed)
+    seed = run.seed_index(args.seed)
+    learned, parameters = run.reward_function(), run.reward_parameters(seed)
     budget = check.default_budget(run)
     trainer = check.learned_reward_trainer(run, budget, learned)
-    keys = check.fresh_keys(run, [args.seed], args.rl_seed)
+    keys = check.fresh_keys(run, [seed], args.rl_seed)
     fresh = check.train_fresh(
         trainer, keys, stacked([parameters]), budget.iterations, "fresh agents", True
     )

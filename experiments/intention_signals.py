@@ -91,7 +91,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("run_dir", metavar="RUN_DIR")
     parser.add_argument("--snapshot", type=int, default=None, metavar="ITER")
-    parser.add_argument("--seed", type=int, default=None, help="default: every seed")
+    parser.add_argument(
+        "--seed", type=int, default=None, help="as run --seed numbers it (default: every seed)"
+    )
     return parser.parse_args(argv)
 
 
@@ -105,10 +107,10 @@ def main(argv=None) -> int:
         run = SavedRun.open(args.run_dir, snapshot=args.snapshot)
         if not run.algorithm.learns_posterior:
             raise RunError(f"{run.config.method.algo} learns no posterior: nothing to cluster")
-        seeds = range(run.spec.seeds) if args.seed is None else [args.seed]
+        seeds = range(run.spec.seeds) if args.seed is None else [run.seed_index(args.seed)]
         for seed in seeds:
             found = signals(run, seed)
-            print(f"seed {seed}, iteration {args.snapshot or run.iteration}:")
+            print(f"seed {run.seed_number(seed)}, iteration {args.snapshot or run.iteration}:")
             print("\n".join(table(found, run.num_intentions)))
     except (RunError, CheckpointError) as error:
         print(f"error: {error}", file=sys.stderr)

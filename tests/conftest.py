@@ -42,6 +42,19 @@ def tiny_run(tmp_path_factory):
     return out
 
 
+@pytest.fixture(scope="session")
+def renumbered_run(tiny_run, tmp_path_factory):
+    """``tiny_run`` as if started with ``run --seed 4``: its seeds are numbered 4 and 5."""
+    import json
+    import shutil
+
+    copy = tmp_path_factory.mktemp("renumbered") / "emgail"
+    shutil.copytree(tiny_run, copy)
+    summary = json.loads((copy / "summary.json").read_text())
+    (copy / "summary.json").write_text(json.dumps({**summary, "first_seed": 4}))
+    return copy
+
+
 @pytest.fixture
 def random_batch():
     """``random_batch(k, m, n, obs_dim, act_dim, seed)``: a ``NormalizedBatch`` of random

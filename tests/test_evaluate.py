@@ -22,6 +22,16 @@ def test_evaluate_writes_its_figures(tiny_run, capsys):
         assert data.startswith(PNG) and len(data) > 10_000, name
 
 
+def test_evaluate_names_seeds_as_run_seed_numbered_them(renumbered_run, capsys):
+    out = renumbered_run / "figs"
+    args = [str(renumbered_run), "--episodes", "2", "--seed", "5", "--out", str(out)]
+    assert evaluate.main(args) == 0
+    assert "seed 4: ERD" in capsys.readouterr().out
+    assert (out / "paths_seed5.png").exists() and not (out / "paths_seed0.png").exists()
+    written = json.loads((renumbered_run / "evaluation.json").read_text())
+    assert set(written["seeds"]) == {"4", "5"}
+
+
 def test_evaluation_json_holds_what_evaluate_prints(tiny_run):
     assert evaluate.main([str(tiny_run), "--episodes", "2", "--out", str(tiny_run / "f")]) == 0
     written = json.loads((tiny_run / "evaluation.json").read_text())

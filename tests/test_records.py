@@ -70,6 +70,19 @@ def test_metrics_log_writes_rows_iteration_major_with_nan_as_empty(tmp_path):
     assert not (tmp_path / "tensorboard").exists()
 
 
+def test_metrics_log_names_seeds_as_the_run_numbers_them(tmp_path):
+    """``run --seed 4 --seeds 2``: rows, TensorBoard folders and W&B keys say seeds 4 and 5."""
+    logged = []
+    wandb_run = type("Run", (), {"log": lambda self, row, step: logged.append(row)})()
+    log = records.MetricsLog(str(tmp_path), first_seed=4, wandb_run=wandb_run)
+    log.write(0, _metrics())
+    log.close()
+    body = _read_csv(tmp_path / "metrics.csv")[1:]
+    assert [(int(r[0]), int(r[1])) for r in body] == [(1, 4), (1, 5), (2, 4), (2, 5)]
+    assert sorted(p.name for p in (tmp_path / "tensorboard").iterdir()) == ["seed_4", "seed_5"]
+    assert logged[0]["seed_5/eval/erd"] == 1.0 and not any("seed_0" in k for k in logged[0])
+
+
 def test_metrics_log_rounds_to_six_significant_digits(tmp_path):
     log = records.MetricsLog(str(tmp_path), tensorboard=False)
     log.write(0, {"x": np.array([[1.0 / 3.0, 123456789.0, -0.0001234567, np.inf]])})

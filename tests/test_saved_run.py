@@ -96,6 +96,24 @@ def test_unknown_seed_is_refused(saved):
         saved.seed_state(2)
 
 
+def test_seeds_are_named_by_the_numbers_run_seed_gave_them(tiny_run, renumbered_run, saved):
+    run = SavedRun.open(str(renumbered_run))
+    assert [run.seed_number(s) for s in range(2)] == [4, 5]
+    assert (run.seed_index(None), run.seed_index(4), run.seed_index(5)) == (0, 0, 1)
+    with pytest.raises(RunError, match=r"the run has seeds 4\.\.5; got seed 1"):
+        run.seed_index(1)
+    obs = saved.problem.demos.observations[:3]
+    own = emgail_jax.load_policy(str(tiny_run), seed=1)(obs, 0)
+    np.testing.assert_array_equal(emgail_jax.load_policy(str(renumbered_run), seed=5)(obs, 0), own)
+    reward = emgail_jax.load_reward(str(renumbered_run), seed=5)
+    action = own
+    np.testing.assert_array_equal(
+        reward(obs, action, 1), emgail_jax.load_reward(str(tiny_run), seed=1)(obs, action, 1)
+    )
+    with pytest.raises(RunError, match="got seed 0"):
+        emgail_jax.load_reward(str(renumbered_run), seed=0)
+
+
 def _learned(state):
     return {
         name: getattr(state, name) for name in ("policy", "normalizer", "intention_weights")

@@ -197,27 +197,30 @@ def saved_refits(run_dir: str) -> list[str]:
     return sorted(n for n in names if os.path.exists(os.path.join(root, n, "reward.json")))
 
 
-def _seed_path(run_dir: str, name: str, seed: int) -> str:
-    return os.path.join(rewards_directory(run_dir), name, f"seed-{seed}.msgpack")
+def _seed_path(run_dir: str, name: str, number: int) -> str:
+    """The file of the run's seed ``number`` (as ``run --seed`` numbered it)."""
+    return os.path.join(rewards_directory(run_dir), name, f"seed-{number}.msgpack")
 
 
 def save_refitted(
-    run_dir: str, name: str, seed: int, discriminator, description: dict, losses: dict
+    run_dir: str, name: str, number: int, discriminator, description: dict, losses: dict
 ) -> None:
-    """Writes ``seed``'s refitted discriminator parameters as the saved reward ``name``, with
+    """Writes the refitted discriminator parameters of the run's seed ``number`` (as ``run
+    --seed`` numbered it) as the saved reward ``name``, with
     ``description`` (``reward.json``: :func:`refit_description`) and
     the refit's ``losses`` (``seed-S.json``); each file renamed into place once written."""
     directory = os.path.join(rewards_directory(run_dir), name)
     os.makedirs(directory, exist_ok=True)
-    path = _seed_path(run_dir, name, seed)
+    path = _seed_path(run_dir, name, number)
     checkpoints.write_tree(path, jax.device_get(discriminator))
     records.write_json(path.removesuffix(".msgpack") + ".json", losses)
     records.write_json(os.path.join(directory, "reward.json"), description)
 
 
-def read_losses(run_dir: str, name: str, seed: int) -> dict:
-    """The refit's losses of ``seed`` saved with the reward ``name`` (empty if none)."""
-    path = _seed_path(run_dir, name, seed).removesuffix(".msgpack") + ".json"
+def read_losses(run_dir: str, name: str, number: int) -> dict:
+    """The refit's losses of the run's seed ``number`` saved with the reward ``name`` (empty
+    if none)."""
+    path = _seed_path(run_dir, name, number).removesuffix(".msgpack") + ".json"
     if not os.path.exists(path):
         return {}
     with open(path) as f:
@@ -253,7 +256,7 @@ def saved_parameters(run, name: str, seed: int) -> dict | None:
     Raises:
       CheckpointError: a file that cannot be read or does not fit the run's discriminator.
     """
-    path = _seed_path(run.run_dir, name, seed)
+    path = _seed_path(run.run_dir, name, run.seed_number(seed))
     if not os.path.exists(path):
         return None
     own = run.reward_parameters(seed)

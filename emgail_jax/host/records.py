@@ -55,10 +55,13 @@ class MetricsLog:
         keep_until: int | None = None,
         enabled: bool = True,
         wandb_run=None,
+        first_seed: int = 0,
     ):
         """``keep_until``: continue an existing log, first dropping its rows after that
         iteration (written after the checkpoint a resumed run restarts from). A log that is not
-        ``enabled`` writes nothing (the processes of a multi-process run other than 0)."""
+        ``enabled`` writes nothing (the processes of a multi-process run other than 0). Seeds
+        are named as the run numbers them, from ``first_seed`` (``run --seed``)."""
+        self.first_seed = first_seed
         self.csv_path = os.path.join(out_dir, "metrics.csv")
         self.tensorboard_dir = os.path.join(out_dir, "tensorboard")
         self._columns: list[str] | None = None
@@ -99,13 +102,13 @@ class MetricsLog:
             for step in range(length):
                 for seed in range(seeds):
                     row = [_cell(columns[c][seed, step]) for c in self._columns]
-                    out.writerow([first_iteration + step + 1, seed, *row])
+                    out.writerow([first_iteration + step + 1, self.first_seed + seed, *row])
         if self._tensorboard:
             self._write_tensorboard(first_iteration, columns, seeds, length)
         if self._wandb_run is not None:
             for step in range(length):
                 row = {
-                    f"seed_{seed}/{name}": value
+                    f"seed_{self.first_seed + seed}/{name}": value
                     for seed in range(seeds)
                     for name, value in _finite_scalars(columns, seed, step)
                 }
@@ -116,7 +119,7 @@ class MetricsLog:
 
         for seed in range(seeds):
             if seed not in self._writers:
-                path = os.path.join(self.tensorboard_dir, f"seed_{seed}")
+                path = os.path.join(self.tensorboard_dir, f"seed_{self.first_seed + seed}")
                 self._writers[seed] = SummaryWriter(path)
             writer = self._writers[seed]
             for step in range(length):

@@ -140,6 +140,24 @@ class SavedRun:
             return None
         return np.asarray(final.intentions_kept, bool)
 
+    def seed_number(self, seed: int) -> int:
+        """The number ``run --seed`` gave the run's ``seed``-th seed: what every table, file
+        and command line calls it (the methods here take the position, 0 .. seeds-1)."""
+        return self.spec.first_seed + seed
+
+    def seed_index(self, number: int | None) -> int:
+        """The position of the run's seed ``number`` (None: its first seed).
+
+        Raises:
+          RunError: the run has no seed of that number (the message says which it has).
+        """
+        first, count = self.spec.first_seed, self.spec.seeds
+        if number is None:
+            return 0
+        if not first <= number < first + count:
+            raise RunError(f"the run has seeds {first}..{first + count - 1}; got seed {number}")
+        return number - first
+
     def seed_state(self, seed: int = 0) -> TrainState:
         """The train state of the run's ``seed``-th seed (0 .. seeds-1)."""
         if not 0 <= seed < self.spec.seeds:
@@ -205,9 +223,10 @@ class SavedRun:
             )
         parameters = consolidation.saved_parameters(self, name, seed)
         if parameters is None:
+            number = self.seed_number(seed)
             raise RunError(
-                f"seed {seed} of '{self.run_dir}' has no refitted reward '{name}': "
-                f"reoptimize it with --seed {seed} and the same --consolidate options"
+                f"seed {number} of '{self.run_dir}' has no refitted reward '{name}': "
+                f"reoptimize it with --seed {number} and the same --consolidate options"
             )
         return parameters
 
@@ -380,19 +399,22 @@ class SavedRun:
         return {name.removeprefix("eval/"): float(value) for name, value in metrics.items()}
 
 
-def load_policy(run_dir: str, seed: int = 0):
-    """The learned policy of a run: jittable ``pi(obs, intention) -> action``."""
-    return SavedRun.open(run_dir).policy(seed)
+def load_policy(run_dir: str, seed: int | None = None):
+    """The learned policy of a run: jittable ``pi(obs, intention) -> action``; ``seed`` as
+    ``run --seed`` numbered it (None: the run's first)."""
+    run = SavedRun.open(run_dir)
+    return run.policy(run.seed_index(seed))
 
 
 def load_reward(
     run_dir: str,
-    seed: int = 0,
+    seed: int | None = None,
     across_seeds: bool = False,
     refit: str | None = None,
     reward_form: str | None = None,
 ):
-    """The learned reward of a run: jittable ``R(obs, action, intention) -> reward``; with
+    """The learned reward of a run: jittable ``R(obs, action, intention) -> reward`` of its
+    ``seed``, as ``run --seed`` numbered it (None: the run's first); with
     ``across_seeds``, the mean of every run seed's, named as ``seed``'s intentions; with
     ``refit``, the refitted reward of that name that ``reoptimize --consolidate`` saved under
     ``RUN/rewards/`` (``emgail_jax.host.consolidation.saved_refits`` lists them);
@@ -406,7 +428,7 @@ def load_reward(
     run = SavedRun.open(run_dir, snapshot=snapshot)
     if reward_form is not None:
         run = run.with_reward_form(reward_form)
-    return run.reward(seed, across_seeds, refit)
+    return run.reward(run.seed_index(seed), across_seeds, refit)
 
 
 def stacked(trees: list):

@@ -69,7 +69,11 @@ def train(
     timings = earlier
     if done < schedule.iterations:
         log = records.MetricsLog(
-            out, keep_until=done if resume else None, enabled=writes, wandb_run=wandb_run
+            out,
+            keep_until=done if resume else None,
+            enabled=writes,
+            wandb_run=wandb_run,
+            first_seed=spec.first_seed,
         )
         state = recorder.run(runner, state, schedule, log, progress and writes)
         timings = _added(earlier, runner.timings)
