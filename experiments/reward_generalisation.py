@@ -1,6 +1,7 @@
 """Does a run's learned reward recognise its experts beyond the demonstrations it was trained on?
 
-    python experiments/reward_generalisation.py RUN_DIR [--episodes N]
+    python experiments/reward_generalisation.py RUN_DIR [--episodes N] [--refit NAME]
+        [--reward-form FORM] [--along-training EVERY]
 
 Per run seed, the learned reward per step of each true intention's reward (the learned
 intention the run matched it to) earned by:
@@ -16,6 +17,13 @@ A reward that stands for the task pays the experts' fresh episodes about what it
 demonstrations. One that pays them what it pays random actions has learned which episodes
 were demonstrated, not what the experts did, and a fresh agent trained on it has nothing to
 climb (docs/rewards-that-reoptimise.md, experiment 27).
+
+``--along-training EVERY``: the same reward earned by the run's own policies of every EVERY-th
+snapshot, beside their true returns (``metrics.csv``), with the rank correlation of the two
+(docs/rewards-that-reoptimise.md, experiment 41): a reward that rises with the true return
+along the run's own way from random actions to the experts has a slope a fresh agent could
+follow. ``--refit NAME`` scores a refitted reward that ``reoptimize --consolidate`` saved,
+``--reward-form`` reads the discriminator in another form.
 """
 
 from __future__ import annotations
@@ -73,10 +81,10 @@ def expert_actor(env, rows):
     return lambda state, _: policy(state.obs, grid(state))
 
 
-def seed_columns(run, seed: int, experts, keys, episodes: int):
+def seed_columns(run, seed: int, parameters, experts, keys, episodes: int):
     """``([demonstrations, experts, joint policies, random] each [K true], matching)`` for run
-    ``seed``: true intention i scored by the learned intention ``matching[i]`` the run matched
-    it to, whose policy also acts for it."""
+    ``seed``, scored by the reward of ``parameters``: true intention i by the learned intention
+    ``matching[i]`` the run matched it to, whose policy also acts for it."""
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -85,7 +93,7 @@ def seed_columns(run, seed: int, experts, keys, episodes: int):
     from emgail_jax.method.rollout import uniform_random_policy
 
     env, k_true = run.problem.env, run.problem.true_intentions
-    learned, parameters = run.reward_function(), run.reward_parameters(seed)
+    learned = run.reward_function()
     matching = check.run_matching(run, seed, run.iteration)  # true -> learned
     rows = jnp.asarray(matching)
     reward = jax.jit(lambda obs, action, i: learned(parameters, obs, action, i))
@@ -101,17 +109,72 @@ def seed_columns(run, seed: int, experts, keys, episodes: int):
         else np.full(k_true, np.nan)
         for act, key in zip(actors, keys, strict=True)
     ]
-    demonstrations = check.demonstrations_reward(run, seed)[np.asarray(matching)]
+    demonstrations = check.demonstrations_reward(run, seed, parameters, learned)
+    demonstrations = demonstrations[np.asarray(matching)]
     return [demonstrations, *fresh], [int(i) for i in matching]
+
+
+def along_training(run, seed: int, parameters, every: int, episodes: int, key):
+    """``[(iteration, learned reward per step [K true], true return [K true])]``: the run's own
+    policies of every ``every``-th snapshot of ``seed`` on fresh episodes, scored by the reward
+    of ``parameters``; true intention i by the learned intention the run finally matched to it,
+    its true return the last one ``metrics.csv`` logged at or before that iteration."""
+    import dataclasses
+
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from emgail_jax import reoptimize as check
+    from emgail_jax.host import checkpoints
+
+    matching = check.run_matching(run, seed, run.iteration)
+    rows = jnp.asarray(matching)
+    learned = run.reward_function()
+    reward = jax.jit(lambda obs, action, i: learned(parameters, obs, action, i))
+    logged = np.asarray(run.history["eval/returns"][seed])  # [iterations, K true], NaN between
+    evaluated = np.flatnonzero(np.isfinite(logged).all(1)) + 1  # the iterations evaluated
+    iterations = [i for i in checkpoints.snapshot_iterations(run.run_dir) if i % every == 0]
+    found = []
+    for iteration in iterations:
+        state = checkpoints.restore_snapshot(run.run_dir, iteration, run.state)
+        policy = dataclasses.replace(run, state=state).policy(seed)
+        act = lambda state, _, policy=policy: policy(state.obs, rows[:, None])
+        earned = learned_reward_per_step(run.problem.env, act, reward, key, rows, episodes)
+        last = evaluated[evaluated <= iteration]
+        true = logged[last[-1] - 1] if len(last) else np.full(logged.shape[1], np.nan)
+        found.append((iteration, np.asarray(earned), true))
+    return found
+
+
+def print_along_training(run, seed: int, parameters, every: int, episodes: int) -> None:
+    import jax
+    import numpy as np
+    from scipy.stats import spearmanr
+
+    found = along_training(run, seed, parameters, every, episodes, jax.random.PRNGKey(2027))
+    number = run.seed_number(seed)
+    print(f"seed {number}: iteration, learned reward per step / true return per true intention")
+    for iteration, earned, true in found:
+        cells = ", ".join(f"{e:.3f} / {t:.1f}" for e, t in zip(earned, true, strict=True))
+        print(f"  {iteration:4d}  {cells}")
+    earned = np.stack([f[1] for f in found])
+    true = np.stack([f[2] for f in found])
+    for i in range(earned.shape[1]):
+        rho = spearmanr(earned[:, i], true[:, i]).statistic
+        print(f"seed {number}, true intention {i}: rank correlation {rho:.2f}")
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("run_dir")
     parser.add_argument("--episodes", type=int, default=20, help="fresh episodes per row")
+    parser.add_argument("--refit", default=None, help="a refitted reward saved in the run")
+    parser.add_argument("--reward-form", default=None, help="gail, logit or log-d")
+    parser.add_argument("--along-training", type=int, default=0, metavar="EVERY")
     args = parser.parse_args(argv)
-    if args.episodes < 1:
-        print("error: --episodes must be at least 1", file=sys.stderr)
+    if args.episodes < 1 or args.along_training < 0:
+        print("error: --episodes must be at least 1, --along-training at least 0", file=sys.stderr)
         return 2
 
     from emgail_jax.host import jax_setup
@@ -124,15 +187,25 @@ def main(argv=None) -> int:
 
     try:
         run = SavedRun.open(args.run_dir)
+        if args.reward_form is not None:
+            run = run.with_reward_form(args.reward_form)
+        parameters = [
+            run.refitted_parameters(args.refit, s) if args.refit else run.reward_parameters(s)
+            for s in range(run.spec.seeds)
+        ]
     except ValueError as error:  # the run's, its checkpoint's, env's and demonstrations' errors
         print(f"error: {error}", file=sys.stderr)
         return 2
+    if args.along_training:
+        for seed in range(run.spec.seeds):
+            print_along_training(run, seed, parameters[seed], args.along_training, args.episodes)
+        return 0
     experts = expert_actor(run.problem.env, jnp.arange(run.problem.true_intentions))
     keys = jax.random.split(jax.random.PRNGKey(2026), 3)  # experts, joint policies, random
     print(f"learned reward per step of each true intention's reward, {args.episodes} fresh")
     print("episodes per row (demonstrations / experts / joint policies / random actions):")
     for seed in range(run.spec.seeds):
-        columns, matching = seed_columns(run, seed, experts, keys, args.episodes)
+        columns, matching = seed_columns(run, seed, parameters[seed], experts, keys, args.episodes)
         for i, learned_intention in enumerate(matching):
             values = " / ".join(f"{column[i]:.3f}" for column in columns)
             label = f"seed {run.spec.first_seed + seed}, true intention {i}"

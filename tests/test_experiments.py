@@ -733,6 +733,29 @@ def test_reward_generalisation_scores_every_seed_and_true_intention(tiny_run, ca
         assert len(values) == 4 and all(np.isfinite(values[1:]))
 
 
+def test_reward_generalisation_scores_the_runs_snapshots_along_training(tiny_run, capsys):
+    module = _load("reward_generalisation")
+    assert module.main([str(tiny_run), "--episodes", "2", "--along-training", "2"]) == 0
+    out = capsys.readouterr().out
+    rows = [line.split() for line in out.splitlines() if line.startswith("  ")]
+    assert [int(r[0]) for r in rows] == [2, 4, 2, 4]  # the snapshots, per seed
+    for row in rows:
+        earned = [float(v) for v in row[1::3]]
+        assert len(earned) == 2 and all(np.isfinite(earned))
+    assert out.count("rank correlation") == 4  # 2 seeds x 2 true intentions
+
+    import jax
+
+    from emgail_jax.host.saved_run import SavedRun
+
+    run = SavedRun.open(str(tiny_run))
+    found = module.along_training(run, 1, run.reward_parameters(1), 4, 2, jax.random.PRNGKey(0))
+    logged = np.asarray(run.history["eval/returns"][1])
+    last = max(i for i in range(4) if np.isfinite(logged[i]).all())
+    assert [f[0] for f in found] == [4]
+    np.testing.assert_array_equal(found[0][2], logged[last])
+
+
 def test_reward_generalisation_refuses_bad_input_in_one_line(tiny_run, tmp_path, capsys):
     module = _load("reward_generalisation")
     assert module.main([str(tiny_run), "--episodes", "0"]) == 2
