@@ -81,22 +81,32 @@ def expert_actor(env, rows):
     return lambda state, _: policy(state.obs, grid(state))
 
 
+def matched_reward(run, seed: int, parameters):
+    """``(matching [K true], rows, learned, reward)``: the learned intention the run finally
+    matched to each true intention (as ``rows``, a device array), the run's reward function, and
+    it jitted on ``parameters`` as ``reward(obs, action, intention)``."""
+    import jax
+    import jax.numpy as jnp
+
+    from emgail_jax import reoptimize as check
+
+    matching = check.run_matching(run, seed, run.iteration)  # true -> learned
+    learned = run.reward_function()
+    reward = jax.jit(lambda obs, action, i: learned(parameters, obs, action, i))
+    return matching, jnp.asarray(matching), learned, reward
+
+
 def seed_columns(run, seed: int, parameters, experts, keys, episodes: int):
     """``([demonstrations, experts, joint policies, random] each [K true], matching)`` for run
     ``seed``, scored by the reward of ``parameters``: true intention i by the learned intention
     ``matching[i]`` the run matched it to, whose policy also acts for it."""
-    import jax
-    import jax.numpy as jnp
     import numpy as np
 
     from emgail_jax import reoptimize as check
     from emgail_jax.method.rollout import uniform_random_policy
 
     env, k_true = run.problem.env, run.problem.true_intentions
-    learned = run.reward_function()
-    matching = check.run_matching(run, seed, run.iteration)  # true -> learned
-    rows = jnp.asarray(matching)
-    reward = jax.jit(lambda obs, action, i: learned(parameters, obs, action, i))
+    matching, rows, learned, reward = matched_reward(run, seed, parameters)
     policy, random = run.policy(seed), uniform_random_policy(env)
     actors = [
         experts,
@@ -121,17 +131,11 @@ def along_training(run, seed: int, parameters, every: int, episodes: int, key):
     its true return the last one ``metrics.csv`` logged at or before that iteration."""
     import dataclasses
 
-    import jax
-    import jax.numpy as jnp
     import numpy as np
 
-    from emgail_jax import reoptimize as check
     from emgail_jax.host import checkpoints
 
-    matching = check.run_matching(run, seed, run.iteration)
-    rows = jnp.asarray(matching)
-    learned = run.reward_function()
-    reward = jax.jit(lambda obs, action, i: learned(parameters, obs, action, i))
+    _, rows, _, reward = matched_reward(run, seed, parameters)
     logged = np.asarray(run.history["eval/returns"][seed])  # [iterations, K true], NaN between
     evaluated = np.flatnonzero(np.isfinite(logged).all(1)) + 1  # the iterations evaluated
     iterations = [i for i in checkpoints.snapshot_iterations(run.run_dir) if i % every == 0]
