@@ -22,8 +22,9 @@ def test_evaluate_writes_its_figures(tiny_run, capsys):
         assert data.startswith(PNG) and len(data) > 10_000, name
 
 
-def test_evaluate_names_seeds_as_run_seed_numbered_them(renumbered_run, capsys):
-    out = renumbered_run / "figs"
+def test_evaluate_names_seeds_as_run_seed_numbered_them(renumbered_run, tmp_path, capsys):
+    # A folder of its own: the renumbered copy may hold figures other tests drew in tiny_run.
+    out = tmp_path / "figs"
     args = [str(renumbered_run), "--episodes", "2", "--seed", "5", "--out", str(out)]
     assert evaluate.main(args) == 0
     assert "seed 4: ERD" in capsys.readouterr().out
