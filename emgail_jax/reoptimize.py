@@ -604,6 +604,14 @@ def parse_args(argv=None) -> argparse.Namespace:
         "snapshots' (default 0: all of them)",
     )
     parser.add_argument(
+        "--consolidate-ranking",
+        type=float,
+        default=0.0,
+        metavar="WEIGHT",
+        help="with --consolidate: rank the snapshots' policies by iteration and the "
+        "demonstrations above them, with this weight (emgail_jax.method.ranking; default 0: none)",
+    )
+    parser.add_argument(
         "--ensemble",
         type=int,
         default=0,
@@ -665,6 +673,8 @@ def _check_options(args: argparse.Namespace) -> None:
         raise RunError(
             "--consolidate-batch is a number of samples >= 0 and goes with --consolidate"
         )
+    if args.consolidate_ranking < 0 or (args.consolidate_ranking and not args.consolidate):
+        raise RunError("--consolidate-ranking is a weight >= 0 and goes with --consolidate")
     if args.consolidate_fresh and not args.consolidate:
         raise RunError("--consolidate-fresh goes with --consolidate STEPS")
     if args.ensemble < 0 or (args.ensemble and args.consolidate):
@@ -888,6 +898,8 @@ def refit_parts(args) -> list[str]:
         parts.append(f"noise-{args.consolidate_noise:g}")
     if args.consolidate_batch:
         parts.append(f"batch-{args.consolidate_batch}")
+    if args.consolidate_ranking:
+        parts.append(f"ranking-{args.consolidate_ranking:g}")
     return parts
 
 
@@ -901,6 +913,7 @@ def refit_of(args):
         fresh=args.consolidate_fresh,
         support_noise=args.consolidate_noise,
         batch=args.consolidate_batch,
+        ranking=args.consolidate_ranking,
     )
 
 

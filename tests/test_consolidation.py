@@ -159,3 +159,28 @@ def test_a_saved_refit_refuses_what_it_cannot_give(copied_run):
     (copied_run / "rewards" / "mine" / "seed-0.msgpack").write_bytes(b"not a reward")
     with pytest.raises(CheckpointError, match="cannot be read"):
         run.reward(0, refit="mine")
+
+
+def test_a_ranking_refit_learns_to_order_the_snapshots(saved):
+    key = jax.random.PRNGKey(0)
+    refit = consolidation.Refit(steps=60, fresh=True, ranking=1.0)
+    _, metrics = consolidation.consolidated_parameters(saved, 0, refit, key)
+    before, after = metrics["before"], metrics["after"]
+    assert after["ranking/loss"] < before["ranking/loss"]
+    assert after["ranking/expert_accuracy"] == 1.0
+
+
+def test_a_refit_saved_before_an_option_existed_reads_as_its_default(copied_run):
+    refit = consolidation.Refit(steps=5, fresh=True)
+    description = consolidation.refit_description(refit, None)
+    older = {
+        **description,
+        "refit": {k: v for k, v in description["refit"].items() if k != "ranking"},
+    }
+    parameters, losses = consolidation.consolidated_parameters(
+        SavedRun.open(str(copied_run)), 0, refit, jax.random.PRNGKey(0)
+    )
+    consolidation.save_refitted(
+        str(copied_run), "older", 0, parameters["discriminator"], older, losses
+    )
+    assert consolidation.read_description(str(copied_run), "older") == description

@@ -30,8 +30,9 @@ import numpy as np
 from emgail_jax.host import checkpoints, records
 from emgail_jax.method import normalizer as obs_norm
 from emgail_jax.method.batches import NormalizedBatch
-from emgail_jax.method.discriminator import discriminator_update
-from emgail_jax.method.optim import Learner
+from emgail_jax.method.discriminator import discriminator_loss
+from emgail_jax.method.optim import Learner, minimize
+from emgail_jax.method.ranking import ranking_loss
 from emgail_jax.method.rollout import batch_reset, intention_major
 from emgail_jax.method.skeleton import intention_rows
 from emgail_jax.method.support import with_support_negatives
@@ -54,13 +55,23 @@ class Refit:
     :mod:`~emgail_jax.method.support` negatives). Every step sees every sample (and one draw
     of the noisy copies) or, with ``batch`` > 0, that many samples per intention drawn anew
     from the snapshots' pool (and their noisy copies), as training's M-step sees one
-    iteration's batch; the demonstrations are whole in every step."""
+    iteration's batch; the demonstrations are whole in every step. ``ranking`` > 0 adds that
+    weight times :func:`~emgail_jax.method.ranking.ranking_loss`: the snapshots ranked by
+    iteration and the demonstrations above them, ``RANKED_PAIRS`` pairs of ``RANKED_SAMPLES``
+    samples per intention drawn anew in every step."""
 
     steps: int
     gradient_penalty: float = 0.0
     fresh: bool = False
     support_noise: float = 0.0
     batch: int = 0
+    ranking: float = 0.0
+
+
+# Enough pairs that every step sees most snapshots, few enough samples that each side's mean
+# still tells two neighbouring snapshots apart now and then.
+RANKED_PAIRS = 64
+RANKED_SAMPLES = 32
 
 
 def snapshot_policy_samples(run, seed: int, key: jax.Array, iterations=None):
@@ -153,8 +164,31 @@ def consolidated_parameters(run, seed: int, refit: Refit, key: jax.Array) -> tup
 
     apply = run.networks.discriminator.apply
     optimizer = make_optimizers(config.method).discriminator
-    fit = lambda learner, steps, seen: discriminator_update(
-        apply, optimizer, learner, steps, **loss_inputs(seen)
+    rollout = config.method.rollout
+    snapshots = obs.shape[1] // (rollout.num_envs * rollout.rollout_length)
+
+    def loss(params, seen: NormalizedBatch, pool: NormalizedBatch, key: jax.Array):
+        value, metrics = discriminator_loss(apply, params, **loss_inputs(seen))
+        if not refit.ranking:
+            return value, metrics
+        by_snapshot = lambda x: x.reshape(k, snapshots, -1, x.shape[-1])
+        ranked, ranked_metrics = ranking_loss(
+            apply,
+            params,
+            key,
+            policy_obs=by_snapshot(pool.obs),
+            policy_actions=by_snapshot(pool.executed),
+            expert_obs=pool.expert_obs,
+            expert_actions=pool.expert_actions,
+            expert_weights=gamma,
+            condition_of=lambda intentions: algorithm.discriminator_condition(intentions, k),
+            pairs=RANKED_PAIRS,
+            samples=RANKED_SAMPLES,
+        )
+        return value + refit.ranking * ranked, {**metrics, **ranked_metrics}
+
+    fit = lambda learner, steps, seen, pool, key: minimize(
+        lambda p: loss(p, seen, pool, key), optimizer, learner, steps
     )
 
     # The pool is an argument, not a constant the compiler would fold into the program; the
@@ -162,14 +196,16 @@ def consolidated_parameters(run, seed: int, refit: Refit, key: jax.Array) -> tup
     @jax.jit
     def refitted(learner: Learner, pool: NormalizedBatch) -> tuple[Learner, dict, dict]:
         whole = with_noise(pool, key_noise)
-        if refit.batch:
-            step = lambda learner, key: fit(learner, 1, drawn(pool, key))
+        if refit.batch or refit.ranking:
+            # Every step draws anew: its batch, its ranked pairs, or both.
+            seen = lambda key: drawn(pool, key) if refit.batch else whole
+            step = lambda learner, key: fit(learner, 1, seen(key), pool, key)
             keys = jax.random.split(key_draws, refit.steps)
             learner, metrics = jax.lax.scan(step, learner, keys)
             before = jax.tree.map(lambda m: m[0], metrics)
         else:
-            learner, before = fit(learner, refit.steps, whole)
-        _, after = fit(learner, 1, whole)
+            learner, before = fit(learner, refit.steps, whole, pool, key_draws)
+        _, after = fit(learner, 1, whole, pool, key_draws)
         return learner, before, after
 
     start = state.discriminator
@@ -234,7 +270,8 @@ def refit_description(refit: Refit, snapshot: int | None) -> dict:
 
 
 def read_description(run_dir: str, name: str) -> dict:
-    """The ``reward.json`` of the saved reward ``name``.
+    """The ``reward.json`` of the saved reward ``name``, its refit's options completed with the
+    defaults of those added since it was saved.
 
     Raises:
       CheckpointError: ``run_dir`` saved no reward of that name (the message lists those it did).
@@ -246,7 +283,8 @@ def read_description(run_dir: str, name: str) -> dict:
             f"'{run_dir}' saved no refitted reward '{name}' (saved: {saved})"
         )
     with open(path) as f:
-        return json.load(f)
+        description = json.load(f)
+    return {**description, "refit": asdict(Refit(**description["refit"]))}
 
 
 def saved_parameters(run, name: str, seed: int) -> dict | None:
