@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from emgail_jax.method.ranking import ranked_levels, ranking_loss
+from emgail_jax.method.ranking import drawn_by_weight, ranked_levels, ranking_loss
 
 K, S, M, N = 2, 5, 16, 12
 
@@ -75,3 +75,14 @@ def test_an_intention_that_holds_no_demonstration_still_gives_a_finite_loss():
         scaled_first_feature, 1.0, jax.random.PRNGKey(3), **leveled_inputs(1.0, weights)
     )
     assert np.isfinite(float(loss)) and float(metrics["ranking/expert_accuracy"]) == 1.0
+
+
+@pytest.mark.parametrize("jitted", [False, True])
+def test_demonstrations_are_drawn_in_proportion_to_their_weight(jitted):
+    draw = jax.jit(drawn_by_weight, static_argnums=2) if jitted else drawn_by_weight
+    weights = jnp.array([[1.0, 0.0], [0.0, 0.0], [3.0, 0.0]])  # intention 1 holds none
+    rows = np.asarray(draw(jax.random.PRNGKey(4), weights, (4000,)))
+    assert rows.shape == (2, 4000)
+    first = np.bincount(rows[0], minlength=3) / 4000
+    assert first[1] == 0 and first[0] == pytest.approx(0.25, abs=0.03)
+    assert np.bincount(rows[1], minlength=3).min() > 1100  # the emptied column: all alike

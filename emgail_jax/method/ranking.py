@@ -31,6 +31,20 @@ def ranked_levels(key: jax.Array, shape: tuple[int, ...], levels: int):
     return jnp.minimum(first, second), jnp.maximum(first, second)
 
 
+def drawn_by_weight(key: jax.Array, weights: jax.Array, shape: tuple[int, ...]) -> jax.Array:
+    """``[K, *shape]`` rows of ``weights [N, K]``, column k's drawn in proportion to it (all
+    alike where the column is all zero, as an emptied intention's is)."""
+    # The inverse of the cumulative weights: O(N) per column, where a Gumbel draw over N
+    # demonstration pairs for every sample would cost O(N) per sample.
+    cumulative = jnp.cumsum(weights, 0).T
+    total = cumulative[:, -1:]
+    cumulative = jnp.where(total > 0, cumulative, jnp.arange(1, weights.shape[0] + 1))
+    uniform = jax.random.uniform(key, (weights.shape[1], *shape))
+    scaled = uniform * cumulative[:, -1, *([None] * len(shape))]
+    found = jax.vmap(lambda c, u: jnp.searchsorted(c, u, side="right"))(cumulative, scaled)
+    return jnp.minimum(found, weights.shape[0] - 1)
+
+
 def ranking_loss(
     apply: Callable,
     params,
@@ -70,9 +84,7 @@ def ranking_loss(
     lower, upper = ranked_levels(key_levels, (k, pairs), s + 1)
     intention = jnp.arange(k)[:, None, None]
     rows = jax.random.randint(key_rows, (2, k, pairs, samples), 0, m)
-    # The floor keeps an emptied intention's column finite.
-    expert_logits = jnp.log(expert_weights.T + 1e-12)[:, None, None, :]
-    expert_rows = jax.random.categorical(key_experts, expert_logits, shape=(k, pairs, samples))
+    expert_rows = drawn_by_weight(key_experts, expert_weights, (pairs, samples))
 
     def drawn(levels: jax.Array, level_rows: jax.Array):
         """``[K, pairs * samples, ...]`` observations and actions of ``levels [K, pairs]``."""
