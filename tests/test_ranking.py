@@ -60,12 +60,11 @@ def test_levels_in_their_order_are_ranked_and_reversed_ones_are_not(jitted):
 
 def test_the_gradient_steepens_a_reward_that_already_ranks_the_levels():
     inputs = leveled_inputs(1.0)
-    grad = jax.grad(
-        lambda params: ranking_loss(scaled_first_feature, params, jax.random.PRNGKey(2), **inputs)[
-            0
-        ]
-    )(0.5)
-    assert float(grad) < 0
+
+    def loss(params):
+        return ranking_loss(scaled_first_feature, params, jax.random.PRNGKey(2), **inputs)[0]
+
+    assert float(jax.grad(loss)(0.5)) < 0
 
 
 def test_an_intention_that_holds_no_demonstration_still_gives_a_finite_loss():

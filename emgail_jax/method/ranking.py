@@ -37,11 +37,9 @@ def drawn_by_weight(key: jax.Array, weights: jax.Array, shape: tuple[int, ...]) 
     # The inverse of the cumulative weights: O(N) per column, where a Gumbel draw over N
     # demonstration pairs for every sample would cost O(N) per sample.
     cumulative = jnp.cumsum(weights, 0).T
-    total = cumulative[:, -1:]
-    cumulative = jnp.where(total > 0, cumulative, jnp.arange(1, weights.shape[0] + 1))
+    cumulative = jnp.where(cumulative[:, -1:] > 0, cumulative, jnp.arange(1, weights.shape[0] + 1))
     uniform = jax.random.uniform(key, (weights.shape[1], *shape))
-    scaled = uniform * cumulative[:, -1, *([None] * len(shape))]
-    found = jax.vmap(lambda c, u: jnp.searchsorted(c, u, side="right"))(cumulative, scaled)
+    found = jax.vmap(lambda c, u: jnp.searchsorted(c, u * c[-1], side="right"))(cumulative, uniform)
     return jnp.minimum(found, weights.shape[0] - 1)
 
 
