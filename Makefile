@@ -22,7 +22,7 @@ run: $(STAMP)
 		--iterations $(ITERATIONS) --out $(OUT) --overwrite
 
 test: $(STAMP)
-	$(PY) -m pytest -q -n 2 --dist loadfile
+	$(PY) -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder
 
 test-slow: $(STAMP)
 	$(PY) -m pytest -q -m slow

@@ -24,6 +24,13 @@ jax_setup.add_xla_flags("--xla_backend_optimization_level=0")
 jax_setup.setup(host_devices=2, cache_dir=str(_REPO / ".cache" / "jax"))
 
 
+def pytest_collection_modifyitems(items):
+    """Files marked ``heavy`` first, in their own order otherwise: with ``--dist loadfile`` and no
+    reordering, the workers take files in this order, and a heavy file left to the end keeps one
+    worker busy while the other idles."""
+    items.sort(key=lambda item: item.get_closest_marker("heavy") is None)
+
+
 @pytest.fixture(scope="session")
 def tiny_run(tmp_path_factory):
     """A finished tiny EM-GAIL driver run (2 seeds, 4 iterations) with its checkpoint and

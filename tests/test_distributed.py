@@ -16,6 +16,8 @@ import pytest
 from emgail_jax import run
 from emgail_jax.host import jax_setup
 
+pytestmark = pytest.mark.heavy
+
 TINY = [
     "--env", "driver",
     "--seeds", "2",

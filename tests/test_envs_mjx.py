@@ -17,6 +17,8 @@ import pytest
 import envs
 from envs.mjx_base import mjx, mujoco_default_solver, native_rollout
 
+pytestmark = pytest.mark.heavy
+
 MJX_ENVS = ("swimmer", "hopper", "halfcheetah", "reacher")
 LOCOMOTION = ("swimmer", "hopper", "halfcheetah")
 

@@ -13,6 +13,8 @@ import pytest
 
 from emgail_jax.host import checkpoints
 
+pytestmark = pytest.mark.heavy
+
 EXPERIMENTS = pathlib.Path(__file__).resolve().parents[1] / "experiments"
 
 

@@ -16,6 +16,8 @@ from emgail_jax.host import demonstration_files
 from emgail_jax.host.problem import shipped_demos_path
 from emgail_jax.method import demonstrations
 
+pytestmark = pytest.mark.heavy
+
 MJX_ENVS = ("swimmer", "hopper", "halfcheetah", "reacher")
 TINY = experts.ExpertSpec(iterations=2, num_envs=2, rollout_length=20, demo_episodes=2)
 

@@ -12,6 +12,8 @@ from emgail_jax import reoptimize
 from emgail_jax.host.consolidation import Refit
 from emgail_jax.method.metrics import reward_difference
 
+pytestmark = pytest.mark.heavy
+
 
 @pytest.fixture(scope="module")
 def reoptimized(tiny_run, tmp_path_factory):

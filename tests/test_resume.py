@@ -15,6 +15,8 @@ import pytest
 from emgail_jax import run
 from emgail_jax.host import checkpoints, records
 
+pytestmark = pytest.mark.heavy
+
 TINY = [
     "--env", "driver",
     "--seeds", "2",

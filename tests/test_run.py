@@ -9,6 +9,8 @@ import pytest
 from emgail_jax import run
 from emgail_jax.method.config import AlgorithmName, Prior, RunConfig
 
+pytestmark = pytest.mark.heavy
+
 SEEDS, ITERATIONS = 2, 2
 TINY = [
     "--env", "driver",

@@ -10,6 +10,8 @@ import pytest
 from emgail_jax import evaluate, run
 from emgail_jax.host import checkpoints
 
+pytestmark = pytest.mark.heavy
+
 TINY = [
     "--env", "swimmer",
     "--intentions", "2",

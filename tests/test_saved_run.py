@@ -10,6 +10,8 @@ from emgail_jax.host.run_spec import RunError
 from emgail_jax.host.saved_run import SavedRun
 from emgail_jax.method import normalizer as obs_norm
 
+pytestmark = pytest.mark.heavy
+
 
 @pytest.fixture(scope="module")
 def saved(tiny_run):

@@ -24,6 +24,8 @@ from emgail_jax.method.skeleton import (
     unconditioned,
 )
 
+pytestmark = pytest.mark.heavy
+
 K, B, T = 2, 2, 5
 CONFIG = (
     RunConfig()

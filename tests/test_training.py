@@ -25,6 +25,8 @@ from emgail_jax.method.training import (
     training_env,
 )
 
+pytestmark = pytest.mark.heavy
+
 K, B, T = 2, 2, 10
 RANDOM_RETURNS = np.array([-300.0, -250.0])
 CONFIG = RunConfig().with_values(

@@ -9,6 +9,8 @@ from jax.flatten_util import ravel_pytree
 from emgail_jax.method import trpo
 from emgail_jax.method.networks import GaussianPolicy, action_distribution
 
+pytestmark = pytest.mark.heavy
+
 OBS, COND, ACT, N = 3, 2, 2, 6
 CONFIG = trpo.TRPOConfig()
 
