@@ -612,6 +612,11 @@ def parse_args(argv=None) -> argparse.Namespace:
         "demonstrations above them, with this weight (emgail_jax.method.ranking; default 0: none)",
     )
     parser.add_argument(
+        "--consolidate-ranking-random",
+        action="store_true",
+        help="with --consolidate-ranking: uniformly random actions rank below the oldest snapshot",
+    )
+    parser.add_argument(
         "--ensemble",
         type=int,
         default=0,
@@ -675,6 +680,8 @@ def _check_options(args: argparse.Namespace) -> None:
         )
     if args.consolidate_ranking < 0 or (args.consolidate_ranking and not args.consolidate):
         raise RunError("--consolidate-ranking is a weight >= 0 and goes with --consolidate")
+    if args.consolidate_ranking_random and not args.consolidate_ranking:
+        raise RunError("--consolidate-ranking-random goes with --consolidate-ranking WEIGHT")
     if args.consolidate_fresh and not args.consolidate:
         raise RunError("--consolidate-fresh goes with --consolidate STEPS")
     if args.ensemble < 0 or (args.ensemble and args.consolidate):
@@ -900,6 +907,8 @@ def refit_parts(args) -> list[str]:
         parts.append(f"batch-{args.consolidate_batch}")
     if args.consolidate_ranking:
         parts.append(f"ranking-{args.consolidate_ranking:g}")
+    if args.consolidate_ranking_random:
+        parts.append("random")
     return parts
 
 
@@ -914,6 +923,7 @@ def refit_of(args):
         support_noise=args.consolidate_noise,
         batch=args.consolidate_batch,
         ranking=args.consolidate_ranking,
+        ranking_random=args.consolidate_ranking_random,
     )
 
 

@@ -170,12 +170,32 @@ def test_a_ranking_refit_learns_to_order_the_snapshots(saved):
     assert after["ranking/expert_accuracy"] == 1.0
 
 
+def test_random_actions_are_one_snapshot_of_samples_below_the_ranked_ones(saved):
+    obs, executed = consolidation.random_action_samples(saved, jax.random.PRNGKey(0))
+    rollout = saved.config.method.rollout
+    k, m = 2, rollout.num_envs * rollout.rollout_length
+    assert obs.shape == (k, m, saved.problem.env.observation_size)
+    assert executed.shape == (k, m, saved.problem.env.action_size)
+    env = saved.problem.env
+    assert (executed >= env.action_low).all() and (executed <= env.action_high).all()
+    # Uniform over the box, not a policy's: spread over it.
+    assert executed.std() > 0.25 * float(np.max(env.action_high - env.action_low))
+
+    refit = consolidation.Refit(steps=60, fresh=True, ranking=1.0, ranking_random=True)
+    _, metrics = consolidation.consolidated_parameters(saved, 0, refit, jax.random.PRNGKey(0))
+    before, after = metrics["before"], metrics["after"]
+    assert after["ranking/loss"] < before["ranking/loss"]
+    assert after["ranking/expert_accuracy"] == 1.0
+
+
 def test_a_refit_saved_before_an_option_existed_reads_as_its_default(copied_run):
     refit = consolidation.Refit(steps=5, fresh=True)
     description = consolidation.refit_description(refit, None)
     older = {
         **description,
-        "refit": {k: v for k, v in description["refit"].items() if k != "ranking"},
+        "refit": {
+            k: v for k, v in description["refit"].items() if k not in ("ranking", "ranking_random")
+        },
     }
     parameters, losses = consolidation.consolidated_parameters(
         SavedRun.open(str(copied_run)), 0, refit, jax.random.PRNGKey(0)

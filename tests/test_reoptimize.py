@@ -185,6 +185,10 @@ def test_a_snapshot_is_reoptimised_on_its_own_networks(tiny_run, reoptimized):
         (["--consolidate", "5", "--consolidate-noise", "-1"], "--consolidate-noise is a"),
         (["--consolidate-noise", "1"], "deviation >= 0 and goes with --consolidate"),
         (["--consolidate-batch", "100"], "--consolidate-batch is a number of samples >= 0"),
+        (
+            ["--consolidate", "5", "--consolidate-ranking-random"],
+            "--consolidate-ranking-random goes with --consolidate-ranking WEIGHT",
+        ),
         (["--ensemble", "3"], "--ensemble 3 needs 3 snapshots up to iteration 4;"),
         (
             ["--ensemble", "2", "--snapshot", "2"],
@@ -380,6 +384,13 @@ def test_the_default_file_names_what_was_checked():
     args = reoptimize.parse_args(["RUN", *refit, "--consolidate-batch", "2500"])
     name = "reoptimize-consolidated-4000-penalty-10-fresh-batch-2500.json"
     assert reoptimize.default_name(args) == name and reoptimize.refit_of(args).batch == 2500
+    ranked = ["--consolidate-ranking", "10", "--consolidate-ranking-random"]
+    args = reoptimize.parse_args(["RUN", *refit, *ranked])
+    name = "reoptimize-consolidated-4000-penalty-10-fresh-ranking-10-random.json"
+    assert reoptimize.default_name(args) == name
+    assert reoptimize.refit_of(args) == Refit(
+        4000, gradient_penalty=10, fresh=True, ranking=10, ranking_random=True
+    )
     # The saved refit is named by the refit alone: any reward form reads the same one.
     args = reoptimize.parse_args(["RUN", *refit, "--reward-form", "log-d", "--snapshot", "20"])
     assert reoptimize.refit_parts(args) == [

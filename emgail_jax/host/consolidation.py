@@ -25,6 +25,7 @@ import os
 from dataclasses import asdict, dataclass
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from emgail_jax.host import checkpoints, records
@@ -33,7 +34,12 @@ from emgail_jax.method.batches import NormalizedBatch
 from emgail_jax.method.discriminator import discriminator_loss
 from emgail_jax.method.optim import Learner, minimize
 from emgail_jax.method.ranking import ranking_loss
-from emgail_jax.method.rollout import batch_reset, intention_major
+from emgail_jax.method.rollout import (
+    batch_reset,
+    intention_major,
+    rollout,
+    uniform_random_policy,
+)
 from emgail_jax.method.skeleton import intention_rows
 from emgail_jax.method.support import with_support_negatives
 from emgail_jax.method.training import (
@@ -66,6 +72,7 @@ class Refit:
     support_noise: float = 0.0
     batch: int = 0
     ranking: float = 0.0
+    ranking_random: bool = False
 
 
 # Enough pairs that every step sees most snapshots, few enough samples that each side's mean
@@ -113,13 +120,33 @@ def snapshot_policy_samples(run, seed: int, key: jax.Array, iterations=None):
     return np.concatenate(obs, 1), np.concatenate(executed, 1)
 
 
+def random_action_samples(run, key: jax.Array):
+    """``(obs [K, M, D] raw, executed [K, M, A])``: one training rollout of uniformly random
+    actions per intention, of the shape of one snapshot's in :func:`snapshot_policy_samples`."""
+    config, env = run.config, run.problem.env
+    k, b = env.num_intentions, config.method.rollout.num_envs
+    data = RunData.create(run.demonstration_pairs, env, config.info_weight)
+    train_env = training_env(env, data)
+
+    @jax.jit
+    def collect(key):
+        key_reset, key_rollout = jax.random.split(key)
+        start = batch_reset(train_env, key_reset, (k, b))
+        length = config.method.rollout.rollout_length
+        _, transitions = rollout(train_env, uniform_random_policy(env), start, key_rollout, length)
+        return intention_major(transitions.obs), intention_major(transitions.action)
+
+    obs, executed = collect(key)
+    return np.asarray(obs), np.asarray(executed)
+
+
 def consolidated_parameters(run, seed: int, refit: Refit, key: jax.Array) -> tuple[dict, dict]:
     """``(reward parameters, metrics)``: :meth:`SavedRun.reward_parameters` of ``seed`` with
     its discriminator refitted as ``refit`` says on the expert pairs weighted by the final
     responsibilities against the policy samples of every snapshot; the metrics are those of
     the M-step's loss before (on the first step's batch) and after (on every sample)."""
     # The samples keep ``key`` itself, so a refit without the newer options draws what it did.
-    key_init, key_noise, key_draws = (jax.random.fold_in(key, i) for i in (1, 2, 3))
+    key_init, key_noise, key_draws, key_random = (jax.random.fold_in(key, i) for i in (1, 2, 3, 4))
     parameters = run.reward_parameters(seed)
     state = run.seed_state(seed)
     algorithm, config, k = run.algorithm, run.config, run.num_intentions
@@ -133,6 +160,10 @@ def consolidated_parameters(run, seed: int, refit: Refit, key: jax.Array) -> tup
         expert_obs=normalize(pairs.observations),
         expert_actions=pairs.actions,
     )
+    floor = None  # ([K, 1, M, D], [K, 1, M, A]): the ranking's level below every snapshot
+    if refit.ranking_random:
+        random_obs, random_actions = random_action_samples(run, key_random)
+        floor = (normalize(random_obs)[:, None], random_actions[:, None])
     if algorithm.learns_posterior:
         gamma = np.asarray(run.responsibilities(seed).gamma)
     else:
@@ -167,17 +198,21 @@ def consolidated_parameters(run, seed: int, refit: Refit, key: jax.Array) -> tup
     rollout = config.method.rollout
     snapshots = obs.shape[1] // (rollout.num_envs * rollout.rollout_length)
 
-    def loss(params, seen: NormalizedBatch, pool: NormalizedBatch, key: jax.Array):
+    def loss(params, seen: NormalizedBatch, pool: NormalizedBatch, floor, key: jax.Array):
         value, metrics = discriminator_loss(apply, params, **loss_inputs(seen))
         if not refit.ranking:
             return value, metrics
         by_snapshot = lambda x: x.reshape(k, snapshots, -1, x.shape[-1])
+        levels_obs, levels_actions = by_snapshot(pool.obs), by_snapshot(pool.executed)
+        if floor is not None:
+            levels_obs = jnp.concatenate([floor[0], levels_obs], 1)
+            levels_actions = jnp.concatenate([floor[1], levels_actions], 1)
         ranked, ranked_metrics = ranking_loss(
             apply,
             params,
             key,
-            policy_obs=by_snapshot(pool.obs),
-            policy_actions=by_snapshot(pool.executed),
+            policy_obs=levels_obs,
+            policy_actions=levels_actions,
             expert_obs=pool.expert_obs,
             expert_actions=pool.expert_actions,
             expert_weights=gamma,
@@ -187,25 +222,25 @@ def consolidated_parameters(run, seed: int, refit: Refit, key: jax.Array) -> tup
         )
         return value + refit.ranking * ranked, {**metrics, **ranked_metrics}
 
-    fit = lambda learner, steps, seen, pool, key: minimize(
-        lambda p: loss(p, seen, pool, key), optimizer, learner, steps
+    fit = lambda learner, steps, seen, pool, floor, key: minimize(
+        lambda p: loss(p, seen, pool, floor, key), optimizer, learner, steps
     )
 
     # The pool is an argument, not a constant the compiler would fold into the program; the
     # loss after the refit is measured in the same program, compiled once.
     @jax.jit
-    def refitted(learner: Learner, pool: NormalizedBatch) -> tuple[Learner, dict, dict]:
+    def refitted(learner: Learner, pool: NormalizedBatch, floor) -> tuple[Learner, dict, dict]:
         whole = with_noise(pool, key_noise)
         if refit.batch or refit.ranking:
             # Every step draws anew: its batch, its ranked pairs, or both.
             seen = lambda key: drawn(pool, key) if refit.batch else whole
-            step = lambda learner, key: fit(learner, 1, seen(key), pool, key)
+            step = lambda learner, key: fit(learner, 1, seen(key), pool, floor, key)
             keys = jax.random.split(key_draws, refit.steps)
             learner, metrics = jax.lax.scan(step, learner, keys)
             before = jax.tree.map(lambda m: m[0], metrics)
         else:
-            learner, before = fit(learner, refit.steps, whole, pool, key_draws)
-        _, after = fit(learner, 1, whole, pool, key_draws)
+            learner, before = fit(learner, refit.steps, whole, pool, floor, key_draws)
+        _, after = fit(learner, 1, whole, pool, floor, key_draws)
         return learner, before, after
 
     start = state.discriminator
@@ -215,7 +250,7 @@ def consolidated_parameters(run, seed: int, refit: Refit, key: jax.Array) -> tup
             key_init, pairs.observations[:1], pairs.actions[:1], condition
         )
         start = Learner.create(weights, optimizer)
-    trained, before, after = refitted(start, pool)
+    trained, before, after = refitted(start, pool, floor)
     metrics = {"before": jax.device_get(before), "after": jax.device_get(after)}
     return {**parameters, "discriminator": trained.params}, metrics
 
