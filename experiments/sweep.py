@@ -847,6 +847,7 @@ class CellResult:
     intentions_chosen: np.ndarray | None = None  # [seeds], --intentions auto
     intentions_held: np.ndarray | None = None  # [seeds], by the weights alone
     true_reward_erd: float | None = None  # the reward check's true-reward baseline
+    devices: int = 2  # the XLA devices (cores) training ran on
 
 
 @dataclasses.dataclass(frozen=True)
@@ -914,6 +915,7 @@ def read_cell_result(cell: Cell, run_dir: str) -> CellResult:
         intentions_chosen=final.intentions_chosen,
         intentions_held=final.intentions_held,
         true_reward_erd=None if check is None else true_reward_erd(check),
+        devices=len(summary.get("devices", ())) or 2,
     )
 
 
@@ -1031,27 +1033,29 @@ def write_table2(out: str, results: Results, seeds: int) -> None:
     lines = [
         f"Learnable parameters (policy, value, discriminator and posterior, as `summary.json` "
         f"counts them) and seconds per iteration of the K = 2 cells on this machine's CPU "
-        f"({seeds} seeds over 2 cores; per seed in brackets), beside the paper's (one seed, "
+        f"({seeds} seeds over the cores in brackets, 2 or 1; per seed in the last column), "
+        f"beside the paper's (one seed, "
         f"RTX 2080 Ti). The seconds are each cell's training wall time as it ran, with whatever "
         f"else shared the cores (the committed sweep mostly ran two cells at a time, and paused "
         f"for test-suite measurements): an upper bound, not a benchmark; `make bench` measures "
         f"on a quiet machine (README, Speed).",
         "",
-        "| env | algorithm | parameters | paper | s / iteration | paper (GPU) |",
-        "|---|---|---:|---:|---:|---:|",
+        "| env | algorithm | parameters | paper | s / iteration (cores) | per seed | paper (GPU) |",
+        "|---|---|---:|---:|---:|---:|---:|",
     ]
     for env in ROBOTICS_INTENTIONS:
         for algo in ALGOS:
             result = results.get(env, 2, algo)
             params, paper_seconds = PAPER_TABLE2[env][algo]
             if result is None:
-                ours, seconds = "—", "—"
+                ours, seconds, per_seed = "—", "—", "—"
             else:
                 ours = f"{result.parameters:,}"
-                per_seed = result.seconds_per_iteration / seeds
-                seconds = f"{result.seconds_per_iteration:.2f} ({per_seed:.2f})"
+                seconds = f"{result.seconds_per_iteration:.2f} ({result.devices})"
+                per_seed = f"{result.seconds_per_iteration / seeds:.2f}"
             lines.append(
-                f"| {env} | {ALGO_LABELS[algo]} | {ours} | {params} | {seconds} | {paper_seconds} |"
+                f"| {env} | {ALGO_LABELS[algo]} | {ours} | {params} | {seconds} | {per_seed} "
+                f"| {paper_seconds} |"
             )
     _write_text(os.path.join(out, "table2.md"), lines)
 

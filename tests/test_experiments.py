@@ -219,6 +219,17 @@ def test_sweep_table3_takes_each_column_from_its_cells(tmp_path):
     assert columns[names.index("hopper-3")] == "—"
 
 
+def test_sweep_table2_says_on_how_many_cores_each_cell_ran(tmp_path):
+    sweep = _load("sweep")
+    one = sweep.CellResult(
+        sweep.Cell("hopper", 2, "emgail"), np.zeros(4), None, 35_983, 1.6, None, devices=1
+    )
+    sweep.write_table2(str(tmp_path), sweep.Results({one.cell: one}), seeds=4)
+    rows = (tmp_path / "table2.md").read_text().splitlines()
+    assert "| hopper | EM-GAIL | 35,983 | 21.2K | 1.60 (1) | 0.40 | 15.6 |" in rows
+    assert "| hopper | GAIL | — | 15.3K | — | — | 12.4 |" in rows
+
+
 def test_sweep_draws_the_figures_whose_cells_have_finished(tmp_path):
     """Each figure takes its cells by field: swimmer's default cells alone draw Figure 6, and
     with the separability of their data Figures 4a and 5b; the driver's none."""
