@@ -34,12 +34,7 @@ from emgail_jax.method.batches import NormalizedBatch
 from emgail_jax.method.discriminator import discriminator_loss
 from emgail_jax.method.optim import Learner, minimize
 from emgail_jax.method.ranking import ranking_loss
-from emgail_jax.method.rollout import (
-    batch_reset,
-    intention_major,
-    rollout,
-    uniform_random_policy,
-)
+from emgail_jax.method.rollout import batch_reset, intention_major, uniform_random_policy
 from emgail_jax.method.skeleton import intention_rows
 from emgail_jax.method.support import with_support_negatives
 from emgail_jax.method.training import (
@@ -81,27 +76,35 @@ RANKED_PAIRS = 64
 RANKED_SAMPLES = 32
 
 
-def snapshot_policy_samples(run, seed: int, key: jax.Array, iterations=None):
-    """``(obs [K, M, D] raw, executed [K, M, A])``: one training rollout (``num_envs`` x
-    ``rollout_length`` steps per intention, from fresh starts, with exploration) of the policy
-    of every snapshot of ``seed`` (``iterations``; default all up to the networks ``run``
-    holds), concatenated."""
+def _training_rollout(run):
+    """``(stages, collect)``: the run's policy stages and ``collect(policy, key) -> (obs
+    [K, M, D] raw, executed [K, M, A])``, one training rollout (``num_envs`` x
+    ``rollout_length`` steps per intention, from fresh starts) of ``policy``."""
     config, env = run.config, run.problem.env
     k, b = env.num_intentions, config.method.rollout.num_envs
     stages = make_policy_stages(config.method, env, run.networks)
     data = RunData.create(run.demonstration_pairs, env, config.info_weight)
     train_env = training_env(env, data)
 
-    @jax.jit
-    def collect(state, key):
+    def collect(policy, key):
         key_reset, key_rollout = jax.random.split(key)
         start = batch_reset(train_env, key_reset, (k, b))
-        policy = stages.acting(state.policy, state.normalizer, explore=True)
         _, transitions = stages.collect(train_env, policy, start, key_rollout)
         return intention_major(transitions.obs), env.clip_action(
             intention_major(transitions.action)
         )
 
+    return stages, collect
+
+
+def snapshot_policy_samples(run, seed: int, key: jax.Array, iterations=None):
+    """``(obs [K, M, D] raw, executed [K, M, A])``: one training rollout (with exploration) of
+    the policy of every snapshot of ``seed`` (``iterations``; default all up to the networks
+    ``run`` holds), concatenated."""
+    stages, collect = _training_rollout(run)
+    of_snapshot = jax.jit(
+        lambda state, key: collect(stages.acting(state.policy, state.normalizer, explore=True), key)
+    )
     if iterations is None:
         last = run.snapshot or run.iteration
         iterations = [i for i in checkpoints.snapshot_iterations(run.run_dir) if i <= last]
@@ -114,7 +117,7 @@ def snapshot_policy_samples(run, seed: int, key: jax.Array, iterations=None):
         iterations, jax.random.split(key, len(iterations)), strict=True
     ):
         state = seed_state(checkpoints.restore_snapshot(run.run_dir, iteration, run.state), seed)
-        o, a = collect(state, snapshot_key)
+        o, a = of_snapshot(state, snapshot_key)
         obs.append(np.asarray(o))
         executed.append(np.asarray(a))
     return np.concatenate(obs, 1), np.concatenate(executed, 1)
@@ -123,20 +126,8 @@ def snapshot_policy_samples(run, seed: int, key: jax.Array, iterations=None):
 def random_action_samples(run, key: jax.Array):
     """``(obs [K, M, D] raw, executed [K, M, A])``: one training rollout of uniformly random
     actions per intention, of the shape of one snapshot's in :func:`snapshot_policy_samples`."""
-    config, env = run.config, run.problem.env
-    k, b = env.num_intentions, config.method.rollout.num_envs
-    data = RunData.create(run.demonstration_pairs, env, config.info_weight)
-    train_env = training_env(env, data)
-
-    @jax.jit
-    def collect(key):
-        key_reset, key_rollout = jax.random.split(key)
-        start = batch_reset(train_env, key_reset, (k, b))
-        length = config.method.rollout.rollout_length
-        _, transitions = rollout(train_env, uniform_random_policy(env), start, key_rollout, length)
-        return intention_major(transitions.obs), intention_major(transitions.action)
-
-    obs, executed = collect(key)
+    _, collect = _training_rollout(run)
+    obs, executed = jax.jit(collect, static_argnums=0)(uniform_random_policy(run.problem.env), key)
     return np.asarray(obs), np.asarray(executed)
 
 
@@ -164,6 +155,16 @@ def consolidated_parameters(run, seed: int, refit: Refit, key: jax.Array) -> tup
     if refit.ranking_random:
         random_obs, random_actions = random_action_samples(run, key_random)
         floor = (normalize(random_obs)[:, None], random_actions[:, None])
+
+    def ranked_levels(pool: NormalizedBatch, floor):
+        """``(obs [K, L, M, D], actions [K, L, M, A])``: the ranking's levels below the
+        demonstrations, lowest first (``floor``, if any, then the snapshots)."""
+        by_snapshot = lambda x: x.reshape(k, snapshots, -1, x.shape[-1])
+        obs, actions = by_snapshot(pool.obs), by_snapshot(pool.executed)
+        if floor is None:
+            return obs, actions
+        return jnp.concatenate([floor[0], obs], 1), jnp.concatenate([floor[1], actions], 1)
+
     if algorithm.learns_posterior:
         gamma = np.asarray(run.responsibilities(seed).gamma)
     else:
@@ -198,23 +199,18 @@ def consolidated_parameters(run, seed: int, refit: Refit, key: jax.Array) -> tup
     rollout = config.method.rollout
     snapshots = obs.shape[1] // (rollout.num_envs * rollout.rollout_length)
 
-    def loss(params, seen: NormalizedBatch, pool: NormalizedBatch, floor, key: jax.Array):
+    def loss(params, seen: NormalizedBatch, levels, key: jax.Array):
         value, metrics = discriminator_loss(apply, params, **loss_inputs(seen))
         if not refit.ranking:
             return value, metrics
-        by_snapshot = lambda x: x.reshape(k, snapshots, -1, x.shape[-1])
-        levels_obs, levels_actions = by_snapshot(pool.obs), by_snapshot(pool.executed)
-        if floor is not None:
-            levels_obs = jnp.concatenate([floor[0], levels_obs], 1)
-            levels_actions = jnp.concatenate([floor[1], levels_actions], 1)
         ranked, ranked_metrics = ranking_loss(
             apply,
             params,
             key,
-            policy_obs=levels_obs,
-            policy_actions=levels_actions,
-            expert_obs=pool.expert_obs,
-            expert_actions=pool.expert_actions,
+            policy_obs=levels[0],
+            policy_actions=levels[1],
+            expert_obs=seen.expert_obs,
+            expert_actions=seen.expert_actions,
             expert_weights=gamma,
             condition_of=lambda intentions: algorithm.discriminator_condition(intentions, k),
             pairs=RANKED_PAIRS,
@@ -222,8 +218,8 @@ def consolidated_parameters(run, seed: int, refit: Refit, key: jax.Array) -> tup
         )
         return value + refit.ranking * ranked, {**metrics, **ranked_metrics}
 
-    fit = lambda learner, steps, seen, pool, floor, key: minimize(
-        lambda p: loss(p, seen, pool, floor, key), optimizer, learner, steps
+    fit = lambda learner, steps, seen, levels, key: minimize(
+        lambda p: loss(p, seen, levels, key), optimizer, learner, steps
     )
 
     # The pool is an argument, not a constant the compiler would fold into the program; the
@@ -231,16 +227,17 @@ def consolidated_parameters(run, seed: int, refit: Refit, key: jax.Array) -> tup
     @jax.jit
     def refitted(learner: Learner, pool: NormalizedBatch, floor) -> tuple[Learner, dict, dict]:
         whole = with_noise(pool, key_noise)
+        levels = ranked_levels(pool, floor) if refit.ranking else None
         if refit.batch or refit.ranking:
             # Every step draws anew: its batch, its ranked pairs, or both.
             seen = lambda key: drawn(pool, key) if refit.batch else whole
-            step = lambda learner, key: fit(learner, 1, seen(key), pool, floor, key)
+            step = lambda learner, key: fit(learner, 1, seen(key), levels, key)
             keys = jax.random.split(key_draws, refit.steps)
             learner, metrics = jax.lax.scan(step, learner, keys)
             before = jax.tree.map(lambda m: m[0], metrics)
         else:
-            learner, before = fit(learner, refit.steps, whole, pool, floor, key_draws)
-        _, after = fit(learner, 1, whole, pool, floor, key_draws)
+            learner, before = fit(learner, refit.steps, whole, levels, key_draws)
+        _, after = fit(learner, 1, whole, levels, key_draws)
         return learner, before, after
 
     start = state.discriminator
