@@ -617,6 +617,12 @@ def parse_args(argv=None) -> argparse.Namespace:
         help="with --consolidate-ranking: uniformly random actions rank below the oldest snapshot",
     )
     parser.add_argument(
+        "--consolidate-ranking-still",
+        action="store_true",
+        help="with --consolidate-ranking: actions held at the middle of their range rank below "
+        "the oldest snapshot (above random actions with --consolidate-ranking-random)",
+    )
+    parser.add_argument(
         "--ensemble",
         type=int,
         default=0,
@@ -680,8 +686,9 @@ def _check_options(args: argparse.Namespace) -> None:
         )
     if args.consolidate_ranking < 0 or (args.consolidate_ranking and not args.consolidate):
         raise RunError("--consolidate-ranking is a weight >= 0 and goes with --consolidate")
-    if args.consolidate_ranking_random and not args.consolidate_ranking:
-        raise RunError("--consolidate-ranking-random goes with --consolidate-ranking WEIGHT")
+    for level in ("random", "still"):
+        if getattr(args, f"consolidate_ranking_{level}") and not args.consolidate_ranking:
+            raise RunError(f"--consolidate-ranking-{level} goes with --consolidate-ranking WEIGHT")
     if args.consolidate_fresh and not args.consolidate:
         raise RunError("--consolidate-fresh goes with --consolidate STEPS")
     if args.ensemble < 0 or (args.ensemble and args.consolidate):
@@ -909,6 +916,8 @@ def refit_parts(args) -> list[str]:
         parts.append(f"ranking-{args.consolidate_ranking:g}")
     if args.consolidate_ranking_random:
         parts.append("random")
+    if args.consolidate_ranking_still:
+        parts.append("still")
     return parts
 
 
@@ -924,6 +933,7 @@ def refit_of(args):
         batch=args.consolidate_batch,
         ranking=args.consolidate_ranking,
         ranking_random=args.consolidate_ranking_random,
+        ranking_still=args.consolidate_ranking_still,
     )
 
 

@@ -11,7 +11,9 @@ intention the run matched it to) earned by:
 - the env's own experts on fresh episodes: new resets (the reacher's balls elsewhere), the
   shipped expert policies of the MJX envs or the driver's analytic controller, noiseless;
 - the run's jointly trained policies on fresh episodes;
-- uniformly random actions on fresh episodes.
+- uniformly random actions on fresh episodes;
+- actions held at the middle of their range (no torque) on fresh episodes: an agent that
+  does nothing (experiment 47).
 
 A reward that stands for the task pays the experts' fresh episodes about what it pays the
 demonstrations. One that pays them what it pays random actions has learned which episodes
@@ -97,21 +99,22 @@ def matched_reward(run, seed: int, parameters):
 
 
 def seed_columns(run, seed: int, parameters, experts, keys, episodes: int):
-    """``([demonstrations, experts, joint policies, random] each [K true], matching)`` for run
-    ``seed``, scored by the reward of ``parameters``: true intention i by the learned intention
-    ``matching[i]`` the run matched it to, whose policy also acts for it."""
+    """``([demonstrations, experts, joint policies, random, still] each [K true], matching)``
+    for run ``seed``, scored by the reward of ``parameters``: true intention i by the learned
+    intention ``matching[i]`` the run matched it to, whose policy also acts for it."""
     import numpy as np
 
     from emgail_jax import reoptimize as check
-    from emgail_jax.method.rollout import uniform_random_policy
+    from emgail_jax.method.rollout import still_policy, uniform_random_policy
 
     env, k_true = run.problem.env, run.problem.true_intentions
     matching, rows, learned, reward = matched_reward(run, seed, parameters)
-    policy, random = run.policy(seed), uniform_random_policy(env)
+    policy, random, still = run.policy(seed), uniform_random_policy(env), still_policy(env)
     actors = [
         experts,
         lambda state, _: policy(state.obs, rows[:, None]),
         lambda state, key: random(state.obs, key),
+        lambda state, key: still(state.obs, key),
     ]
     fresh = [
         np.asarray(learned_reward_per_step(env, act, reward, key, rows, episodes))
@@ -205,9 +208,13 @@ def main(argv=None) -> int:
             print_along_training(run, seed, parameters[seed], args.along_training, args.episodes)
         return 0
     experts = expert_actor(run.problem.env, jnp.arange(run.problem.true_intentions))
-    keys = jax.random.split(jax.random.PRNGKey(2026), 3)  # experts, joint policies, random
+    # Experts, joint policies, random: the keys they had before the still column came.
+    keys = [*jax.random.split(jax.random.PRNGKey(2026), 3), jax.random.PRNGKey(2027)]
     print(f"learned reward per step of each true intention's reward, {args.episodes} fresh")
-    print("episodes per row (demonstrations / experts / joint policies / random actions):")
+    print(
+        "episodes per row (demonstrations / experts / joint policies / random actions / "
+        "actions held still):"
+    )
     for seed in range(run.spec.seeds):
         columns, matching = seed_columns(run, seed, parameters[seed], experts, keys, args.episodes)
         for i, learned_intention in enumerate(matching):

@@ -170,7 +170,7 @@ def test_a_ranking_refit_learns_to_order_the_snapshots(saved):
     assert after["ranking/expert_accuracy"] == 1.0
 
 
-def test_random_actions_are_one_snapshot_of_samples_below_the_ranked_ones(saved):
+def test_random_and_still_actions_are_one_snapshot_of_samples_below_the_ranked_ones(saved):
     obs, executed = consolidation.random_action_samples(saved, jax.random.PRNGKey(0))
     rollout = saved.config.method.rollout
     k, m = 2, rollout.num_envs * rollout.rollout_length
@@ -181,7 +181,17 @@ def test_random_actions_are_one_snapshot_of_samples_below_the_ranked_ones(saved)
     # Uniform over the box, not a policy's: spread over it.
     assert executed.std() > 0.25 * float(np.max(env.action_high - env.action_low))
 
-    refit = consolidation.Refit(steps=60, fresh=True, ranking=1.0, ranking_random=True)
+    still_obs, still = consolidation.still_action_samples(saved, jax.random.PRNGKey(0))
+    assert still_obs.shape == obs.shape and still.shape == executed.shape
+    np.testing.assert_array_equal(
+        still, np.broadcast_to((env.action_low + env.action_high) / 2, still.shape)
+    )
+    # The episodes start where the random ones do (same key) and then go their own way.
+    assert not np.array_equal(still_obs, obs)
+
+    refit = consolidation.Refit(
+        steps=60, fresh=True, ranking=1.0, ranking_random=True, ranking_still=True
+    )
     _, metrics = consolidation.consolidated_parameters(saved, 0, refit, jax.random.PRNGKey(0))
     before, after = metrics["before"], metrics["after"]
     assert after["ranking/loss"] < before["ranking/loss"]
@@ -193,9 +203,7 @@ def test_a_refit_saved_before_an_option_existed_reads_as_its_default(copied_run)
     description = consolidation.refit_description(refit, None)
     older = {
         **description,
-        "refit": {
-            k: v for k, v in description["refit"].items() if k not in ("ranking", "ranking_random")
-        },
+        "refit": {k: v for k, v in description["refit"].items() if not k.startswith("ranking")},
     }
     parameters, losses = consolidation.consolidated_parameters(
         SavedRun.open(str(copied_run)), 0, refit, jax.random.PRNGKey(0)

@@ -743,7 +743,7 @@ def test_reward_generalisation_scores_every_seed_and_true_intention(tiny_run, ca
     for line in lines:
         values = [float(v) for v in line.split(": ")[1].split(" / ")]
         # The driver has its experts; a tiny run's intention may hold no demonstration (nan).
-        assert len(values) == 4 and all(np.isfinite(values[1:]))
+        assert len(values) == 5 and all(np.isfinite(values[1:]))
 
 
 def test_reward_generalisation_scores_the_runs_snapshots_along_training(tiny_run, capsys):

@@ -189,6 +189,10 @@ def test_a_snapshot_is_reoptimised_on_its_own_networks(tiny_run, reoptimized):
             ["--consolidate", "5", "--consolidate-ranking-random"],
             "--consolidate-ranking-random goes with --consolidate-ranking WEIGHT",
         ),
+        (
+            ["--consolidate", "5", "--consolidate-ranking-still"],
+            "--consolidate-ranking-still goes with --consolidate-ranking WEIGHT",
+        ),
         (["--ensemble", "3"], "--ensemble 3 needs 3 snapshots up to iteration 4;"),
         (
             ["--ensemble", "2", "--snapshot", "2"],
@@ -390,6 +394,12 @@ def test_the_default_file_names_what_was_checked():
     assert reoptimize.default_name(args) == name
     assert reoptimize.refit_of(args) == Refit(
         4000, gradient_penalty=10, fresh=True, ranking=10, ranking_random=True
+    )
+    args = reoptimize.parse_args(["RUN", *refit, *ranked, "--consolidate-ranking-still"])
+    name = "reoptimize-consolidated-4000-penalty-10-fresh-ranking-10-random-still.json"
+    assert reoptimize.default_name(args) == name
+    assert reoptimize.refit_of(args) == Refit(
+        4000, gradient_penalty=10, fresh=True, ranking=10, ranking_random=True, ranking_still=True
     )
     # The saved refit is named by the refit alone: any reward form reads the same one.
     args = reoptimize.parse_args(["RUN", *refit, "--reward-form", "log-d", "--snapshot", "20"])

@@ -15,6 +15,7 @@ from emgail_jax.method.rollout import (
     intention_major,
     rollout,
     steps_left,
+    still_policy,
     terminations,
     time_major,
     uniform_random_policy,
@@ -274,6 +275,16 @@ def test_uniform_random_policy_covers_the_action_box():
     driver_actions = uniform_random_policy(driver)(jnp.zeros((K, B, 10)), jax.random.PRNGKey(6))
     assert driver_actions.shape == (K, B, 1)
     assert np.all(np.abs(driver_actions) <= 1.0)
+
+
+def test_still_policy_holds_the_middle_of_the_action_box_jitted_and_not():
+    env = _Counter(low=-2.0, high=0.5)
+    policy = still_policy(env)
+    obs = jnp.zeros((K, 7, 1))
+    eager = np.asarray(policy(obs, jax.random.PRNGKey(4)))
+    jitted = np.asarray(jax.jit(policy)(obs, jax.random.PRNGKey(5)))
+    np.testing.assert_array_equal(eager, np.full((K, 7, 1), -0.75, np.float32))
+    np.testing.assert_array_equal(jitted, eager)
 
 
 def test_intention_major_groups_samples_by_intention_and_time_major_undoes_it():

@@ -34,7 +34,12 @@ from emgail_jax.method.batches import NormalizedBatch
 from emgail_jax.method.discriminator import discriminator_loss
 from emgail_jax.method.optim import Learner, minimize
 from emgail_jax.method.ranking import ranking_loss
-from emgail_jax.method.rollout import batch_reset, intention_major, uniform_random_policy
+from emgail_jax.method.rollout import (
+    batch_reset,
+    intention_major,
+    still_policy,
+    uniform_random_policy,
+)
 from emgail_jax.method.skeleton import intention_rows
 from emgail_jax.method.support import with_support_negatives
 from emgail_jax.method.training import (
@@ -59,7 +64,9 @@ class Refit:
     iteration's batch; the demonstrations are whole in every step. ``ranking`` > 0 adds that
     weight times :func:`~emgail_jax.method.ranking.ranking_loss`: the snapshots ranked by
     iteration and the demonstrations above them, ``RANKED_PAIRS`` pairs of ``RANKED_SAMPLES``
-    samples per intention drawn anew in every step."""
+    samples per intention drawn anew in every step; below the oldest snapshot rank, lowest
+    first, one rollout of uniformly random actions (``ranking_random``) and one of actions held
+    still (``ranking_still``), each a ranking level only."""
 
     steps: int
     gradient_penalty: float = 0.0
@@ -68,6 +75,7 @@ class Refit:
     batch: int = 0
     ranking: float = 0.0
     ranking_random: bool = False
+    ranking_still: bool = False
 
 
 # Enough pairs that every step sees most snapshots, few enough samples that each side's mean
@@ -123,12 +131,23 @@ def snapshot_policy_samples(run, seed: int, key: jax.Array, iterations=None):
     return np.concatenate(obs, 1), np.concatenate(executed, 1)
 
 
-def random_action_samples(run, key: jax.Array):
-    """``(obs [K, M, D] raw, executed [K, M, A])``: one training rollout of uniformly random
-    actions per intention, of the shape of one snapshot's in :func:`snapshot_policy_samples`."""
+def fixed_policy_samples(run, policy, key: jax.Array):
+    """``(obs [K, M, D] raw, executed [K, M, A])``: one training rollout per intention of
+    ``policy`` (acting on raw observations), of the shape of one snapshot's in
+    :func:`snapshot_policy_samples`."""
     _, collect = _training_rollout(run)
-    obs, executed = jax.jit(collect, static_argnums=0)(uniform_random_policy(run.problem.env), key)
+    obs, executed = jax.jit(collect, static_argnums=0)(policy, key)
     return np.asarray(obs), np.asarray(executed)
+
+
+def random_action_samples(run, key: jax.Array):
+    """:func:`fixed_policy_samples` of uniformly random actions."""
+    return fixed_policy_samples(run, uniform_random_policy(run.problem.env), key)
+
+
+def still_action_samples(run, key: jax.Array):
+    """:func:`fixed_policy_samples` of actions held at the middle of the box."""
+    return fixed_policy_samples(run, still_policy(run.problem.env), key)
 
 
 def consolidated_parameters(run, seed: int, refit: Refit, key: jax.Array) -> tuple[dict, dict]:
@@ -137,7 +156,9 @@ def consolidated_parameters(run, seed: int, refit: Refit, key: jax.Array) -> tup
     responsibilities against the policy samples of every snapshot; the metrics are those of
     the M-step's loss before (on the first step's batch) and after (on every sample)."""
     # The samples keep ``key`` itself, so a refit without the newer options draws what it did.
-    key_init, key_noise, key_draws, key_random = (jax.random.fold_in(key, i) for i in (1, 2, 3, 4))
+    key_init, key_noise, key_draws, key_random, key_still = (
+        jax.random.fold_in(key, i) for i in (1, 2, 3, 4, 5)
+    )
     parameters = run.reward_parameters(seed)
     state = run.seed_state(seed)
     algorithm, config, k = run.algorithm, run.config, run.num_intentions
@@ -151,10 +172,19 @@ def consolidated_parameters(run, seed: int, refit: Refit, key: jax.Array) -> tup
         expert_obs=normalize(pairs.observations),
         expert_actions=pairs.actions,
     )
-    floor = None  # ([K, 1, M, D], [K, 1, M, A]): the ranking's level below every snapshot
-    if refit.ranking_random:
-        random_obs, random_actions = random_action_samples(run, key_random)
-        floor = (normalize(random_obs)[:, None], random_actions[:, None])
+    # ([K, F, M, D], [K, F, M, A]): the ranking's levels below every snapshot, lowest first.
+    below = [
+        sampled(run, level_key)
+        for wanted, sampled, level_key in (
+            (refit.ranking_random, random_action_samples, key_random),
+            (refit.ranking_still, still_action_samples, key_still),
+        )
+        if wanted
+    ]
+    floor = None
+    if below:
+        obs_below, actions_below = (np.stack(levels, 1) for levels in zip(*below, strict=True))
+        floor = (normalize(obs_below), actions_below)
 
     def ranked_levels(pool: NormalizedBatch, floor):
         """``(obs [K, L, M, D], actions [K, L, M, A])``: the ranking's levels below the

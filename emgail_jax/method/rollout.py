@@ -219,3 +219,15 @@ def uniform_random_policy(env: envs.Env) -> Policy:
         return jax.random.uniform(key, shape, minval=env.action_low, maxval=env.action_high)
 
     return policy
+
+
+def still_policy(env: envs.Env) -> Policy:
+    """Every actuator held at the middle of its range (no torque in the MJX envs): an agent
+    that does nothing on purpose, where a fresh learner that stops exploring ends up."""
+
+    def policy(obs, key):
+        del key
+        middle = (jnp.asarray(env.action_low) + jnp.asarray(env.action_high)) / 2
+        return jnp.broadcast_to(middle, (*obs.shape[:-1], env.action_size))
+
+    return policy
