@@ -223,7 +223,7 @@ def uniform_random_policy(env: envs.Env) -> Policy:
 
 def still_policy(env: envs.Env) -> Policy:
     """Every actuator held at the middle of its range (no torque in the MJX envs): an agent
-    that does nothing on purpose, where a fresh learner that stops exploring ends up."""
+    that does nothing, a reference below any learner that acts."""
 
     def policy(obs, key):
         del key
