@@ -66,6 +66,7 @@ def _error_lines(err: str) -> list[str]:
     return [line for line in err.splitlines() if line.startswith("error: ")]
 
 
+@pytest.mark.slow  # two processes compiling the run cold (the failure paths below stay in CI)
 def test_two_processes_give_the_one_process_results(tmp_path):
     one = tmp_path / "one"  # in this process, whose two host devices the conftest made
     assert run.main([*TINY, "--out", str(one)]) == 0

@@ -34,6 +34,7 @@ def resumed_run(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow  # an MJX run compiled cold (test_run covers the tool, test_envs_mjx the envs)
 def test_an_mjx_run_checkpoints_and_resumes(resumed_run):
     summary = json.loads((resumed_run / "summary.json").read_text())
     assert summary["status"] == "completed" and summary["iterations_done"] == 4
