@@ -117,6 +117,12 @@ def default_budget(run) -> Budget:
     )
 
 
+def budget_of(args: argparse.Namespace, run) -> Budget:
+    """The env's budget with ``--iterations`` and ``--gamma`` in place of its own if given."""
+    budget = default_budget(run)
+    return Budget(args.iterations or budget.iterations, args.gamma or budget.gamma)
+
+
 def default_cache() -> str:
     root = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     return os.path.join(root, "emgail-jax", "true-reward-baselines")
@@ -623,6 +629,15 @@ def parse_args(argv=None) -> argparse.Namespace:
         "the oldest snapshot (above random actions with --consolidate-ranking-random)",
     )
     parser.add_argument(
+        "--consolidate-agents",
+        type=int,
+        default=0,
+        metavar="ROUNDS",
+        help="with --consolidate-batch: refit ROUNDS times more, each against fresh agents "
+        "trained on the last refit too, as many negatives per step as the snapshots' "
+        "(default 0: none)",
+    )
+    parser.add_argument(
         "--ensemble",
         type=int,
         default=0,
@@ -689,6 +704,10 @@ def _check_options(args: argparse.Namespace) -> None:
     for level in ("random", "still"):
         if getattr(args, f"consolidate_ranking_{level}") and not args.consolidate_ranking:
             raise RunError(f"--consolidate-ranking-{level} goes with --consolidate-ranking WEIGHT")
+    if args.consolidate_agents < 0 or (args.consolidate_agents and not args.consolidate_batch):
+        raise RunError(
+            "--consolidate-agents is a number of rounds >= 0 and goes with --consolidate-batch M"
+        )
     if args.consolidate_fresh and not args.consolidate:
         raise RunError("--consolidate-fresh goes with --consolidate STEPS")
     if args.ensemble < 0 or (args.ensemble and args.consolidate):
@@ -739,7 +758,7 @@ def _opened(args: argparse.Namespace):
     if args.consolidate:
         name = "-".join(refit_parts(args))
         chosen.parameters, chosen.details["consolidation"] = consolidated(
-            run, seeds, refit_of(args), name, progress=not args.quiet
+            run, seeds, refit_of(args), name, budget_of(args, run), progress=not args.quiet
         )
         chosen.details["saved_reward"] = name
     if args.ensemble:
@@ -817,8 +836,7 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
     """The rest of :func:`main`: the fresh agents trained, scored and written."""
     from emgail_jax.host import records
 
-    budget = default_budget(run)
-    budget = Budget(args.iterations or budget.iterations, args.gamma or budget.gamma)
+    budget = budget_of(args, run)
     cache = args.cache or default_cache()
     variant = None
     if args.env_set:  # the variant's own expert, its best true-reward agents, first
@@ -918,6 +936,8 @@ def refit_parts(args) -> list[str]:
         parts.append("random")
     if args.consolidate_ranking_still:
         parts.append("still")
+    if args.consolidate_agents:
+        parts.append(f"agents-{args.consolidate_agents}")
     return parts
 
 
@@ -934,19 +954,28 @@ def refit_of(args):
         ranking=args.consolidate_ranking,
         ranking_random=args.consolidate_ranking_random,
         ranking_still=args.consolidate_ranking_still,
+        agent_rounds=args.consolidate_agents,
     )
 
 
-def consolidated(run, seeds: list[int], refit, name: str, progress: bool = True):
+def consolidated(
+    run, seeds: list[int], refit, name: str, budget: Budget | None = None, progress: bool = True
+):
     """Every seed's consolidated reward parameters and the refit's losses; each seed's refit is
     read from the run's saved reward ``name`` when it was made before, and saved there when
-    not (:mod:`~emgail_jax.host.consolidation`)."""
+    not (:mod:`~emgail_jax.host.consolidation`). A refit against fresh agents trains them with
+    ``budget`` (default the env's) on the run's reward form, which its saved description
+    records."""
     import jax
 
     from emgail_jax.host import consolidation
     from emgail_jax.host.run_spec import RunError
 
     description = consolidation.refit_description(refit, run.snapshot)
+    budget = budget or default_budget(run)
+    if refit.agent_rounds:
+        agents = {"reward_form": run.algorithm.reward_form, "budget": dataclasses.asdict(budget)}
+        description["agents"] = agents
     saved_before = name in consolidation.saved_refits(run.run_dir)
     if saved_before and consolidation.read_description(run.run_dir, name) != description:
         raise RunError(
@@ -964,12 +993,57 @@ def consolidated(run, seeds: list[int], refit, name: str, progress: bool = True)
         else:
             key = jax.random.PRNGKey(number + 2000)
             found, losses = consolidation.consolidated_parameters(run, seed, refit, key)
+            if refit.agent_rounds:
+                found, losses = refitted_against_agents(
+                    run, seed, refit, key, budget, found, progress
+                )
             consolidation.save_refitted(
                 run.run_dir, name, number, found["discriminator"], description, losses
             )
         parameters.append(found)
         metrics.append({"run_seed": number, **dataclasses.asdict(refit), **losses})
     return parameters, metrics
+
+
+# The fresh agents a refit is fitted against are RL draws from this one on (round r's is
+# AGENT_DRAWS + r), never one that ``--rl-seed`` checks the refit with.
+AGENT_DRAWS = 1000
+
+
+def refitted_against_agents(run, seed: int, refit, key, budget: Budget, first, progress: bool):
+    """``(reward parameters, losses)``: ``refit.agent_rounds`` rounds, each training fresh
+    agents on the last refit ``first`` onwards with ``budget``, one training rollout of them
+    (with exploration) added to every earlier round's, and the refit made again from the same
+    start against those rollouts too; the losses are the last refit's, with each round's
+    agents' ERD, true returns and learned reward per step (``agent_rounds``)."""
+    import jax
+
+    from emgail_jax.host import consolidation
+    from emgail_jax.host.saved_run import stacked
+
+    trainer = learned_reward_trainer(run, budget, run.reward_function())
+    acting = lambda state: trainer.policy(state, deterministic=False)
+    matching = run_matching(run, seed, run.snapshot or run.iteration)
+    found, rollouts, rounds = first, [], []
+    for number in range(1, refit.agent_rounds + 1):
+        keys = fresh_keys(run, [seed], AGENT_DRAWS + number)
+        label = f"refit's agents, round {number}"
+        fresh = train_fresh(trainer, keys, stacked([found]), budget.iterations, label, progress)
+        states = jax.tree.map(lambda x: x[0], fresh.states)
+        policy = consolidation.agents_policy(acting, states)
+        rollout_key = jax.random.fold_in(key, AGENT_DRAWS + number)
+        rollouts.append(consolidation.fixed_policy_samples(run, policy, rollout_key))
+        agents = tuple(np.concatenate(parts, 1) for parts in zip(*rollouts, strict=True))
+        scores = scored(fresh.returns[0], matching, run, seed)
+        rounds.append(
+            {
+                "erd": scores["erd"],
+                "returns": scores["returns"],
+                "learned_reward_per_step": fresh.earned[0, -FINAL_WINDOW:].mean(0),
+            }
+        )
+        found, losses = consolidation.consolidated_parameters(run, seed, refit, key, agents)
+    return found, {**losses, "agent_rounds": rounds}
 
 
 if __name__ == "__main__":

@@ -212,3 +212,39 @@ def test_a_refit_saved_before_an_option_existed_reads_as_its_default(copied_run)
         str(copied_run), "older", 0, parameters["discriminator"], older, losses
     )
     assert consolidation.read_description(str(copied_run), "older") == description
+
+
+def test_fresh_agents_each_act_on_their_own_intentions_row():
+    import jax.numpy as jnp
+
+    seen = []
+
+    def policy_of(state):
+        def act(obs, key):
+            seen.append(obs.shape)
+            return jnp.broadcast_to(state + obs[..., :1], (*obs.shape[:-1], 1))
+
+        return act
+
+    policy = consolidation.agents_policy(policy_of, jnp.array([10.0, 20.0]))
+    obs = jnp.zeros((2, 3, 4)).at[1].set(1.0)  # [K, B, D]
+    for act in (policy, jax.jit(policy)):
+        action = act(obs, jax.random.PRNGKey(0))
+        assert action.shape == (2, 3, 1)
+        np.testing.assert_array_equal(action[:, :, 0], [[10.0] * 3, [21.0] * 3])
+    assert seen[0] == (1, 3, 4)  # one agent's rows, as it trained on them
+
+
+def test_a_refit_against_agents_pays_their_samples_less(saved):
+    key = jax.random.PRNGKey(0)
+    refit = consolidation.Refit(steps=60, fresh=True, batch=50)
+    agents = consolidation.still_action_samples(saved, jax.random.PRNGKey(1))
+    plain, _ = consolidation.consolidated_parameters(saved, 0, refit, key)
+    again, _ = consolidation.consolidated_parameters(saved, 0, refit, key)
+    against, _ = consolidation.consolidated_parameters(saved, 0, refit, key, agents)
+    assert same(plain, again)
+    reward = saved.reward_function()
+    paid = lambda parameters: np.mean(
+        [np.asarray(reward(parameters, agents[0][i], agents[1][i], i)).mean() for i in range(2)]
+    )
+    assert paid(against) < paid(plain)

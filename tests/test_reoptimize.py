@@ -193,6 +193,10 @@ def test_a_snapshot_is_reoptimised_on_its_own_networks(tiny_run, reoptimized):
             ["--consolidate", "5", "--consolidate-ranking-still"],
             "--consolidate-ranking-still goes with --consolidate-ranking WEIGHT",
         ),
+        (
+            ["--consolidate", "5", "--consolidate-agents", "1"],
+            "--consolidate-agents is a number of rounds >= 0 and goes with --consolidate-batch M",
+        ),
         (["--ensemble", "3"], "--ensemble 3 needs 3 snapshots up to iteration 4;"),
         (
             ["--ensemble", "2", "--snapshot", "2"],
@@ -323,6 +327,36 @@ def test_a_refit_is_saved_once_and_reused(tiny_run, tmp_path, capsys):
         reoptimize.consolidated(run, [1], Refit(steps=4), "consolidated-3")
 
 
+@pytest.mark.slow  # fresh agents trained twice inside the refit
+def test_a_refit_against_fresh_agents_trains_them_and_records_each_round(tiny_run, tmp_path):
+    import shutil
+
+    from emgail_jax.host import consolidation
+    from emgail_jax.host.run_spec import RunError
+    from emgail_jax.host.saved_run import SavedRun
+
+    copy = tmp_path / "run"
+    shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("rewards"))
+    run = SavedRun.open(str(copy))
+    budget = reoptimize.Budget(iterations=2, gamma=0.99)
+    plain = Refit(steps=5, fresh=True, batch=20)
+    (before,), _ = reoptimize.consolidated(run, [1], plain, "plain", budget, progress=False)
+    against = dataclasses.replace(plain, agent_rounds=2)
+    (after,), (losses,) = reoptimize.consolidated(run, [1], against, "agents", budget, False)
+    rounds = losses["agent_rounds"]
+    assert len(rounds) == 2
+    for one in rounds:
+        assert one["erd"] >= 0 and len(one["returns"]) == 2
+        assert np.asarray(one["learned_reward_per_step"]).shape == (2,)
+    leaves = zip(jax.tree.leaves(before), jax.tree.leaves(after), strict=True)
+    assert not all(np.array_equal(a, b) for a, b in leaves)
+    description = consolidation.read_description(str(copy), "agents")
+    assert description["agents"] == {"reward_form": "gail", "budget": dataclasses.asdict(budget)}
+    with pytest.raises(RunError, match="refitted otherwise"):
+        other = reoptimize.Budget(iterations=3, gamma=0.99)
+        reoptimize.consolidated(run, [1], against, "agents", other, False)
+
+
 @pytest.mark.slow  # a tiny swimmer run and its re-optimisation in a variant: two compiles
 def test_a_variant_is_scored_against_its_own_true_reward_agent(tmp_path):
     from emgail_jax import run
@@ -401,6 +435,12 @@ def test_the_default_file_names_what_was_checked():
     assert reoptimize.refit_of(args) == Refit(
         4000, gradient_penalty=10, fresh=True, ranking=10, ranking_random=True, ranking_still=True
     )
+    args = reoptimize.parse_args(
+        ["RUN", *refit, "--consolidate-batch", "50", "--consolidate-agents", "2"]
+    )
+    name = "reoptimize-consolidated-4000-penalty-10-fresh-batch-50-agents-2.json"
+    assert reoptimize.default_name(args) == name
+    assert reoptimize.refit_of(args).agent_rounds == 2
     # The saved refit is named by the refit alone: any reward form reads the same one.
     args = reoptimize.parse_args(["RUN", *refit, "--reward-form", "log-d", "--snapshot", "20"])
     assert reoptimize.refit_parts(args) == [

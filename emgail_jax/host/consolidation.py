@@ -66,7 +66,11 @@ class Refit:
     iteration and the demonstrations above them, ``RANKED_PAIRS`` pairs of ``RANKED_SAMPLES``
     samples per intention drawn anew in every step; below the oldest snapshot rank, lowest
     first, one rollout of uniformly random actions (``ranking_random``) and one of actions held
-    still (``ranking_still``), each a ranking level only."""
+    still (``ranking_still``), each a ranking level only. ``agent_rounds`` > 0 refits that many
+    times more, each time against fresh agents trained on the last refit too
+    (:func:`emgail_jax.reoptimize.consolidated`): every step's negatives are then ``batch``
+    samples of the snapshots and ``batch`` of those agents' rollouts (a GAIL negative only, not
+    a ranking level)."""
 
     steps: int
     gradient_penalty: float = 0.0
@@ -76,6 +80,7 @@ class Refit:
     ranking: float = 0.0
     ranking_random: bool = False
     ranking_still: bool = False
+    agent_rounds: int = 0
 
 
 # Enough pairs that every step sees most snapshots, few enough samples that each side's mean
@@ -131,6 +136,19 @@ def snapshot_policy_samples(run, seed: int, key: jax.Array, iterations=None):
     return np.concatenate(obs, 1), np.concatenate(executed, 1)
 
 
+def agents_policy(policy_of, states):
+    """The policy of one training rollout of fresh agents ``states [K]``: agent k acts on
+    intention k's row of the ``[K, B, D]`` observations with ``policy_of(state)``, which
+    takes one agent's ``[1, B, D]`` as it trained on."""
+
+    def policy(obs, key):
+        keys = jax.random.split(key, obs.shape[0])
+        act = lambda state, row, key: policy_of(state)(row[None], key)[0]
+        return jax.vmap(act)(states, obs, keys)
+
+    return policy
+
+
 def fixed_policy_samples(run, policy, key: jax.Array):
     """``(obs [K, M, D] raw, executed [K, M, A])``: one training rollout per intention of
     ``policy`` (acting on raw observations), of the shape of one snapshot's in
@@ -150,11 +168,15 @@ def still_action_samples(run, key: jax.Array):
     return fixed_policy_samples(run, still_policy(run.problem.env), key)
 
 
-def consolidated_parameters(run, seed: int, refit: Refit, key: jax.Array) -> tuple[dict, dict]:
+def consolidated_parameters(
+    run, seed: int, refit: Refit, key: jax.Array, agents=None
+) -> tuple[dict, dict]:
     """``(reward parameters, metrics)``: :meth:`SavedRun.reward_parameters` of ``seed`` with
     its discriminator refitted as ``refit`` says on the expert pairs weighted by the final
-    responsibilities against the policy samples of every snapshot; the metrics are those of
-    the M-step's loss before (on the first step's batch) and after (on every sample)."""
+    responsibilities against the policy samples of every snapshot and, if given, ``agents``
+    (``(obs [K, M', D] raw, executed [K, M', A])``: fresh agents' rollouts, as many negatives
+    per step as the snapshots'); the metrics are those of the M-step's loss before (on the
+    first step's batch) and after (on every sample)."""
     # The samples keep ``key`` itself, so a refit without the newer options draws what it did.
     key_init, key_noise, key_draws, key_random, key_still = (
         jax.random.fold_in(key, i) for i in (1, 2, 3, 4, 5)
@@ -172,6 +194,7 @@ def consolidated_parameters(run, seed: int, refit: Refit, key: jax.Array) -> tup
         expert_obs=normalize(pairs.observations),
         expert_actions=pairs.actions,
     )
+    met_agents = None if agents is None else (normalize(agents[0]), agents[1])
     # ([K, F, M, D], [K, F, M, A]): the ranking's levels below every snapshot, lowest first.
     below = [
         sampled(run, level_key)
@@ -217,12 +240,18 @@ def consolidated_parameters(run, seed: int, refit: Refit, key: jax.Array) -> tup
             gradient_penalty=refit.gradient_penalty,
         )
 
-    def drawn(pool: NormalizedBatch, key: jax.Array) -> NormalizedBatch:
-        """``refit.batch`` samples of each intention, drawn uniformly from the pool."""
+    def drawn(pool: NormalizedBatch, agents, key: jax.Array) -> NormalizedBatch:
+        """``refit.batch`` samples of each intention, drawn uniformly from the pool, and as
+        many from ``agents`` (if any) after them."""
         key_draw, key_moved = jax.random.split(key)
         rows = jax.random.randint(key_draw, (refit.batch,), 0, pool.obs.shape[1])
-        seen = pool.replace(obs=pool.obs[:, rows], executed=pool.executed[:, rows])
-        return with_noise(seen, key_moved)
+        obs, executed = pool.obs[:, rows], pool.executed[:, rows]
+        if agents is not None:
+            key_agents = jax.random.fold_in(key, 1)
+            rows = jax.random.randint(key_agents, (refit.batch,), 0, agents[0].shape[1])
+            obs = jnp.concatenate([obs, agents[0][:, rows]], 1)
+            executed = jnp.concatenate([executed, agents[1][:, rows]], 1)
+        return with_noise(pool.replace(obs=obs, executed=executed), key_moved)
 
     apply = run.networks.discriminator.apply
     optimizer = make_optimizers(config.method).discriminator
@@ -255,12 +284,20 @@ def consolidated_parameters(run, seed: int, refit: Refit, key: jax.Array) -> tup
     # The pool is an argument, not a constant the compiler would fold into the program; the
     # loss after the refit is measured in the same program, compiled once.
     @jax.jit
-    def refitted(learner: Learner, pool: NormalizedBatch, floor) -> tuple[Learner, dict, dict]:
-        whole = with_noise(pool, key_noise)
+    def refitted(
+        learner: Learner, pool: NormalizedBatch, floor, agents
+    ) -> tuple[Learner, dict, dict]:
+        whole = pool
+        if agents is not None:
+            whole = pool.replace(
+                obs=jnp.concatenate([pool.obs, agents[0]], 1),
+                executed=jnp.concatenate([pool.executed, agents[1]], 1),
+            )
+        whole = with_noise(whole, key_noise)
         levels = ranked_levels(pool, floor) if refit.ranking else None
         if refit.batch or refit.ranking:
             # Every step draws anew: its batch, its ranked pairs, or both.
-            seen = lambda key: drawn(pool, key) if refit.batch else whole
+            seen = lambda key: drawn(pool, agents, key) if refit.batch else whole
             step = lambda learner, key: fit(learner, 1, seen(key), levels, key)
             keys = jax.random.split(key_draws, refit.steps)
             learner, metrics = jax.lax.scan(step, learner, keys)
@@ -277,7 +314,7 @@ def consolidated_parameters(run, seed: int, refit: Refit, key: jax.Array) -> tup
             key_init, pairs.observations[:1], pairs.actions[:1], condition
         )
         start = Learner.create(weights, optimizer)
-    trained, before, after = refitted(start, pool, floor)
+    trained, before, after = refitted(start, pool, floor, met_agents)
     metrics = {"before": jax.device_get(before), "after": jax.device_get(after)}
     return {**parameters, "discriminator": trained.params}, metrics
 
