@@ -992,10 +992,13 @@ def consolidated(
                 print(f"seed {number}: the refitted reward '{name}' saved before, reused")
         else:
             key = jax.random.PRNGKey(number + 2000)
-            found, losses = consolidation.consolidated_parameters(run, seed, refit, key)
+            samples = consolidation.snapshot_policy_samples(run, seed, key)
+            found, losses = consolidation.consolidated_parameters(
+                run, seed, refit, key, samples=samples
+            )
             if refit.agent_rounds:
                 found, losses = refitted_against_agents(
-                    run, seed, refit, key, budget, found, progress
+                    run, seed, refit, key, budget, found, samples, progress
                 )
             consolidation.save_refitted(
                 run.run_dir, name, number, found["discriminator"], description, losses
@@ -1010,11 +1013,14 @@ def consolidated(
 AGENT_DRAWS = 1000
 
 
-def refitted_against_agents(run, seed: int, refit, key, budget: Budget, first, progress: bool):
+def refitted_against_agents(
+    run, seed: int, refit, key, budget: Budget, first, samples, progress: bool
+):
     """``(reward parameters, losses)``: ``refit.agent_rounds`` rounds, each training fresh
     agents on the last refit ``first`` onwards with ``budget``, one training rollout of them
     (with exploration) added to every earlier round's, and the refit made again from the same
-    start against those rollouts too; the losses are the last refit's, with each round's
+    start against those rollouts too (and the snapshots' ``samples`` the first refit saw,
+    not collected again); the losses are the last refit's, with each round's
     agents' ERD, true returns and learned reward per step (``agent_rounds``)."""
     import jax
 
@@ -1042,7 +1048,9 @@ def refitted_against_agents(run, seed: int, refit, key, budget: Budget, first, p
                 "learned_reward_per_step": fresh.earned[0, -FINAL_WINDOW:].mean(0),
             }
         )
-        found, losses = consolidation.consolidated_parameters(run, seed, refit, key, agents)
+        found, losses = consolidation.consolidated_parameters(
+            run, seed, refit, key, agents, samples
+        )
     return found, {**losses, "agent_rounds": rounds}
 
 

@@ -169,14 +169,16 @@ def still_action_samples(run, key: jax.Array):
 
 
 def consolidated_parameters(
-    run, seed: int, refit: Refit, key: jax.Array, agents=None
+    run, seed: int, refit: Refit, key: jax.Array, agents=None, samples=None
 ) -> tuple[dict, dict]:
     """``(reward parameters, metrics)``: :meth:`SavedRun.reward_parameters` of ``seed`` with
     its discriminator refitted as ``refit`` says on the expert pairs weighted by the final
     responsibilities against the policy samples of every snapshot and, if given, ``agents``
     (``(obs [K, M', D] raw, executed [K, M', A])``: fresh agents' rollouts, as many negatives
-    per step as the snapshots'); the metrics are those of the M-step's loss before (on the
-    first step's batch) and after (on every sample)."""
+    per step as the snapshots'); ``samples`` are the snapshots' (default
+    :func:`snapshot_policy_samples` of ``seed`` and ``key``, collected here). The metrics are
+    those of the M-step's loss before (on the first step's batch) and after (on every
+    sample)."""
     # The samples keep ``key`` itself, so a refit without the newer options draws what it did.
     key_init, key_noise, key_draws, key_random, key_still = (
         jax.random.fold_in(key, i) for i in (1, 2, 3, 4, 5)
@@ -185,7 +187,7 @@ def consolidated_parameters(
     state = run.seed_state(seed)
     algorithm, config, k = run.algorithm, run.config, run.num_intentions
     pairs = run.demonstration_pairs
-    obs, executed = snapshot_policy_samples(run, seed, key)
+    obs, executed = samples or snapshot_policy_samples(run, seed, key)
     normalize = lambda x: obs_norm.normalize(state.normalizer, x, config.method.networks.obs_clip)
     pool = NormalizedBatch(
         normalizer=state.normalizer,
