@@ -20,7 +20,10 @@ With `--run` (an EM-GAIL run directory with a checkpoint on the same demonstrati
 per-step and per-tenth accuracy of that run's own posterior (eq. 29's pair labels, matched by
 the trajectory labels), and for an MJX env the two quantities its training samples depend on:
 how far apart the experts' actions for different intentions are at the demonstrations' states,
-and how far each learned policy's mean action is from its own expert's.
+and how far each learned policy's mean action is from its own expert's. For the driver, whose
+expert needs the unobserved heading, each intention's mean demonstrated action by tenth, and
+how far apart the learned policies' mean actions are at the demonstrations' states, with the
+policies' action noise.
 """
 
 from __future__ import annotations
@@ -112,9 +115,10 @@ def supervised_ceiling(
 
 def compare_run(run_dir: str, demos, expert=None) -> None:
     """The per-step accuracy of a run's own posterior and, given an ``expert(obs, i)`` (the
-    shipped experts; the driver's acts on whole states and has none), how far apart the
-    experts' actions are and how far each learned policy's mean action is from its own
-    expert's."""
+    shipped experts), how far apart the experts' actions are and how far each learned
+    policy's mean action is from its own expert's. Without one (the driver's acts on whole
+    states), each intention's mean demonstrated action and how far apart the learned
+    policies' mean actions are at the demonstrations' states."""
     import jax.numpy as jnp
 
     from emgail_jax.host.saved_run import SavedRun
@@ -135,6 +139,10 @@ def compare_run(run_dir: str, demos, expert=None) -> None:
             0,
         )
         print(f"  experts' actions apart (mean |a_i - a_j|): {by_step(apart, step)}")
+    else:  # the driver's expert acts on whole states: its demonstrated actions, noise averaged
+        for t in range(k):
+            shown = by_tenth(np.asarray(demos.actions)[labels == t, 0], step[labels == t])
+            print(f"  demonstrated action {t} (mean):    {shown}")
     for seed in range(run.spec.seeds):
         responsibilities = run.responsibilities(seed)
         pair_labels = np.asarray(responsibilities.pair_labels)
@@ -149,15 +157,35 @@ def compare_run(run_dir: str, demos, expert=None) -> None:
         )
         print(f"    its posterior by step:           {by_step(pair_labels == own, step)}")
         print(f"    its posterior by tenth:          {by_tenth(pair_labels == own, step)}")
-        if expert is None:
-            continue
         policy = run.policy(seed)
+        if expert is None:
+            _policies_at_the_demonstrations(run, seed, policy, obs, matched, demos)
+            continue
         error = np.zeros(len(labels))
         for t in range(k):
             mine = labels == t
             imitated = np.asarray(policy(obs[mine], matched[t]))
             error[mine] = np.linalg.norm(imitated - experts_actions[t][mine], axis=-1)
         print(f"    |policy - its expert| by step:   {by_step(error, step)}")
+
+
+def _policies_at_the_demonstrations(run, seed, policy, obs, matched, demos) -> None:
+    """How far apart ``seed``'s learned policies' mean actions are at the demonstrations'
+    states (matched to the true intentions, whose demonstrated actions are printed beside),
+    and the noise they act with."""
+    import jax
+
+    step, k = demos.step_in_episode, len(matched)
+    means = np.stack([np.asarray(policy(obs, matched[t])) for t in range(k)])  # [K, N, A]
+    apart = np.mean(
+        [np.linalg.norm(means[i] - means[j], axis=-1) for i in range(k) for j in range(i + 1, k)],
+        0,
+    )
+    leaves = jax.tree_util.tree_flatten_with_path(run.seed_state(seed).policy)[0]
+    log_std = [np.ravel(x) for path, x in leaves if "log_std" in jax.tree_util.keystr(path)]
+    noise = " ".join(f"{s:.3f}" for s in np.exp(np.concatenate(log_std)))
+    print(f"    policies' mean actions apart:    {by_tenth(apart, step)}")
+    print(f"    policies' action noise (std):    {noise}")
 
 
 def main(argv=None) -> int:

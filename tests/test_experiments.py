@@ -667,7 +667,8 @@ def test_posterior_ceiling_of_the_driver_at_a_radius(capsys):
 
 def test_posterior_ceiling_scores_a_driver_runs_own_posterior_by_tenth(tiny_run, capsys):
     """A driver run's posterior, matched by its trajectory labels, by step and by tenth of the
-    episode for every seed; no action comparison (the driver's expert acts on whole states)."""
+    episode for every seed; in place of the expert's actions (it acts on whole states), each
+    intention's mean demonstrated action and how far apart the policies' mean actions are."""
     from emgail_jax.host.problem import make_problem
 
     module = _load("posterior_ceiling")
@@ -680,7 +681,13 @@ def test_posterior_ceiling_scores_a_driver_runs_own_posterior_by_tenth(tiny_run,
     tenths = [line.split("by tenth:")[1].split() for line in lines if "by tenth:" in line]
     assert len(tenths) == 2 and all(len(t) == 20 for t in tenths)
     assert all(0.0 <= float(v) <= 1.0 for t in tenths for v in t[1::2])
-    assert not any("apart" in line or "|policy" in line for line in lines)
+    demonstrated = [line.split("(mean):")[1].split() for line in lines if "demonstrated" in line]
+    assert len(demonstrated) == 2 and all(len(t) == 20 for t in demonstrated)
+    apart = [line.split("apart:")[1].split() for line in lines if "mean actions apart" in line]
+    assert len(apart) == 2 and all(float(v) >= 0.0 for t in apart for v in t[1::2])
+    noise = [float(line.split(":")[1]) for line in lines if "action noise" in line]
+    assert len(noise) == 2 and all(0.0 < v < 10.0 for v in noise)
+    assert not any("|policy" in line or "experts' actions apart" in line for line in lines)
 
 
 def test_sweep_a_damaged_cell_is_named_and_continues_from_its_checkpoint(
