@@ -574,9 +574,18 @@ def parse_args(argv=None) -> argparse.Namespace:
         "--cache", default=None, help=f"true-reward baselines (default {default_cache()})"
     )
     parser.add_argument(
+        "--refit",
+        action="store_true",
+        help="the refit that re-optimises best where it was measured: --consolidate "
+        f"{REFIT['consolidate']} --consolidate-fresh --consolidate-penalty "
+        f"{REFIT['consolidate_penalty']:g} --consolidate-noise {REFIT['consolidate_noise']:g} "
+        f"--consolidate-batch {REFIT['consolidate_batch']}, read as log D unless the env's "
+        "episodes end early; a --consolidate-* or --reward-form given with it replaces that one",
+    )
+    parser.add_argument(
         "--consolidate",
         type=int,
-        default=0,
+        default=None,
         metavar="STEPS",
         help="first refit each discriminator STEPS steps against every snapshot's policy "
         "(emgail_jax.host.consolidation; default 0: the run's reward as it is)",
@@ -584,7 +593,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument(
         "--consolidate-penalty",
         type=float,
-        default=0.0,
+        default=None,
         metavar="WEIGHT",
         help="with --consolidate: the refit's gradient penalty (default 0: none)",
     )
@@ -596,7 +605,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument(
         "--consolidate-noise",
         type=float,
-        default=0.0,
+        default=None,
         metavar="S",
         help="with --consolidate: a copy of every policy sample moved by noise of standard "
         "deviation S is a further negative (default 0: none)",
@@ -604,7 +613,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument(
         "--consolidate-batch",
         type=int,
-        default=0,
+        default=None,
         metavar="M",
         help="with --consolidate: every step sees M samples per intention drawn anew from the "
         "snapshots' (default 0: all of them)",
@@ -675,7 +684,41 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     parser.add_argument("--out", default=None, help="default: RUN_DIR/reoptimize[-...].json")
     parser.add_argument("--quiet", action="store_true")
-    return parser.parse_args(argv)
+    return with_refit_recipe(parser.parse_args(argv))
+
+
+# `--refit`: experiment 35's refit of docs/rewards-that-reoptimise.md, from new weights against
+# every snapshot's policy and noisy copies of its samples (reacher-2 0.070 over 8 seeds).
+REFIT = {
+    "consolidate": 4000,
+    "consolidate_penalty": 10.0,
+    "consolidate_noise": 1.0,
+    "consolidate_batch": 5000,
+}
+
+
+def with_refit_recipe(args: argparse.Namespace) -> argparse.Namespace:
+    """``args`` with every refit option it left unset at the :data:`REFIT` recipe's value if
+    ``--refit`` was given, and at none otherwise. The reward form, which depends on the env,
+    is :func:`refit_reward_form`'s."""
+    args = argparse.Namespace(**vars(args))
+    for option, value in REFIT.items():
+        if getattr(args, option) is None:
+            setattr(args, option, value if args.refit else type(value)(0))
+    args.consolidate_fresh = args.consolidate_fresh or args.refit
+    return args
+
+
+def refit_reward_form(args: argparse.Namespace, terminates: bool) -> str | None:
+    """The reward form the fresh agents read: ``--reward-form`` if given; with ``--refit``,
+    log D (below 0 wherever D < 1, so nothing off the demonstrations is paid) unless episodes
+    end early, where log D pays for falling and the run's own form stays (experiment 11);
+    otherwise None, the run's."""
+    from emgail_jax.method.config import RewardForm
+
+    if args.reward_form is not None or not args.refit or terminates:
+        return args.reward_form
+    return RewardForm.LOG_D.value
 
 
 def _check_options(args: argparse.Namespace) -> None:
@@ -739,6 +782,7 @@ class Chosen:
 def _opened(args: argparse.Namespace):
     """``(run, seeds, Chosen)`` of the command line: the saved run with the reward form asked
     for, and its consolidated or ensemble rewards if asked."""
+    import envs
     from emgail_jax.host.run_spec import RunError
     from emgail_jax.host.saved_run import SavedRun, across_seeds_reward
 
@@ -750,8 +794,10 @@ def _opened(args: argparse.Namespace):
     if run.config.method.m_step.form.airl and (args.reward_form or args.consolidate):
         # Its reward is g_i(s), no reading of a GAIL discriminator's logit, nor refitted as one.
         raise RunError(
-            "an AIRL run's reward is g_i(s): --reward-form and --consolidate do not apply"
+            "an AIRL run's reward is g_i(s): --reward-form, --consolidate and --refit do not apply"
         )
+    # Known once the env is: the check's file name (default_name) says the form too.
+    args.reward_form = refit_reward_form(args, envs.env_class(run.spec.env).terminates)
     if args.reward_form is not None:
         run = run.with_reward_form(args.reward_form)
     chosen = Chosen(details={"consolidation": None, "ensemble": None, "across_seeds": None})

@@ -447,3 +447,43 @@ def test_the_default_file_names_what_was_checked():
         "snapshot-20",
         *("consolidated-4000", "penalty-10", "fresh"),
     ]
+
+
+def test_refit_is_the_measured_recipe_and_any_option_given_replaces_its_own():
+    recipe = ["--consolidate", "4000", "--consolidate-fresh", "--consolidate-penalty", "10"]
+    recipe += ["--consolidate-noise", "1", "--consolidate-batch", "5000"]
+    spelled, preset = (
+        reoptimize.parse_args(["RUN", *recipe]),
+        reoptimize.parse_args(["RUN", "--refit"]),
+    )
+    assert reoptimize.refit_of(preset) == reoptimize.refit_of(spelled)
+    # So it reads (and saves) the same refit as the spelled-out command.
+    assert reoptimize.refit_parts(preset) == reoptimize.refit_parts(spelled)
+    changed = reoptimize.parse_args(["RUN", "--refit", "--consolidate-penalty", "3"])
+    assert reoptimize.refit_of(changed) == dataclasses.replace(
+        reoptimize.refit_of(spelled), gradient_penalty=3
+    )
+    # Without it nothing is refitted, as before the option.
+    assert reoptimize.refit_of(reoptimize.parse_args(["RUN"])) == Refit(0)
+
+
+def test_refit_reads_log_d_unless_episodes_end_early():
+    form = reoptimize.refit_reward_form
+    assert form(reoptimize.parse_args(["RUN", "--refit"]), terminates=False) == "log-d"
+    assert form(reoptimize.parse_args(["RUN", "--refit"]), terminates=True) is None
+    given = reoptimize.parse_args(["RUN", "--refit", "--reward-form", "logit"])
+    assert form(given, terminates=False) == "logit"
+    assert form(reoptimize.parse_args(["RUN"]), terminates=False) is None
+
+
+def test_refit_names_its_check_as_the_spelled_out_command(tiny_run, monkeypatch):
+    """The driver's episodes never end early: ``--refit`` is read as log D, and its check is
+    written under the same name as the options spelled out."""
+    captured = {}
+    monkeypatch.setattr(
+        reoptimize, "_reoptimized", lambda args, *opened: captured.update(args=args) or 0
+    )
+    monkeypatch.setattr(reoptimize, "consolidated", lambda *a, **k: (None, []))
+    assert reoptimize.main([str(tiny_run), "--refit"]) == 0
+    name = "reoptimize-consolidated-4000-penalty-10-fresh-noise-1-batch-5000-log-d.json"
+    assert reoptimize.default_name(captured["args"]) == name
