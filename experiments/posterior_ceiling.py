@@ -113,6 +113,14 @@ def supervised_ceiling(
     return right
 
 
+def mean_pairwise_distance(actions: list[np.ndarray]) -> np.ndarray:
+    """``[N]`` the mean over pairs of intentions of ``|a_i - a_j|``, given each intention's
+    actions ``[N, A]`` at the same N states."""
+    k = len(actions)
+    pairs = [(i, j) for i in range(k) for j in range(i + 1, k)]
+    return np.mean([np.linalg.norm(actions[i] - actions[j], axis=-1) for i, j in pairs], 0)
+
+
 def compare_run(run_dir: str, demos, expert=None) -> None:
     """The per-step accuracy of a run's own posterior and, given an ``expert(obs, i)`` (the
     shipped experts), how far apart the experts' actions are and how far each learned
@@ -130,14 +138,7 @@ def compare_run(run_dir: str, demos, expert=None) -> None:
     obs = jnp.asarray(run.demonstration_pairs.observations)
     if expert is not None:
         experts_actions = [np.asarray(expert(obs, jnp.full(obs.shape[:1], i))) for i in range(k)]
-        apart = np.mean(
-            [
-                np.linalg.norm(experts_actions[i] - experts_actions[j], axis=-1)
-                for i in range(k)
-                for j in range(i + 1, k)
-            ],
-            0,
-        )
+        apart = mean_pairwise_distance(experts_actions)
         print(f"  experts' actions apart (mean |a_i - a_j|): {by_step(apart, step)}")
     else:  # the driver's expert acts on whole states: its demonstrated actions, noise averaged
         for t in range(k):
@@ -176,11 +177,7 @@ def _policies_at_the_demonstrations(run, seed, policy, obs, matched, demos) -> N
     import jax
 
     step, k = demos.step_in_episode, len(matched)
-    means = np.stack([np.asarray(policy(obs, matched[t])) for t in range(k)])  # [K, N, A]
-    apart = np.mean(
-        [np.linalg.norm(means[i] - means[j], axis=-1) for i in range(k) for j in range(i + 1, k)],
-        0,
-    )
+    apart = mean_pairwise_distance([np.asarray(policy(obs, matched[t])) for t in range(k)])
     leaves = jax.tree_util.tree_flatten_with_path(run.seed_state(seed).policy)[0]
     log_std = [np.ravel(x) for path, x in leaves if "log_std" in jax.tree_util.keystr(path)]
     noise = " ".join(f"{s:.3f}" for s in np.exp(np.concatenate(log_std)))

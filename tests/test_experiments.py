@@ -665,6 +665,15 @@ def test_posterior_ceiling_of_the_driver_at_a_radius(capsys):
         assert message in capsys.readouterr().err
 
 
+def test_posterior_ceiling_actions_apart_is_the_mean_over_pairs_of_intentions():
+    module = _load("posterior_ceiling")
+    still, one, two = np.zeros((3, 2)), np.ones((3, 2)), np.full((3, 2), 2.0)
+    np.testing.assert_allclose(module.mean_pairwise_distance([still, one]), np.sqrt(2))
+    # pairs (0, 1), (0, 2), (1, 2): sqrt 2, 2 sqrt 2, sqrt 2
+    apart = module.mean_pairwise_distance([still, one, two])
+    np.testing.assert_allclose(apart, np.full(3, 4 * np.sqrt(2) / 3))
+
+
 def test_posterior_ceiling_scores_a_driver_runs_own_posterior_by_tenth(tiny_run, capsys):
     """A driver run's posterior, matched by its trajectory labels, by step and by tenth of the
     episode for every seed; in place of the expert's actions (it acts on whole states), each
