@@ -780,8 +780,9 @@ class Chosen:
 
 
 def _opened(args: argparse.Namespace):
-    """``(run, seeds, Chosen)`` of the command line: the saved run with the reward form asked
-    for, and its consolidated or ensemble rewards if asked."""
+    """``(args, run, seeds, Chosen)`` of the command line: ``args`` with the reward form
+    resolved for the run's env (:func:`refit_reward_form`), the saved run with that form, and
+    its consolidated or ensemble rewards if asked."""
     import envs
     from emgail_jax.host.run_spec import RunError
     from emgail_jax.host.saved_run import SavedRun, across_seeds_reward
@@ -796,8 +797,8 @@ def _opened(args: argparse.Namespace):
         raise RunError(
             "an AIRL run's reward is g_i(s): --reward-form, --consolidate and --refit do not apply"
         )
-    # Known once the env is: the check's file name (default_name) says the form too.
-    args.reward_form = refit_reward_form(args, envs.env_class(run.spec.env).terminates)
+    form = refit_reward_form(args, envs.env_class(run.spec.env).terminates)
+    args = argparse.Namespace(**{**vars(args), "reward_form": form})
     if args.reward_form is not None:
         run = run.with_reward_form(args.reward_form)
     chosen = Chosen(details={"consolidation": None, "ensemble": None, "across_seeds": None})
@@ -822,7 +823,7 @@ def _opened(args: argparse.Namespace):
             chosen.absorbing = across_seeds_reward(run.absorbing_reward_function())
         # [seed][t][i]: seed t's intention averaged into intention i of each checked seed
         chosen.details["across_seeds"] = [p["intentions"] for p in chosen.parameters]
-    return run, seeds, chosen
+    return args, run, seeds, chosen
 
 
 def ensemble_parameters(run, seeds: list[int], size: int) -> tuple[list, list[int]]:
@@ -875,7 +876,7 @@ def main(argv=None) -> int:
         except (RunError, CheckpointError, envs.EnvError, DemonstrationError) as error:
             print(f"error: {error}", file=sys.stderr)
             return 2
-        return _reoptimized(args, *opened)
+        return _reoptimized(*opened)
 
 
 def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen) -> int:

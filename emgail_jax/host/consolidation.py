@@ -187,7 +187,7 @@ def consolidated_parameters(
     state = run.seed_state(seed)
     algorithm, config, k = run.algorithm, run.config, run.num_intentions
     pairs = run.demonstration_pairs
-    obs, executed = samples or snapshot_policy_samples(run, seed, key)
+    obs, executed = snapshot_policy_samples(run, seed, key) if samples is None else samples
     normalize = lambda x: obs_norm.normalize(state.normalizer, x, config.method.networks.obs_clip)
     pool = NormalizedBatch(
         normalizer=state.normalizer,
