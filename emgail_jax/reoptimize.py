@@ -647,6 +647,12 @@ def parse_args(argv=None) -> argparse.Namespace:
         "(default 0: none)",
     )
     parser.add_argument(
+        "--consolidate-state-only",
+        action="store_true",
+        help="with --consolidate: refit D(s, i) of the observation alone, every action read as "
+        "zeros, and pay the fresh agents that",
+    )
+    parser.add_argument(
         "--ensemble",
         type=int,
         default=0,
@@ -753,6 +759,8 @@ def _check_options(args: argparse.Namespace) -> None:
         )
     if args.consolidate_fresh and not args.consolidate:
         raise RunError("--consolidate-fresh goes with --consolidate STEPS")
+    if args.consolidate_state_only and not args.consolidate:
+        raise RunError("--consolidate-state-only goes with --consolidate STEPS")
     if args.ensemble < 0 or (args.ensemble and args.consolidate):
         raise RunError("--ensemble is a number of snapshots >= 0, and not with --consolidate")
     if args.across_seeds and (args.ensemble or args.consolidate):
@@ -808,6 +816,8 @@ def _opened(args: argparse.Namespace):
             run, seeds, refit_of(args), name, budget_of(args, run), progress=not args.quiet
         )
         chosen.details["saved_reward"] = name
+        if args.consolidate_state_only:
+            chosen.function = run.reward_function(state_only=True)
     if args.ensemble:
         chosen.parameters, iterations = ensemble_parameters(run, seeds, args.ensemble)
         chosen.function = ensemble_reward(run.reward_function())
@@ -985,6 +995,8 @@ def refit_parts(args) -> list[str]:
         parts.append("still")
     if args.consolidate_agents:
         parts.append(f"agents-{args.consolidate_agents}")
+    if args.consolidate_state_only:
+        parts.append("state-only")
     return parts
 
 
@@ -1002,6 +1014,7 @@ def refit_of(args):
         ranking_random=args.consolidate_ranking_random,
         ranking_still=args.consolidate_ranking_still,
         agent_rounds=args.consolidate_agents,
+        state_only=args.consolidate_state_only,
     )
 
 
@@ -1074,7 +1087,7 @@ def refitted_against_agents(
     from emgail_jax.host import consolidation
     from emgail_jax.host.saved_run import stacked
 
-    trainer = learned_reward_trainer(run, budget, run.reward_function())
+    trainer = learned_reward_trainer(run, budget, run.reward_function(refit.state_only))
     acting = lambda state: trainer.policy(state, deterministic=False)
     matching = run_matching(run, seed, run.snapshot or run.iteration)
     found, rollouts, rounds = first, [], []

@@ -1,7 +1,7 @@
 """Does a run's learned reward recognise its experts beyond the demonstrations it was trained on?
 
     python experiments/reward_generalisation.py RUN_DIR [--episodes N] [--refit NAME]
-        [--reward-form FORM] [--along-training EVERY]
+        [--reward-form FORM] [--along-training EVERY] [--snapshot ITER]
 
 Per run seed, the learned reward per step of each true intention's reward (the learned
 intention the run matched it to) earned by:
@@ -25,7 +25,8 @@ snapshot, beside their true returns (``metrics.csv``), with the rank correlation
 (docs/rewards-that-reoptimise.md, experiment 41): a reward that rises with the true return
 along the run's own way from random actions to the experts has a slope a fresh agent could
 follow. ``--refit NAME`` scores a refitted reward that ``reoptimize --consolidate`` saved,
-``--reward-form`` reads the discriminator in another form.
+``--reward-form`` reads the discriminator in another form, ``--snapshot ITER`` opens the run
+at that snapshot (its networks and policies; a refit ``reoptimize --snapshot ITER`` saved).
 """
 
 from __future__ import annotations
@@ -83,22 +84,25 @@ def expert_actor(env, rows):
     return lambda state, _: policy(state.obs, grid(state))
 
 
-def matched_reward(run, seed: int, parameters):
+def matched_reward(run, seed: int, parameters, state_only: bool = False):
     """``(matching [K true], rows, learned, reward)``: the learned intention the run finally
-    matched to each true intention (as ``rows``, a device array), the run's reward function, and
-    it jitted on ``parameters`` as ``reward(obs, action, intention)``."""
+    matched to each true intention (as ``rows``, a device array), the run's reward function
+    (of the observation alone if ``state_only``: a state-only refit's), and it jitted on
+    ``parameters`` as ``reward(obs, action, intention)``."""
     import jax
     import jax.numpy as jnp
 
     from emgail_jax import reoptimize as check
 
     matching = check.run_matching(run, seed, run.iteration)  # true -> learned
-    learned = run.reward_function()
+    learned = run.reward_function(state_only)
     reward = jax.jit(lambda obs, action, i: learned(parameters, obs, action, i))
     return matching, jnp.asarray(matching), learned, reward
 
 
-def seed_columns(run, seed: int, parameters, experts, keys, episodes: int):
+def seed_columns(
+    run, seed: int, parameters, experts, keys, episodes: int, state_only: bool = False
+):
     """``([demonstrations, experts, joint policies, random, still] each [K true], matching)``
     for run ``seed``, scored by the reward of ``parameters``: true intention i by the learned
     intention ``matching[i]`` the run matched it to, whose policy also acts for it."""
@@ -108,7 +112,7 @@ def seed_columns(run, seed: int, parameters, experts, keys, episodes: int):
     from emgail_jax.method.rollout import still_policy, uniform_random_policy
 
     env, k_true = run.problem.env, run.problem.true_intentions
-    matching, rows, learned, reward = matched_reward(run, seed, parameters)
+    matching, rows, learned, reward = matched_reward(run, seed, parameters, state_only)
     policy, random, still = run.policy(seed), uniform_random_policy(env), still_policy(env)
     actors = [
         experts,
@@ -127,7 +131,9 @@ def seed_columns(run, seed: int, parameters, experts, keys, episodes: int):
     return [demonstrations, *fresh], [int(i) for i in matching]
 
 
-def along_training(run, seed: int, parameters, every: int, episodes: int, key):
+def along_training(
+    run, seed: int, parameters, every: int, episodes: int, key, state_only: bool = False
+):
     """``[(iteration, learned reward per step [K true], true return [K true])]``: the run's own
     policies of every ``every``-th snapshot of ``seed`` on fresh episodes, scored by the reward
     of ``parameters``; true intention i by the learned intention the run finally matched to it,
@@ -138,10 +144,12 @@ def along_training(run, seed: int, parameters, every: int, episodes: int, key):
 
     from emgail_jax.host import checkpoints
 
-    _, rows, _, reward = matched_reward(run, seed, parameters)
+    _, rows, _, reward = matched_reward(run, seed, parameters, state_only)
     logged = np.asarray(run.history["eval/returns"][seed])  # [iterations, K true], NaN between
     evaluated = np.flatnonzero(np.isfinite(logged).all(1)) + 1  # the iterations evaluated
-    iterations = [i for i in checkpoints.snapshot_iterations(run.run_dir) if i % every == 0]
+    held = run.snapshot or run.iteration
+    kept = checkpoints.snapshot_iterations(run.run_dir)
+    iterations = [i for i in kept if i % every == 0 and i <= held]
     found = []
     for iteration in iterations:
         state = checkpoints.restore_snapshot(run.run_dir, iteration, run.state)
@@ -154,12 +162,15 @@ def along_training(run, seed: int, parameters, every: int, episodes: int, key):
     return found
 
 
-def print_along_training(run, seed: int, parameters, every: int, episodes: int) -> None:
+def print_along_training(
+    run, seed: int, parameters, every: int, episodes: int, state_only: bool = False
+) -> None:
     import jax
     import numpy as np
     from scipy.stats import spearmanr
 
-    found = along_training(run, seed, parameters, every, episodes, jax.random.PRNGKey(2027))
+    key = jax.random.PRNGKey(2027)
+    found = along_training(run, seed, parameters, every, episodes, key, state_only)
     number = run.seed_number(seed)
     print(f"seed {number}: iteration, learned reward per step / true return per true intention")
     for iteration, earned, true in found:
@@ -179,6 +190,7 @@ def main(argv=None) -> int:
     parser.add_argument("--refit", default=None, help="a refitted reward saved in the run")
     parser.add_argument("--reward-form", default=None, help="gail, logit or log-d")
     parser.add_argument("--along-training", type=int, default=0, metavar="EVERY")
+    parser.add_argument("--snapshot", type=int, default=None, metavar="ITER")
     args = parser.parse_args(argv)
     if args.episodes < 1 or args.along_training < 0:
         print("error: --episodes must be at least 1, --along-training at least 0", file=sys.stderr)
@@ -193,19 +205,22 @@ def main(argv=None) -> int:
     from emgail_jax.host.saved_run import SavedRun
 
     try:
-        run = SavedRun.open(args.run_dir)
+        run = SavedRun.open(args.run_dir, snapshot=args.snapshot)
         if args.reward_form is not None:
             run = run.with_reward_form(args.reward_form)
         parameters = [
             run.refitted_parameters(args.refit, s) if args.refit else run.reward_parameters(s)
             for s in range(run.spec.seeds)
         ]
+        state_only = args.refit is not None and run.refit_is_state_only(args.refit)
     except ValueError as error:  # the run's, its checkpoint's, env's and demonstrations' errors
         print(f"error: {error}", file=sys.stderr)
         return 2
     if args.along_training:
         for seed in range(run.spec.seeds):
-            print_along_training(run, seed, parameters[seed], args.along_training, args.episodes)
+            print_along_training(
+                run, seed, parameters[seed], args.along_training, args.episodes, state_only
+            )
         return 0
     experts = expert_actor(run.problem.env, jnp.arange(run.problem.true_intentions))
     # Experts, joint policies, random: the keys they had before the still column came.
@@ -216,7 +231,9 @@ def main(argv=None) -> int:
         "actions held still):"
     )
     for seed in range(run.spec.seeds):
-        columns, matching = seed_columns(run, seed, parameters[seed], experts, keys, args.episodes)
+        columns, matching = seed_columns(
+            run, seed, parameters[seed], experts, keys, args.episodes, state_only
+        )
         for i, learned_intention in enumerate(matching):
             values = " / ".join(f"{column[i]:.3f}" for column in columns)
             label = f"seed {run.spec.first_seed + seed}, true intention {i}"

@@ -248,3 +248,26 @@ def test_a_refit_against_agents_pays_their_samples_less(saved):
         [np.asarray(reward(parameters, agents[0][i], agents[1][i], i)).mean() for i in range(2)]
     )
     assert paid(against) < paid(plain)
+
+
+def test_a_state_only_refit_pays_no_action_more_than_another(copied_run):
+    import emgail_jax
+
+    run = SavedRun.open(str(copied_run))
+    refit = consolidation.Refit(steps=5, fresh=True, state_only=True)
+    parameters, losses = consolidation.consolidated_parameters(run, 0, refit, jax.random.PRNGKey(0))
+    description = consolidation.refit_description(refit, None)
+    consolidation.save_refitted(
+        str(copied_run), "states", 0, parameters["discriminator"], description, losses
+    )
+    assert run.refit_is_state_only("states")
+    pairs = run.demonstration_pairs
+    obs = pairs.observations[:50]
+    reward = emgail_jax.load_reward(str(copied_run), seed=0, refit="states")
+    low, high = (np.full(pairs.actions[:50].shape, bound) for bound in (-1.0, 1.0))
+    np.testing.assert_array_equal(reward(obs, low, 0), reward(obs, high, 0))
+    # The same weights read with the actions, as a refit of D(s, a, i) would be, differ.
+    with_actions = run.reward_function()
+    assert not np.allclose(
+        with_actions(parameters, obs, low, 0), with_actions(parameters, obs, high, 0)
+    )

@@ -772,6 +772,13 @@ def test_reward_generalisation_scores_the_runs_snapshots_along_training(tiny_run
         earned = [float(v) for v in row[1::3]]
         assert len(earned) == 2 and all(np.isfinite(earned))
     assert out.count("rank correlation") == 4  # 2 seeds x 2 true intentions
+    # Opened at a snapshot: its own policies and reward, and no later snapshot's.
+    assert (
+        module.main([str(tiny_run), "--episodes", "2", "--along-training", "2", "--snapshot", "2"])
+        == 0
+    )
+    rows = [line.split() for line in capsys.readouterr().out.splitlines() if line.startswith("  ")]
+    assert [int(r[0]) for r in rows] == [2, 2]
 
     import jax
 
@@ -789,9 +796,10 @@ def test_reward_generalisation_refuses_bad_input_in_one_line(tiny_run, tmp_path,
     module = _load("reward_generalisation")
     assert module.main([str(tiny_run), "--episodes", "0"]) == 2
     assert "--episodes must be at least 1" in capsys.readouterr().err
-    assert module.main([str(tmp_path / "no-run")]) == 2
-    err = capsys.readouterr().err
-    assert err.startswith("error: ") and err.count("\n") == 1
+    for wrong in ([str(tmp_path / "no-run")], [str(tiny_run), "--snapshot", "3"]):
+        assert module.main(wrong) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error: ") and err.count("\n") == 1
 
 
 def test_learned_reward_per_step_is_the_mean_over_each_rows_steps():

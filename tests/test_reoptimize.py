@@ -197,6 +197,7 @@ def test_a_snapshot_is_reoptimised_on_its_own_networks(tiny_run, reoptimized):
             ["--consolidate", "5", "--consolidate-agents", "1"],
             "--consolidate-agents is a number of rounds >= 0 and goes with --consolidate-batch M",
         ),
+        (["--consolidate-state-only"], "--consolidate-state-only goes with --consolidate"),
         (["--ensemble", "3"], "--ensemble 3 needs 3 snapshots up to iteration 4;"),
         (
             ["--ensemble", "2", "--snapshot", "2"],
@@ -487,3 +488,21 @@ def test_refit_names_its_check_as_the_spelled_out_command(tiny_run, monkeypatch)
     assert reoptimize.main([str(tiny_run), "--refit"]) == 0
     name = "reoptimize-consolidated-4000-penalty-10-fresh-noise-1-batch-5000-log-d.json"
     assert reoptimize.default_name(captured["args"]) == name
+
+
+def test_a_state_only_refit_is_named_so_and_pays_every_action_alike(tiny_run, tmp_path):
+    import shutil
+
+    copy = tmp_path / "run"
+    shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("rewards"))
+    args = reoptimize.parse_args([str(copy), "--consolidate", "3", "--consolidate-state-only"])
+    assert reoptimize.refit_parts(args) == ["consolidated-3", "state-only"]
+    assert reoptimize.refit_of(args) == Refit(steps=3, state_only=True)
+    _, run, _, chosen = reoptimize._opened(args)
+    pairs = run.demonstration_pairs
+    obs, actions = pairs.observations[:20], pairs.actions[:20]
+    paid = lambda actions: chosen.function(chosen.parameters[1], obs, actions, 1)
+    np.testing.assert_array_equal(paid(actions), paid(-actions))
+    # The fresh agents of a refit that reads actions are paid by the run's own function.
+    plain = reoptimize.parse_args([str(copy), "--consolidate", "3"])
+    assert reoptimize._opened(plain)[3].function is None

@@ -31,7 +31,7 @@ import numpy as np
 from emgail_jax.host import checkpoints, records
 from emgail_jax.method import normalizer as obs_norm
 from emgail_jax.method.batches import NormalizedBatch
-from emgail_jax.method.discriminator import discriminator_loss
+from emgail_jax.method.discriminator import discriminator_loss, state_only
 from emgail_jax.method.optim import Learner, minimize
 from emgail_jax.method.ranking import ranking_loss
 from emgail_jax.method.rollout import (
@@ -70,7 +70,8 @@ class Refit:
     times more, each time against fresh agents trained on the last refit too
     (:func:`emgail_jax.reoptimize.consolidated`): every step's negatives are then ``batch``
     samples of the snapshots and ``batch`` of those agents' rollouts (a GAIL negative only, not
-    a ranking level)."""
+    a ranking level). ``state_only`` refits D(s, i), every action read as zeros
+    (:func:`~emgail_jax.method.discriminator.state_only`), here and wherever the reward is read."""
 
     steps: int
     gradient_penalty: float = 0.0
@@ -81,6 +82,7 @@ class Refit:
     ranking_random: bool = False
     ranking_still: bool = False
     agent_rounds: int = 0
+    state_only: bool = False
 
 
 # Enough pairs that every step sees most snapshots, few enough samples that each side's mean
@@ -256,6 +258,8 @@ def consolidated_parameters(
         return with_noise(pool.replace(obs=obs, executed=executed), key_moved)
 
     apply = run.networks.discriminator.apply
+    if refit.state_only:
+        apply = state_only(apply)
     optimizer = make_optimizers(config.method).discriminator
     rollout = config.method.rollout
     snapshots = obs.shape[1] // (rollout.num_envs * rollout.rollout_length)

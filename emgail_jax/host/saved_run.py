@@ -35,6 +35,7 @@ from emgail_jax.method.batches import DemonstrationPairs
 from emgail_jax.method.choosing import demonstrations_held
 from emgail_jax.method.config import RunConfig
 from emgail_jax.method.discriminator import absorbing_reward, learned_reward
+from emgail_jax.method.discriminator import state_only as state_only_discriminator
 from emgail_jax.method.networks import policy_action
 from emgail_jax.method.posterior import (
     Responsibilities,
@@ -247,7 +248,7 @@ class SavedRun:
             if across_seeds:
                 raise RunError("across_seeds averages the run's own rewards, not a refitted one")
             parameters = self.refitted_parameters(refit, seed)
-            reward = self.reward_function()
+            reward = self.reward_function(self.refit_is_state_only(refit))
         elif across_seeds:
             parameters = self.across_seeds_parameters(seed)
             reward = across_seeds_reward(self.reward_function())
@@ -292,10 +293,18 @@ class SavedRun:
             "intentions": self.aligned_intentions(seed),
         }
 
-    def reward_function(self) -> Callable:
+    def refit_is_state_only(self, name: str) -> bool:
+        """Whether the saved refitted reward ``name`` is D(s, i) of the observation alone."""
+        from emgail_jax.host import consolidation
+
+        return consolidation.read_description(self.run_dir, name)["refit"]["state_only"]
+
+    def reward_function(self, state_only: bool = False) -> Callable:
         """:meth:`reward` as ``R(parameters, obs, action, intention)``, the parameters
         (:meth:`reward_parameters` of a seed) an argument, so that one compiled program
-        serves every seed's reward."""
+        serves every seed's reward. ``state_only``: the discriminator reads every action as
+        zeros (a refit of D(s, i), :func:`~emgail_jax.method.discriminator.state_only`); the
+        posterior of Info/IntentionGAIL still reads the action."""
         k, algorithm, clip = (
             self.num_intentions,
             self.algorithm,
@@ -318,6 +327,8 @@ class SavedRun:
                 else jnp.zeros(intention.shape)
             )
             discriminator = networks.discriminator.apply
+            if state_only:
+                discriminator = state_only_discriminator(discriminator)
             return learned_reward(
                 discriminator,
                 parameters["discriminator"],
