@@ -94,7 +94,7 @@ def matched_reward(run, seed: int, parameters, state_only: bool = False):
 
     from emgail_jax import reoptimize as check
 
-    matching = check.run_matching(run, seed, run.iteration)  # true -> learned
+    matching = check.run_matching(run, seed, run.snapshot or run.iteration)  # true -> learned
     learned = run.reward_function(state_only)
     reward = jax.jit(lambda obs, action, i: learned(parameters, obs, action, i))
     return matching, jnp.asarray(matching), learned, reward

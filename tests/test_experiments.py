@@ -792,6 +792,22 @@ def test_reward_generalisation_scores_the_runs_snapshots_along_training(tiny_run
     np.testing.assert_array_equal(found[0][2], logged[last])
 
 
+def test_reward_generalisation_matches_intentions_where_the_run_was_opened(tiny_run, monkeypatch):
+    from emgail_jax import reoptimize
+    from emgail_jax.host.saved_run import SavedRun
+
+    module = _load("reward_generalisation")
+    asked = []
+    matching = reoptimize.run_matching
+    monkeypatch.setattr(
+        reoptimize, "run_matching", lambda run, seed, i: asked.append(i) or matching(run, seed, i)
+    )
+    for snapshot, iteration in ((2, 2), (None, 4)):
+        run = SavedRun.open(str(tiny_run), snapshot=snapshot)
+        module.matched_reward(run, 0, run.reward_parameters(0))
+        assert asked[-1] == iteration
+
+
 def test_reward_generalisation_refuses_bad_input_in_one_line(tiny_run, tmp_path, capsys):
     module = _load("reward_generalisation")
     assert module.main([str(tiny_run), "--episodes", "0"]) == 2
