@@ -811,12 +811,12 @@ def _opened(args: argparse.Namespace):
         run = run.with_reward_form(args.reward_form)
     chosen = Chosen(details={"consolidation": None, "ensemble": None, "across_seeds": None})
     if args.consolidate:
-        name = "-".join(refit_parts(args))
+        name, refit = "-".join(refit_parts(args)), refit_of(args)
         chosen.parameters, chosen.details["consolidation"] = consolidated(
-            run, seeds, refit_of(args), name, budget_of(args, run), progress=not args.quiet
+            run, seeds, refit, name, budget_of(args, run), progress=not args.quiet
         )
         chosen.details["saved_reward"] = name
-        if args.consolidate_state_only:
+        if refit.state_only:
             chosen.function = run.reward_function(state_only=True)
     if args.ensemble:
         chosen.parameters, iterations = ensemble_parameters(run, seeds, args.ensemble)
