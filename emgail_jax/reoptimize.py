@@ -34,7 +34,8 @@ algorithms' checks compare the rewards alone. A run trained with AIRL's discrimi
 claims transfers, not on f - log pi (its policies' training reward, which reads the policy).
 A run trained with absorbing states (``--set absorbing_state=true``) is checked the same way:
 a fresh policy's termination is worth the learned reward of the absorbing state for every step
-left, as in the run's own B-step; the true-reward baseline has no absorbing state.
+left, as in the run's own B-step; the true-reward baseline has no absorbing state. So is a
+reward refitted with absorbing states (``--consolidate-absorbing``), whatever the run trained.
 
 Beside the learned reward, the **true-reward baseline**: the same TRPO, settings and budget on
 the env's true rewards, the floor any learned reward is judged against (computed once per env,
@@ -580,7 +581,8 @@ def parse_args(argv=None) -> argparse.Namespace:
         f"{REFIT['consolidate']} --consolidate-fresh --consolidate-penalty "
         f"{REFIT['consolidate_penalty']:g} --consolidate-noise {REFIT['consolidate_noise']:g} "
         f"--consolidate-batch {REFIT['consolidate_batch']}, read as log D unless the env's "
-        "episodes end early; a --consolidate-* or --reward-form given with it replaces that one",
+        "episodes end early (without --consolidate-absorbing); a --consolidate-* or "
+        "--reward-form given with it replaces that one",
     )
     parser.add_argument(
         "--consolidate",
@@ -653,6 +655,14 @@ def parse_args(argv=None) -> argparse.Namespace:
         "zeros, and pay the fresh agents that",
     )
     parser.add_argument(
+        "--consolidate-absorbing",
+        action="store_true",
+        help="with --consolidate: termination as an absorbing state (DAC) in the refit, learnt "
+        "fake from the snapshots' falls; a fresh agent's fall is paid its reward for every "
+        "step left, so --refit reads log D on every env (from new weights unless the run "
+        "trained with absorbing states)",
+    )
+    parser.add_argument(
         "--ensemble",
         type=int,
         default=0,
@@ -718,11 +728,12 @@ def with_refit_recipe(args: argparse.Namespace) -> argparse.Namespace:
 def refit_reward_form(args: argparse.Namespace, terminates: bool) -> str | None:
     """The reward form the fresh agents read: ``--reward-form`` if given; with ``--refit``,
     log D (below 0 wherever D < 1, so nothing off the demonstrations is paid) unless episodes
-    end early, where log D pays for falling and the run's own form stays (experiment 11);
-    otherwise None, the run's."""
+    end early without an absorbing state, where log D pays for falling and the run's own form
+    stays (experiment 11); otherwise None, the run's."""
     from emgail_jax.method.config import RewardForm
 
-    if args.reward_form is not None or not args.refit or terminates:
+    pays_falling = terminates and not args.consolidate_absorbing
+    if args.reward_form is not None or not args.refit or pays_falling:
         return args.reward_form
     return RewardForm.LOG_D.value
 
@@ -761,6 +772,8 @@ def _check_options(args: argparse.Namespace) -> None:
         raise RunError("--consolidate-fresh goes with --consolidate STEPS")
     if args.consolidate_state_only and not args.consolidate:
         raise RunError("--consolidate-state-only goes with --consolidate STEPS")
+    if args.consolidate_absorbing and not args.consolidate:
+        raise RunError("--consolidate-absorbing goes with --consolidate STEPS")
     if args.ensemble < 0 or (args.ensemble and args.consolidate):
         raise RunError("--ensemble is a number of snapshots >= 0, and not with --consolidate")
     if args.across_seeds and (args.ensemble or args.consolidate):
@@ -812,6 +825,13 @@ def _opened(args: argparse.Namespace):
     chosen = Chosen(details={"consolidation": None, "ensemble": None, "across_seeds": None})
     if args.consolidate:
         name, refit = "-".join(refit_parts(args)), refit_of(args)
+        if refit.absorbing:
+            if not (refit.fresh or run.trained_with_absorbing_states):
+                raise RunError(
+                    "--consolidate-absorbing needs --consolidate-fresh: the run's "
+                    "discriminator was trained without absorbing states"
+                )
+            run = run.with_absorbing_states()
         chosen.parameters, chosen.details["consolidation"] = consolidated(
             run, seeds, refit, name, budget_of(args, run), progress=not args.quiet
         )
@@ -997,6 +1017,8 @@ def refit_parts(args) -> list[str]:
         parts.append(f"agents-{args.consolidate_agents}")
     if args.consolidate_state_only:
         parts.append("state-only")
+    if args.consolidate_absorbing:
+        parts.append("absorbing")
     return parts
 
 
@@ -1015,6 +1037,7 @@ def refit_of(args):
         ranking_still=args.consolidate_ranking_still,
         agent_rounds=args.consolidate_agents,
         state_only=args.consolidate_state_only,
+        absorbing=args.consolidate_absorbing,
     )
 
 

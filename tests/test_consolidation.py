@@ -18,15 +18,17 @@ def saved(tiny_run):
 
 def test_samples_come_from_every_snapshot_up_to_the_networks_held(tiny_run, saved):
     key = jax.random.PRNGKey(0)
-    obs, executed = consolidation.snapshot_policy_samples(saved, 0, key)
+    obs, executed, terminal = consolidation.snapshot_policy_samples(saved, 0, key)
     rollout = saved.config.method.rollout
     k, b, t = 2, rollout.num_envs, rollout.rollout_length
     assert obs.shape == (k, 2 * b * t, saved.problem.env.observation_size)  # snapshots 2 and 4
     assert executed.shape == (k, 2 * b * t, 1) and np.all(np.abs(executed) <= 1)
+    # The driver's episodes only ever end at the time limit: no transition terminates.
+    assert terminal.shape == (k, 2 * b * t) and not terminal.any()
     # The two snapshots' policies differ, so do their samples.
     assert not np.array_equal(executed[:, : b * t], executed[:, b * t :])
     earlier = SavedRun.open(str(tiny_run), snapshot=2)
-    only_first, _ = consolidation.snapshot_policy_samples(earlier, 0, key)
+    only_first, *_ = consolidation.snapshot_policy_samples(earlier, 0, key)
     assert only_first.shape[1] == b * t
 
 
@@ -171,7 +173,7 @@ def test_a_ranking_refit_learns_to_order_the_snapshots(saved):
 
 
 def test_random_and_still_actions_are_one_snapshot_of_samples_below_the_ranked_ones(saved):
-    obs, executed = consolidation.random_action_samples(saved, jax.random.PRNGKey(0))
+    obs, executed, _ = consolidation.random_action_samples(saved, jax.random.PRNGKey(0))
     rollout = saved.config.method.rollout
     k, m = 2, rollout.num_envs * rollout.rollout_length
     assert obs.shape == (k, m, saved.problem.env.observation_size)
@@ -181,7 +183,7 @@ def test_random_and_still_actions_are_one_snapshot_of_samples_below_the_ranked_o
     # Uniform over the box, not a policy's: spread over it.
     assert executed.std() > 0.25 * float(np.max(env.action_high - env.action_low))
 
-    still_obs, still = consolidation.still_action_samples(saved, jax.random.PRNGKey(0))
+    still_obs, still, _ = consolidation.still_action_samples(saved, jax.random.PRNGKey(0))
     assert still_obs.shape == obs.shape and still.shape == executed.shape
     np.testing.assert_array_equal(
         still, np.broadcast_to((env.action_low + env.action_high) / 2, still.shape)
@@ -271,3 +273,88 @@ def test_a_state_only_refit_pays_no_action_more_than_another(copied_run):
     assert not np.allclose(
         with_actions(parameters, obs, low, 0), with_actions(parameters, obs, high, 0)
     )
+
+
+def falls_marked(samples, every: int):
+    """The snapshots' ``samples`` with every ``every``-th transition marked as ending its
+    episode: the driver never falls, so a test marks where a hopper would."""
+    obs, executed, terminal = samples
+    marked = np.zeros_like(terminal)
+    marked[:, ::every] = 1.0
+    return obs, executed, marked
+
+
+def test_an_absorbing_refit_learns_the_falls_absorbing_state_as_fake(saved):
+    key = jax.random.PRNGKey(0)
+    run = saved.with_absorbing_states().with_reward_form("log-d")
+    assert run.networks.discriminator.absorbing and not saved.networks.discriminator.absorbing
+    samples = consolidation.snapshot_policy_samples(saved, 0, key)
+    refit = consolidation.Refit(steps=60, fresh=True, absorbing=True)
+    falls, metrics = consolidation.consolidated_parameters(
+        run, 0, refit, key, samples=falls_marked(samples, 4)
+    )
+    never, _ = consolidation.consolidated_parameters(run, 0, refit, key, samples=samples)
+    before, after = metrics["before"], metrics["after"]
+    assert abs(before["discriminator/absorbing_d"] - 0.5) < 0.1
+    assert after["discriminator/absorbing_d"] < 0.25
+    # A fall now costs every step left what the absorbing state pays, well below 0 as log D.
+    absorbing = jax.jit(run.absorbing_reward_function())
+    for intention in range(2):
+        paid, unpaid = absorbing(falls, intention), absorbing(never, intention)
+        assert paid < np.log(0.25) and paid < unpaid
+    # In minibatches the falls come along with their samples.
+    drawn = dataclasses.replace(refit, batch=50)
+    _, metrics = consolidation.consolidated_parameters(
+        run, 0, drawn, key, samples=falls_marked(samples, 4)
+    )
+    assert metrics["after"]["discriminator/absorbing_d"] < 0.25
+
+
+def test_an_absorbing_refit_needs_the_network_and_fresh_weights(saved):
+    key = jax.random.PRNGKey(0)
+    with pytest.raises(ValueError, match="with_absorbing_states"):
+        consolidation.consolidated_parameters(
+            saved, 0, consolidation.Refit(steps=2, fresh=True, absorbing=True), key
+        )
+    assert not saved.trained_with_absorbing_states
+    with pytest.raises(ValueError, match="refit it fresh"):
+        consolidation.consolidated_parameters(
+            saved.with_absorbing_states(), 0, consolidation.Refit(steps=2, absorbing=True), key
+        )
+
+
+def test_a_saved_absorbing_refit_is_read_with_its_absorbing_state(copied_run):
+    import emgail_jax
+
+    run = SavedRun.open(str(copied_run))
+    refit = consolidation.Refit(steps=5, fresh=True, absorbing=True)
+    absorbing_run = run.with_absorbing_states()
+    parameters, losses = consolidation.consolidated_parameters(
+        absorbing_run, 0, refit, jax.random.PRNGKey(0)
+    )
+    description = consolidation.refit_description(refit, None)
+    consolidation.save_refitted(
+        str(copied_run), "falls", 0, parameters["discriminator"], description, losses
+    )
+    reopened = SavedRun.open(str(copied_run)).for_refit("falls")
+    assert reopened.networks.discriminator.absorbing
+    assert reopened.absorbing_reward_function() is not None
+    pairs = run.demonstration_pairs
+    obs, actions = pairs.observations[:30], pairs.actions[:30]
+    expected = absorbing_run.reward_function()(parameters, obs, actions, 0)
+    reward = emgail_jax.load_reward(str(copied_run), seed=0, refit="falls")
+    np.testing.assert_allclose(reward(obs, actions, 0), expected, rtol=1e-6, atol=1e-6)
+    # A refit without absorbing states still reads the run's own network.
+    plain = consolidation.Refit(steps=5, fresh=True)
+    plain_parameters, _ = consolidation.consolidated_parameters(
+        run, 0, plain, jax.random.PRNGKey(0)
+    )
+    consolidation.save_refitted(
+        str(copied_run),
+        "plain",
+        0,
+        plain_parameters["discriminator"],
+        consolidation.refit_description(plain, None),
+        losses,
+    )
+    assert not SavedRun.open(str(copied_run)).for_refit("plain").networks.discriminator.absorbing

@@ -198,6 +198,11 @@ def test_a_snapshot_is_reoptimised_on_its_own_networks(tiny_run, reoptimized):
             "--consolidate-agents is a number of rounds >= 0 and goes with --consolidate-batch M",
         ),
         (["--consolidate-state-only"], "--consolidate-state-only goes with --consolidate"),
+        (["--consolidate-absorbing"], "--consolidate-absorbing goes with --consolidate"),
+        (
+            ["--consolidate", "5", "--consolidate-absorbing"],
+            "--consolidate-absorbing needs --consolidate-fresh",
+        ),
         (["--ensemble", "3"], "--ensemble 3 needs 3 snapshots up to iteration 4;"),
         (
             ["--ensemble", "2", "--snapshot", "2"],
@@ -474,6 +479,9 @@ def test_refit_reads_log_d_unless_episodes_end_early():
     assert form(reoptimize.parse_args(["RUN", "--refit"]), terminates=True) is None
     given = reoptimize.parse_args(["RUN", "--refit", "--reward-form", "logit"])
     assert form(given, terminates=False) == "logit"
+    # With an absorbing state a fall is priced, so log D no longer pays for it.
+    absorbing = reoptimize.parse_args(["RUN", "--refit", "--consolidate-absorbing"])
+    assert form(absorbing, terminates=True) == "log-d"
     assert form(reoptimize.parse_args(["RUN"]), terminates=False) is None
 
 
@@ -506,3 +514,25 @@ def test_a_state_only_refit_is_named_so_and_pays_every_action_alike(tiny_run, tm
     # The fresh agents of a refit that reads actions are paid by the run's own function.
     plain = reoptimize.parse_args([str(copy), "--consolidate", "3"])
     assert reoptimize._opened(plain)[3].function is None
+
+
+def test_an_absorbing_refit_is_named_so_and_prices_the_fresh_agents_falls(tiny_run, tmp_path):
+    import shutil
+
+    copy = tmp_path / "run"
+    shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("rewards"))
+    options = ["--consolidate", "3", "--consolidate-fresh", "--consolidate-absorbing"]
+    args = reoptimize.parse_args([str(copy), *options])
+    assert reoptimize.refit_parts(args) == ["consolidated-3", "fresh", "absorbing"]
+    assert reoptimize.refit_of(args) == Refit(steps=3, fresh=True, absorbing=True)
+    _, run, _, chosen = reoptimize._opened(args)
+    # The fresh agents read the refit's network, and their falls its absorbing state's reward.
+    assert run.networks.discriminator.absorbing
+    absorbing = run.absorbing_reward_function()
+    assert np.isfinite(float(absorbing(chosen.parameters[0], 0)))
+    pairs = run.demonstration_pairs
+    assert run.reward_function()(
+        chosen.parameters[0], pairs.observations[:5], pairs.actions[:5], 0
+    ).shape == (5,)
+    plain = reoptimize.parse_args([str(copy), "--consolidate", "3", "--consolidate-fresh"])
+    assert reoptimize._opened(plain)[1].absorbing_reward_function() is None

@@ -38,6 +38,7 @@ from emgail_jax.method.rollout import (
     batch_reset,
     intention_major,
     still_policy,
+    terminations,
     uniform_random_policy,
 )
 from emgail_jax.method.skeleton import intention_rows
@@ -71,7 +72,12 @@ class Refit:
     (:func:`emgail_jax.reoptimize.consolidated`): every step's negatives are then ``batch``
     samples of the snapshots and ``batch`` of those agents' rollouts (a GAIL negative only, not
     a ranking level). ``state_only`` refits D(s, i), every action read as zeros
-    (:func:`~emgail_jax.method.discriminator.state_only`), here and wherever the reward is read."""
+    (:func:`~emgail_jax.method.discriminator.state_only`), here and wherever the reward is read.
+    ``absorbing`` refits with termination as an absorbing state (DAC,
+    :mod:`~emgail_jax.method.discriminator`): every sample whose transition ended its episode
+    early brings one absorbing negative, and a fresh agent's fall is paid the absorbing state's
+    learned reward for every step left; the network then reads one input more, so the refit
+    starts ``fresh`` unless the run trained with absorbing states."""
 
     steps: int
     gradient_penalty: float = 0.0
@@ -83,6 +89,7 @@ class Refit:
     ranking_still: bool = False
     agent_rounds: int = 0
     state_only: bool = False
+    absorbing: bool = False
 
 
 # Enough pairs that every step sees most snapshots, few enough samples that each side's mean
@@ -93,8 +100,9 @@ RANKED_SAMPLES = 32
 
 def _training_rollout(run):
     """``(stages, collect)``: the run's policy stages and ``collect(policy, key) -> (obs
-    [K, M, D] raw, executed [K, M, A])``, one training rollout (``num_envs`` x
-    ``rollout_length`` steps per intention, from fresh starts) of ``policy``."""
+    [K, M, D] raw, executed [K, M, A], terminal [K, M])``, one training rollout (``num_envs``
+    x ``rollout_length`` steps per intention, from fresh starts) of ``policy``; ``terminal``
+    is 1.0 where a transition ended its episode before the time limit."""
     config, env = run.config, run.problem.env
     k, b = env.num_intentions, config.method.rollout.num_envs
     stages = make_policy_stages(config.method, env, run.networks)
@@ -105,17 +113,19 @@ def _training_rollout(run):
         key_reset, key_rollout = jax.random.split(key)
         start = batch_reset(train_env, key_reset, (k, b))
         _, transitions = stages.collect(train_env, policy, start, key_rollout)
-        return intention_major(transitions.obs), env.clip_action(
-            intention_major(transitions.action)
+        return (
+            intention_major(transitions.obs),
+            env.clip_action(intention_major(transitions.action)),
+            intention_major(terminations(transitions, env.episode_length)),
         )
 
     return stages, collect
 
 
 def snapshot_policy_samples(run, seed: int, key: jax.Array, iterations=None):
-    """``(obs [K, M, D] raw, executed [K, M, A])``: one training rollout (with exploration) of
-    the policy of every snapshot of ``seed`` (``iterations``; default all up to the networks
-    ``run`` holds), concatenated."""
+    """``(obs [K, M, D] raw, executed [K, M, A], terminal [K, M])``: one training rollout
+    (with exploration) of the policy of every snapshot of ``seed`` (``iterations``; default
+    all up to the networks ``run`` holds), concatenated."""
     stages, collect = _training_rollout(run)
     of_snapshot = jax.jit(
         lambda state, key: collect(stages.acting(state.policy, state.normalizer, explore=True), key)
@@ -127,15 +137,13 @@ def snapshot_policy_samples(run, seed: int, key: jax.Array, iterations=None):
         raise checkpoints.CheckpointError(
             f"'{run.run_dir}' kept no snapshots to consolidate from (run --snapshot-every)"
         )
-    obs, executed = [], []
+    rollouts = []
     for iteration, snapshot_key in zip(
         iterations, jax.random.split(key, len(iterations)), strict=True
     ):
         state = seed_state(checkpoints.restore_snapshot(run.run_dir, iteration, run.state), seed)
-        o, a = of_snapshot(state, snapshot_key)
-        obs.append(np.asarray(o))
-        executed.append(np.asarray(a))
-    return np.concatenate(obs, 1), np.concatenate(executed, 1)
+        rollouts.append(jax.device_get(of_snapshot(state, snapshot_key)))
+    return tuple(np.concatenate(parts, 1) for parts in zip(*rollouts, strict=True))
 
 
 def agents_policy(policy_of, states):
@@ -152,12 +160,11 @@ def agents_policy(policy_of, states):
 
 
 def fixed_policy_samples(run, policy, key: jax.Array):
-    """``(obs [K, M, D] raw, executed [K, M, A])``: one training rollout per intention of
-    ``policy`` (acting on raw observations), of the shape of one snapshot's in
+    """``(obs [K, M, D] raw, executed [K, M, A], terminal [K, M])``: one training rollout per
+    intention of ``policy`` (acting on raw observations), of the shape of one snapshot's in
     :func:`snapshot_policy_samples`."""
     _, collect = _training_rollout(run)
-    obs, executed = jax.jit(collect, static_argnums=0)(policy, key)
-    return np.asarray(obs), np.asarray(executed)
+    return jax.device_get(jax.jit(collect, static_argnums=0)(policy, key))
 
 
 def random_action_samples(run, key: jax.Array):
@@ -176,11 +183,17 @@ def consolidated_parameters(
     """``(reward parameters, metrics)``: :meth:`SavedRun.reward_parameters` of ``seed`` with
     its discriminator refitted as ``refit`` says on the expert pairs weighted by the final
     responsibilities against the policy samples of every snapshot and, if given, ``agents``
-    (``(obs [K, M', D] raw, executed [K, M', A])``: fresh agents' rollouts, as many negatives
-    per step as the snapshots'); ``samples`` are the snapshots' (default
+    (``(obs [K, M', D] raw, executed [K, M', A], terminal [K, M'])``: fresh agents' rollouts,
+    as many negatives per step as the snapshots'); ``samples`` are the snapshots' (default
     :func:`snapshot_policy_samples` of ``seed`` and ``key``, collected here). The metrics are
     those of the M-step's loss before (on the first step's batch) and after (on every
-    sample)."""
+    sample). A refit with absorbing states needs ``run`` opened
+    :meth:`~emgail_jax.host.saved_run.SavedRun.with_absorbing_states`.
+
+    Raises:
+      ValueError: an absorbing refit of a run whose network reads no absorbing input, or one
+        from the run's own weights that were not trained with absorbing states.
+    """
     # The samples keep ``key`` itself, so a refit without the newer options draws what it did.
     key_init, key_noise, key_draws, key_random, key_still = (
         jax.random.fold_in(key, i) for i in (1, 2, 3, 4, 5)
@@ -188,8 +201,12 @@ def consolidated_parameters(
     parameters = run.reward_parameters(seed)
     state = run.seed_state(seed)
     algorithm, config, k = run.algorithm, run.config, run.num_intentions
+    if refit.absorbing:
+        _check_absorbing(run, refit)
     pairs = run.demonstration_pairs
-    obs, executed = snapshot_policy_samples(run, seed, key) if samples is None else samples
+    obs, executed, terminal = (
+        snapshot_policy_samples(run, seed, key) if samples is None else samples
+    )
     normalize = lambda x: obs_norm.normalize(state.normalizer, x, config.method.networks.obs_clip)
     pool = NormalizedBatch(
         normalizer=state.normalizer,
@@ -198,7 +215,14 @@ def consolidated_parameters(
         expert_obs=normalize(pairs.observations),
         expert_actions=pairs.actions,
     )
-    met_agents = None if agents is None else (normalize(agents[0]), agents[1])
+    if refit.absorbing:
+        episode_length = run.problem.env.episode_length
+        pool = pool.replace(
+            terminal=terminal, expert_terminal=pairs.terminations(episode_length)
+        ).check()
+    met_agents = None
+    if agents is not None:
+        met_agents = (normalize(agents[0]), agents[1], agents[2] if refit.absorbing else None)
     # ([K, F, M, D], [K, F, M, A]): the ranking's levels below every snapshot, lowest first.
     below = [
         sampled(run, level_key)
@@ -210,7 +234,8 @@ def consolidated_parameters(
     ]
     floor = None
     if below:
-        obs_below, actions_below = (np.stack(levels, 1) for levels in zip(*below, strict=True))
+        # A ranking level is a behaviour, not a negative: its terminations bring no absorbing pair.
+        obs_below, actions_below, _ = (np.stack(levels, 1) for levels in zip(*below, strict=True))
         floor = (normalize(obs_below), actions_below)
 
     def ranked_levels(pool: NormalizedBatch, floor):
@@ -233,6 +258,12 @@ def consolidated_parameters(
         return with_support_negatives(seen, key, refit.support_noise)
 
     def loss_inputs(seen: NormalizedBatch) -> dict:
+        absorbed = {}
+        if seen.terminal is not None:
+            absorbed = dict(
+                expert_absorbed=seen.expert_terminal @ algorithm.expert_weights(gamma),
+                policy_absorbed=seen.terminal.sum(1),
+            )
         return dict(
             expert_obs=seen.expert_obs,
             expert_actions=seen.expert_actions,
@@ -242,20 +273,25 @@ def consolidated_parameters(
             policy_actions=seen.executed,
             policy_conditions=algorithm.discriminator_condition(seen.own_intention(), k),
             gradient_penalty=refit.gradient_penalty,
+            **absorbed,
         )
 
     def drawn(pool: NormalizedBatch, agents, key: jax.Array) -> NormalizedBatch:
         """``refit.batch`` samples of each intention, drawn uniformly from the pool, and as
         many from ``agents`` (if any) after them."""
         key_draw, key_moved = jax.random.split(key)
+        take = lambda x, rows: None if x is None else x[:, rows]
         rows = jax.random.randint(key_draw, (refit.batch,), 0, pool.obs.shape[1])
-        obs, executed = pool.obs[:, rows], pool.executed[:, rows]
+        seen = pool.replace(
+            obs=take(pool.obs, rows),
+            executed=take(pool.executed, rows),
+            terminal=take(pool.terminal, rows),
+        )
         if agents is not None:
             key_agents = jax.random.fold_in(key, 1)
             rows = jax.random.randint(key_agents, (refit.batch,), 0, agents[0].shape[1])
-            obs = jnp.concatenate([obs, agents[0][:, rows]], 1)
-            executed = jnp.concatenate([executed, agents[1][:, rows]], 1)
-        return with_noise(pool.replace(obs=obs, executed=executed), key_moved)
+            seen = seen.with_more_samples(*(take(x, rows) for x in agents))
+        return with_noise(seen, key_moved)
 
     apply = run.networks.discriminator.apply
     if refit.state_only:
@@ -293,12 +329,7 @@ def consolidated_parameters(
     def refitted(
         learner: Learner, pool: NormalizedBatch, floor, agents
     ) -> tuple[Learner, dict, dict]:
-        whole = pool
-        if agents is not None:
-            whole = pool.replace(
-                obs=jnp.concatenate([pool.obs, agents[0]], 1),
-                executed=jnp.concatenate([pool.executed, agents[1]], 1),
-            )
+        whole = pool if agents is None else pool.with_more_samples(*agents)
         whole = with_noise(whole, key_noise)
         levels = ranked_levels(pool, floor) if refit.ranking else None
         if refit.batch or refit.ranking:
@@ -315,14 +346,30 @@ def consolidated_parameters(
 
     start = state.discriminator
     if refit.fresh:
-        condition = algorithm.discriminator_condition(intention_rows((1,)), k)
-        weights = run.networks.discriminator.init(
-            key_init, pairs.observations[:1], pairs.actions[:1], condition
-        )
-        start = Learner.create(weights, optimizer)
+        start = Learner.create(new_discriminator_weights(run, key_init), optimizer)
     trained, before, after = refitted(start, pool, floor, met_agents)
     metrics = {"before": jax.device_get(before), "after": jax.device_get(after)}
     return {**parameters, "discriminator": trained.params}, metrics
+
+
+def new_discriminator_weights(run, key: jax.Array) -> dict:
+    """Weights of the run's discriminator network drawn anew from ``key``."""
+    pairs, k = run.demonstration_pairs, run.num_intentions
+    condition = run.algorithm.discriminator_condition(intention_rows((1,)), k)
+    return run.networks.discriminator.init(
+        key, pairs.observations[:1], pairs.actions[:1], condition
+    )
+
+
+def _check_absorbing(run, refit: Refit) -> None:
+    if not run.config.method.reward.absorbing_state:
+        raise ValueError(
+            "a refit with absorbing states reads the run opened with_absorbing_states()"
+        )
+    if not (refit.fresh or run.trained_with_absorbing_states):
+        raise ValueError(
+            "the run's discriminator was trained without absorbing states: refit it fresh"
+        )
 
 
 def rewards_directory(run_dir: str) -> str:
@@ -402,6 +449,9 @@ def saved_parameters(run, name: str, seed: int) -> dict | None:
     path = _seed_path(run.run_dir, name, run.seed_number(seed))
     if not os.path.exists(path):
         return None
-    own = run.reward_parameters(seed)
-    saved = checkpoints.read_tree(path, own["discriminator"], "the reward")
-    return {**own, "discriminator": saved}
+    # The network's shapes, not the run's own weights: a refit with absorbing states reads
+    # one input more than a run trained without them.
+    shapes = jax.eval_shape(lambda key: new_discriminator_weights(run, key), jax.random.PRNGKey(0))
+    template = jax.tree.map(lambda x: np.zeros(x.shape, x.dtype), shapes)
+    saved = checkpoints.read_tree(path, template, "the reward")
+    return {**run.reward_parameters(seed), "discriminator": saved}

@@ -206,6 +206,31 @@ class SavedRun:
         method, weight = self.config.method, self.config.info_weight
         return dataclasses.replace(self, algorithm=make_algorithm(method.algo, weight, form))
 
+    @property
+    def trained_with_absorbing_states(self) -> bool:
+        """Whether the run's own discriminator learnt termination as an absorbing state."""
+        return self.spec.config.method.reward.absorbing_state
+
+    def with_absorbing_states(self) -> SavedRun:
+        """This run with a discriminator network that reads the absorbing-state indicator
+        (DAC) and a reward that pays its absorbing state
+        (:meth:`absorbing_reward_function`): how a refit with absorbing states
+        (``reoptimize --consolidate-absorbing``) is made and read. The run's own discriminator
+        weights fit it only if the run trained with absorbing states."""
+        if self.config.method.reward.absorbing_state:
+            return self
+        config = self.config.with_values(absorbing_state=True)
+        networks = make_networks(config.method, self.problem.env)
+        return dataclasses.replace(self, config=config, networks=networks)
+
+    def for_refit(self, name: str) -> SavedRun:
+        """This run as its saved refitted reward ``name`` is read: with absorbing states if
+        the refit learnt them."""
+        from emgail_jax.host import consolidation
+
+        absorbing = consolidation.read_description(self.run_dir, name)["refit"]["absorbing"]
+        return self.with_absorbing_states() if absorbing else self
+
     def refitted_parameters(self, name: str, seed: int = 0) -> dict:
         """:meth:`reward_parameters` of ``seed`` with the discriminator of the saved refitted
         reward ``name`` (``reoptimize --consolidate``, :mod:`~emgail_jax.host.consolidation`).
@@ -247,8 +272,9 @@ class SavedRun:
         if refit is not None:
             if across_seeds:
                 raise RunError("across_seeds averages the run's own rewards, not a refitted one")
-            parameters = self.refitted_parameters(refit, seed)
-            reward = self.reward_function(self.refit_is_state_only(refit))
+            run = self.for_refit(refit)
+            parameters = run.refitted_parameters(refit, seed)
+            reward = run.reward_function(run.refit_is_state_only(refit))
         elif across_seeds:
             parameters = self.across_seeds_parameters(seed)
             reward = across_seeds_reward(self.reward_function())
