@@ -208,6 +208,8 @@ def main(argv=None) -> int:
         run = SavedRun.open(args.run_dir, snapshot=args.snapshot)
         if args.reward_form is not None:
             run = run.with_reward_form(args.reward_form)
+        if args.refit:
+            run = run.for_refit(args.refit)  # an absorbing refit's network reads one input more
         parameters = [
             run.refitted_parameters(args.refit, s) if args.refit else run.reward_parameters(s)
             for s in range(run.spec.seeds)

@@ -808,6 +808,35 @@ def test_reward_generalisation_matches_intentions_where_the_run_was_opened(tiny_
         assert asked[-1] == iteration
 
 
+def test_reward_generalisation_scores_a_refit_with_absorbing_states(tiny_run, tmp_path, capsys):
+    import shutil
+
+    import jax
+
+    from emgail_jax.host import consolidation
+    from emgail_jax.host.saved_run import SavedRun
+
+    copy = tmp_path / "run"
+    shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("rewards"))
+    run = SavedRun.open(str(copy)).with_absorbing_states()
+    refit = consolidation.Refit(steps=3, fresh=True, absorbing=True)
+    for seed in range(2):
+        parameters, losses = consolidation.consolidated_parameters(
+            run, seed, refit, jax.random.PRNGKey(seed)
+        )
+        description = consolidation.refit_description(refit, None)
+        consolidation.save_refitted(
+            str(copy), "falls", seed, parameters["discriminator"], description, losses
+        )
+    module = _load("reward_generalisation")
+    assert module.main([str(copy), "--episodes", "2", "--refit", "falls"]) == 0
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("seed ")]
+    assert len(lines) == 4
+    for line in lines:
+        values = [float(v) for v in line.split(": ")[1].split(" / ")]
+        assert len(values) == 5 and all(np.isfinite(values[1:]))
+
+
 def test_reward_generalisation_refuses_bad_input_in_one_line(tiny_run, tmp_path, capsys):
     module = _load("reward_generalisation")
     assert module.main([str(tiny_run), "--episodes", "0"]) == 2
