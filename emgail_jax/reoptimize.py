@@ -1,6 +1,6 @@
 """Is the learned reward a reward? Train fresh policies on it and measure their ERD (paper §5.2).
 
-    python -m emgail_jax.reoptimize RUN_DIR [--seed S] [--rl-seed R] [--snapshot ITER]
+    python -m emgail_jax.reoptimize RUN_DIR [--seed S] [--rl-seed R] [--draws N] [--snapshot ITER]
         [--ensemble N | --across-seeds | --consolidate STEPS [--consolidate-*]]
         [--reward-form FORM] [--iterations N] [--gamma G] [--no-baseline]
         [--cache DIR] [--env-set KEY=FACTOR ...] [--out PATH]
@@ -14,12 +14,13 @@ seed's discriminator refitted against every snapshot's policy, saved as ``RUN_DI
 for ``load_reward(RUN_DIR, refit=NAME)`` and reused by any later check of it), never
 seeing the true reward; the seeds' and intentions' policies are vmapped in one program
 (``--rl-seed R``: another draw of their initialisation and samples, to tell a reward that fails
-from a search that did). Their deterministic episodes (as many per iteration as training
-evaluates, ``num_envs``) are scored under the true rewards; the ERD matches each true intention
-to the learned one the run itself matched it to (its jointly trained policies' matching at that
-iteration), one matching for every number reported. Each env's success measure (the experts'
-bars: velocity, upright, pitch turn, ball reached) is reported beside it, over the experts' 10
-deterministic episodes.
+from a search that did; ``--draws N``: N draws, keeping per intention the agent that earns the
+most learned reward, as a user without the true reward would). Their deterministic episodes
+(as many per iteration as training evaluates, ``num_envs``) are scored under the true
+rewards; the ERD matches each true intention to the learned one the run itself matched it to
+(its jointly trained policies' matching at that iteration), one matching for every number
+reported. Each env's success measure (the experts' bars: velocity, upright, pitch turn, ball
+reached) is reported beside it, over the experts' 10 deterministic episodes.
 
 Every algorithm's run is checked on the reward its own policies were trained on
 (:meth:`~emgail_jax.host.saved_run.SavedRun.reward_function`): EM-GAIL's R_i = -log(1 - D(s, a,
@@ -247,7 +248,8 @@ def scored(returns, matching, run, seed: int | None) -> dict:
         "matching": np.asarray(matching),
     }
     if problem.demos.expert_returns is None:
-        return {**result, "erd": None, "erd_per_intention": None, "erd_curve": None}
+        none = ("erd", "erd_per_intention", "erd_curve", "erd_curve_per_intention")
+        return {**result, **dict.fromkeys(none)}
     random = np.asarray(problem.random_returns, np.float64)
     per_intention = reward_difference(matched, expert, random)
     in_use = None if seed is None else run.intentions_in_use(seed)
@@ -259,6 +261,7 @@ def scored(returns, matching, run, seed: int | None) -> dict:
         "erd": float(curve[-FINAL_WINDOW:].mean()),
         "erd_per_intention": per_intention[-FINAL_WINDOW:].mean(0),
         "erd_curve": curve,
+        "erd_curve_per_intention": per_intention,  # [iterations, K true]
     }
 
 
@@ -337,7 +340,6 @@ def reoptimize(
             "demonstrations": demonstrations_reward(run, seed, per_seed_parameters[row], learned),
         }
         per_seed.append(result)
-    erds = [r["erd"] for r in per_seed]
     return {
         "iteration": iteration,
         "snapshot": run.snapshot,
@@ -348,13 +350,89 @@ def reoptimize(
         "random_returns": run.problem.random_returns,
         "seeds": [run.seed_number(seed) for seed in seeds],
         "rl_seed": rl_seed,
+        **over_seeds(per_seed),
+        "compile_time_s": fresh.compile_s,
+        "train_time_s": fresh.train_s,
+    }
+
+
+def over_seeds(per_seed: list[dict]) -> dict:
+    """What a check reports of its seeds' results: each seed's ERD, their mean and spread, and
+    which of the experts' bars each seed's agents meet."""
+    erds = [r["erd"] for r in per_seed]
+    return {
         "erd": erds,
         "erd_mean": None if None in erds else float(np.mean(erds)),
         "erd_std": None if None in erds else float(np.std(erds)),
         "meets_bar": [[q["meets_bar"] for q in r["success"]] for r in per_seed],
         "per_seed": per_seed,
-        "compile_time_s": fresh.compile_s,
-        "train_time_s": fresh.train_s,
+    }
+
+
+def picked(draws: list[dict], pick) -> dict:
+    """One :func:`scored` result (with its ``success``) whose true intention i is the agent of
+    draw ``pick[i]`` of ``draws``, scores of agents trained alike under one matching."""
+    pick = [int(d) for d in pick]
+    column = lambda name: [np.asarray(draws[d][name])[..., i] for i, d in enumerate(pick)]
+    result = {"matching": draws[0]["matching"], "returns": np.array(column("returns"))}
+    if draws[0]["erd"] is None:
+        none = ("erd", "erd_per_intention", "erd_curve", "erd_curve_per_intention")
+        result.update(dict.fromkeys(none))
+    else:
+        per_intention = np.stack(column("erd_curve_per_intention"), -1)  # [iterations, K true]
+        curve = per_intention.mean(-1)
+        result.update(
+            erd=float(curve[-FINAL_WINDOW:].mean()),  # as scored: one draw picks itself alike
+            erd_per_intention=per_intention[-FINAL_WINDOW:].mean(0),
+            erd_curve=curve,
+            erd_curve_per_intention=per_intention,
+        )
+    if "success" in draws[0]:
+        result["success"] = [draws[d]["success"][i] for i, d in enumerate(pick)]
+    return {**result, "draw": pick}
+
+
+def chosen_by_learned_reward(draws: list[dict]) -> dict:
+    """Several draws of fresh agents on the same rewards (:func:`reoptimize` results of the same
+    seeds, one per RL seed) as one check: per run seed and learned intention, the agent that
+    earned the most learned reward per step over the last iterations, the choice a user without
+    the true reward can make. Each seed's ``draw`` says which draw acts each true intention."""
+    per_seed = []
+    for rows in zip(*(d["per_seed"] for d in draws), strict=True):
+        earned = np.array([r["learned_reward_per_step"]["fresh_policies"] for r in rows])
+        best = earned.argmax(0)  # [K learned]
+        chosen = picked(rows, best[np.asarray(rows[0]["matching"])])
+        chosen["learned_reward_per_step"] = {
+            "fresh_policies": earned[best, np.arange(len(best))],
+            "demonstrations": rows[0]["learned_reward_per_step"]["demonstrations"],
+        }
+        per_seed.append(
+            {"run_seed": rows[0]["run_seed"], **chosen, "draws_erd": [r["erd"] for r in rows]}
+        )
+    shared = ("iteration", "snapshot", "budget", "absorbing_state", "eval_episodes")
+    shared += ("expert_returns", "random_returns", "seeds")
+    return {
+        **{name: draws[0][name] for name in shared},
+        "rl_seeds": [d["rl_seed"] for d in draws],
+        **over_seeds(per_seed),
+        "draws_erd_mean": [d["erd_mean"] for d in draws],
+        "draws": draws,
+        "compile_time_s": sum(d["compile_time_s"] for d in draws),
+        "train_time_s": sum(d["train_time_s"] for d in draws),
+    }
+
+
+def best_baseline(baselines: list[dict]) -> dict:
+    """Several true-reward baselines' draws (:func:`true_reward_baseline`) as one: per true
+    intention the agent with the highest true return, each agent kept by the reward it trained
+    on as :func:`chosen_by_learned_reward` keeps the learned reward's."""
+    best = np.array([b["returns"] for b in baselines]).argmax(0)  # [K true]
+    result = picked(baselines, best)
+    return {
+        **result,
+        "meets_bar": [q["meets_bar"] for q in result["success"]],
+        "draws_erd": [b["erd"] for b in baselines],
+        "cache": [b["cache"] for b in baselines],
     }
 
 
@@ -533,6 +611,13 @@ def print_result(run, result: dict) -> None:
             f"{len(reference)} of the experts' bars: agents that beat them score ERD > 0 too; "
             "read the bars"
         )
+    for seed_result in result["per_seed"] if "draws" in result else []:
+        draws_erd = " ".join(two(e) for e in seed_result["draws_erd"])
+        console.print(
+            f"seed {seed_result['run_seed']}: best of {len(result['draws'])} draws by the "
+            f"learned reward (each draw's ERD {draws_erd}), true intentions acted by draws "
+            + " ".join(str(result["rl_seeds"][d]) for d in seed_result["draw"])
+        )
     for seed_result in result["per_seed"]:
         earned = seed_result["learned_reward_per_step"]
         pairs = zip(earned["fresh_policies"], earned["demonstrations"], strict=True)
@@ -562,6 +647,15 @@ def parse_args(argv=None) -> argparse.Namespace:
         metavar="R",
         help="another draw of the fresh policies' initialisation and samples on the same "
         "rewards (default 0)",
+    )
+    parser.add_argument(
+        "--draws",
+        type=int,
+        default=1,
+        metavar="N",
+        help="train N draws (RL seeds R .. R + N - 1) and keep per intention the agent that "
+        "earns the most learned reward; the true-reward baseline's the one that earns the "
+        "most true reward (default 1)",
     )
     parser.add_argument(
         "--snapshot", type=int, default=None, metavar="ITER", help="the rewards of this snapshot"
@@ -743,6 +837,8 @@ def _check_options(args: argparse.Namespace) -> None:
 
     if args.rl_seed < 0:
         raise RunError("--rl-seed must be 0 or more")
+    if args.draws < 1:
+        raise RunError("--draws must be at least 1")
     if args.iterations is not None and args.iterations < 1:
         raise RunError("--iterations must be at least 1")
     if args.gamma is not None and not 0 < args.gamma <= 1:
@@ -927,16 +1023,21 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
             "reference_meets_bar": reference["meets_bar"],
         }
         run.problem = with_expert_returns(run.problem, reference["returns"])
-    result = reoptimize(
-        run,
-        seeds,
-        budget,
-        progress=not args.quiet,
-        parameters=chosen.parameters,
-        reward_function=chosen.function,
-        absorbing_function=chosen.absorbing,
-        rl_seed=args.rl_seed,
-    )
+    rl_seeds = range(args.rl_seed, args.rl_seed + args.draws)
+    draws = [
+        reoptimize(
+            run,
+            seeds,
+            budget,
+            progress=not args.quiet,
+            parameters=chosen.parameters,
+            reward_function=chosen.function,
+            absorbing_function=chosen.absorbing,
+            rl_seed=rl_seed,
+        )
+        for rl_seed in rl_seeds
+    ]
+    result = draws[0] if args.draws == 1 else chosen_by_learned_reward(draws)
     # What the fresh agents were paid: an AIRL run's policies trained on f - log pi, its
     # fresh agents on g_i(s).
     airl = run.config.method.m_step.form.airl
@@ -947,10 +1048,12 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
     result["variant"] = variant
     result["baseline"] = None
     if args.baseline:
-        # The baseline's own draw: how far one RL seed's search varies on the true reward.
-        result["baseline"] = true_reward_baseline(
-            run, budget, cache, not args.quiet, rl_seed=args.rl_seed
-        )
+        # The baseline's own draws: how far the search varies on the true reward.
+        baselines = [
+            true_reward_baseline(run, budget, cache, not args.quiet, rl_seed=rl_seed)
+            for rl_seed in rl_seeds
+        ]
+        result["baseline"] = baselines[0] if args.draws == 1 else best_baseline(baselines)
     path = args.out or os.path.join(args.run_dir, default_name(args))
     records.write_json(path, result)
     print_result(run, records.to_json_value(result))
@@ -959,7 +1062,7 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
 
 
 def default_name(args) -> str:
-    """``reoptimize[-seed-S][-rl-R][-it-N][-gamma-G][-snapshot-ITER][-consolidated-STEPS
+    """``reoptimize[-seed-S][-rl-R][-draws-N][-it-N][-gamma-G][-snapshot-ITER][-consolidated-STEPS
     [-penalty-W][-fresh][-noise-S][-batch-M]][-ensemble-N][-across-seeds][-FORM][-env-...].json``: a
     check of one seed, or at another budget, does not overwrite the check of every seed at the
     env's budget."""
@@ -968,6 +1071,8 @@ def default_name(args) -> str:
         parts.append(f"seed-{args.seed}")
     if args.rl_seed:
         parts.append(f"rl-{args.rl_seed}")
+    if args.draws > 1:
+        parts.append(f"draws-{args.draws}")
     if args.iterations is not None:
         parts.append(f"it-{args.iterations}")
     if args.gamma is not None:

@@ -213,6 +213,7 @@ def test_a_snapshot_is_reoptimised_on_its_own_networks(tiny_run, reoptimized):
         (["--env-set", "gravity=2"], "--env-set: env 'driver' has no option 'dynamics'"),
         (["--env-set", "gravity=2", "--no-baseline"], "drop --no-baseline"),
         (["--reference-draws", "0"], "--reference-draws must be at least 1"),
+        (["--draws", "0"], "--draws must be at least 1"),
     ],
 )
 def test_bad_input_gives_one_line_and_exit_code_2(tiny_run, capsys, extra, message):
@@ -413,6 +414,8 @@ def test_the_default_file_names_what_was_checked():
     assert reoptimize.default_name(args) == "reoptimize-seed-1-snapshot-20-log-d.json"
     args = reoptimize.parse_args(["RUN", "--rl-seed", "2"])
     assert reoptimize.default_name(args) == "reoptimize-rl-2.json"
+    args = reoptimize.parse_args(["RUN", "--rl-seed", "2", "--draws", "3"])
+    assert reoptimize.default_name(args) == "reoptimize-rl-2-draws-3.json"
     args = reoptimize.parse_args(["RUN", "--iterations", "1000", "--gamma", "0.999"])
     assert reoptimize.default_name(args) == "reoptimize-it-1000-gamma-0.999.json"
     args = reoptimize.parse_args(["RUN", "--across-seeds", "--rl-seed", "1"])
@@ -536,3 +539,80 @@ def test_an_absorbing_refit_is_named_so_and_prices_the_fresh_agents_falls(tiny_r
     ).shape == (5,)
     plain = reoptimize.parse_args([str(copy), "--consolidate", "3", "--consolidate-fresh"])
     assert reoptimize._opened(plain)[1].absorbing_reward_function() is None
+
+
+def _draw(rl_seed, earned, erd_per_intention, matching=(1, 0)):
+    """One seed's check as :func:`reoptimize.reoptimize` writes it: 3 iterations, 2 true and
+    learned intentions, true intention i acted by learned ``matching[i]``."""
+    per_intention = np.tile(np.asarray(erd_per_intention, float), (3, 1))  # [iterations, K true]
+    seed = {
+        "run_seed": 0,
+        "matching": list(matching),
+        "returns": 100 * (1 - per_intention[-1]),
+        "erd": float(per_intention.mean(-1)[-reoptimize.FINAL_WINDOW :].mean()),
+        "erd_per_intention": per_intention[-1],
+        "erd_curve": per_intention.mean(-1),
+        "erd_curve_per_intention": per_intention,
+        "success": [{"intention": f"path{i + 1}", "draw": rl_seed} for i in range(2)],
+        "learned_reward_per_step": {"fresh_policies": earned, "demonstrations": [0.5, 0.4]},
+    }
+    shared = {"iteration": 4, "snapshot": None, "budget": {}, "absorbing_state": False}
+    shared |= {"eval_episodes": 2, "expert_returns": [100, 100], "random_returns": [0, 0]}
+    for q in seed["success"]:
+        q["meets_bar"] = bool(rl_seed)
+    return {
+        **shared,
+        "seeds": [0],
+        "rl_seed": rl_seed,
+        **reoptimize.over_seeds([seed]),
+        "compile_time_s": 1.0,
+        "train_time_s": 2.0,
+    }
+
+
+def test_each_intention_keeps_the_draw_that_earns_the_most_learned_reward():
+    """Learned intention 0 earns most in draw 0, learned 1 in draw 1; true intention 0 is acted
+    by learned 1 (draw 1's agent), true 1 by learned 0 (draw 0's): the true ERDs play no part."""
+    draws = [_draw(0, [0.5, -1.0], [0.9, 0.2]), _draw(1, [0.1, 0.2], [0.3, 0.8])]
+    chosen = reoptimize.chosen_by_learned_reward(draws)
+    seed = chosen["per_seed"][0]
+    assert seed["draw"] == [1, 0] and chosen["rl_seeds"] == [0, 1]
+    np.testing.assert_allclose(seed["erd_per_intention"], [0.3, 0.2])
+    assert np.isclose(seed["erd"], 0.25) and chosen["erd"] == [seed["erd"]]
+    np.testing.assert_allclose(seed["returns"], [70, 80])
+    assert [q["draw"] for q in seed["success"]] == [1, 0]
+    assert chosen["meets_bar"] == [[True, False]]
+    np.testing.assert_allclose(seed["learned_reward_per_step"]["fresh_policies"], [0.5, 0.2])
+    np.testing.assert_allclose(seed["draws_erd"], [0.55, 0.55])
+    assert chosen["draws"] == draws
+    assert chosen["train_time_s"] == 4.0
+
+
+def test_one_draw_chosen_is_that_draw():
+    draw = _draw(0, [0.3, 0.1], [0.123456789, 0.987654321])
+    chosen = reoptimize.chosen_by_learned_reward([draw])
+    assert chosen["erd"] == draw["erd"]  # bit for bit: the same sum in the same order
+    curve = lambda result: result["per_seed"][0]["erd_curve"]
+    np.testing.assert_array_equal(curve(chosen), curve(draw))
+
+
+def test_the_best_baseline_keeps_the_highest_true_return_per_intention():
+    draws = [_draw(r, [0, 0], erd)["per_seed"][0] for r, erd in ((0, [0.1, 0.6]), (1, [0.4, 0.2]))]
+    baselines = [{**d, "cache": f"draw{r}.json"} for r, d in enumerate(draws)]
+    best = reoptimize.best_baseline(baselines)
+    assert best["draw"] == [0, 1] and best["meets_bar"] == [False, True]
+    np.testing.assert_allclose(best["erd_per_intention"], [0.1, 0.2])
+    assert best["cache"] == ["draw0.json", "draw1.json"]
+
+
+@pytest.mark.slow  # three re-optimisations (the plain one runs always)
+def test_draws_are_trained_and_the_learned_reward_keeps_one_per_intention(tiny_run, reoptimized):
+    _, cache = reoptimized
+    args = [str(tiny_run), "--iterations", "2", "--draws", "2", "--cache", str(cache)]
+    assert reoptimize.main([*args, "--quiet"]) == 0
+    result = json.loads((tiny_run / "reoptimize-draws-2-it-2.json").read_text())
+    assert result["rl_seeds"] == [0, 1] and [d["rl_seed"] for d in result["draws"]] == [0, 1]
+    assert result["draws"][0]["erd"] == reoptimized[0]["erd"]  # draw 0 is the plain check
+    again = reoptimize.chosen_by_learned_reward(result["draws"])
+    assert again["erd"] == result["erd"]
+    assert len(result["baseline"]["draw"]) == 2 and len(result["baseline"]["cache"]) == 2
