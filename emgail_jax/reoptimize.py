@@ -395,8 +395,10 @@ def picked(draws: list[dict], pick) -> dict:
 def chosen_by_learned_reward(draws: list[dict]) -> dict:
     """Several draws of fresh agents on the same rewards (:func:`reoptimize` results of the same
     seeds, one per RL seed) as one check: per run seed and learned intention, the agent that
-    earned the most learned reward per step over the last iterations, the choice a user without
-    the true reward can make. Each seed's ``draw`` says which draw acts each true intention."""
+    earned the most learned reward per step over the last iterations (a fall paid the absorbing
+    state's reward for every step left, :func:`~emgail_jax.method.rl.reward_per_step`), the
+    choice a user without the true reward can make. Each seed's ``draw`` says which draw acts
+    each true intention."""
     per_seed = []
     for rows in zip(*(d["per_seed"] for d in draws), strict=True):
         earned = np.array([r["learned_reward_per_step"]["fresh_policies"] for r in rows])

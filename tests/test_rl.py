@@ -53,3 +53,22 @@ def test_seeds_chunk_trains_each_row_on_its_own_reward_parameters():
     # The first rollout is the same policy's: only the reward differs.
     np.testing.assert_allclose(metrics["train/reward"][0, 1], -expected["train/reward"][0], 1e-6)
     assert not np.array_equal(metrics["eval/returns"][-1, 1], expected["eval/returns"][-1])
+
+
+@pytest.mark.parametrize("jitted", [False, True])
+def test_a_fall_is_paid_the_absorbing_reward_for_every_step_left(jitted):
+    """Episodes of 10 steps, 2 envs, 4 steps each: env 0 falls after the step at t = 2 (7 steps
+    left, paid -3 each), env 1 reaches no end; every sample is paid 1."""
+    from emgail_jax.method.rl import reward_per_step
+    from emgail_jax.method.rollout import Transitions
+
+    batch = Transitions.zeros(4, 1, 2, 3, 1)
+    time = jnp.array([[0.0, 0.6], [0.1, 0.7], [0.2, 0.8], [0.0, 0.9]])[:, None]  # [T, 1, B]
+    batch = batch.replace(time=time, done=jnp.zeros((4, 1, 2)).at[2, 0, 0].set(1.0))
+    rewards = jnp.ones((4, 1, 2))
+    per_step = jax.jit(reward_per_step, static_argnums=2) if jitted else reward_per_step
+    assert np.isclose(per_step(rewards, batch, 10), 1.0)  # no absorbing state: the mean
+    paid = per_step(rewards, batch, 10, jnp.array([-3.0]))
+    assert np.isclose(paid, (8 * 1.0 + 7 * -3.0) / (8 + 7))
+    ended = batch.replace(done=batch.done.at[3, 0, 1].set(1.0))  # env 1's limit: no step left
+    assert np.isclose(per_step(rewards, ended, 10, jnp.array([-3.0])), paid)

@@ -31,7 +31,7 @@ from emgail_jax.method import normalizer as obs_norm
 from emgail_jax.method.config import MethodConfig
 from emgail_jax.method.networks import GaussianPolicy, ValueNet
 from emgail_jax.method.optim import Learner
-from emgail_jax.method.rollout import batch_reset, episode_returns
+from emgail_jax.method.rollout import batch_reset, episode_returns, steps_left, terminations
 from emgail_jax.method.skeleton import PolicyStages, Rewarded, make_update, unconditioned
 
 # (obs [T, 1, B, D] raw, action [T, 1, B, A], true_reward [T, 1, B, K], intention [],
@@ -44,6 +44,17 @@ AbsorbingRewardFn = Callable[[jax.Array, Any], jax.Array]
 def true_reward(obs, action, reward, intention, reward_data=None):
     """The env's own reward of the intention being trained (for the experts)."""
     return jnp.take(reward, intention, axis=-1)
+
+
+def reward_per_step(rewards, transitions, episode_length: int, absorbed=None) -> jax.Array:
+    """``[]`` the reward per step ``rewards [T, 1, B]`` paid the samples ``transitions``; with
+    ``absorbed [1]`` (the absorbing state's reward) a termination is paid it for every step
+    left to the time limit, those steps counted too, as the B-step bootstraps it: a policy
+    that falls earns what falling is worth."""
+    if absorbed is None:
+        return rewards.mean()
+    left = terminations(transitions, episode_length) * steps_left(transitions.time, episode_length)
+    return (rewards.sum() + absorbed[0] * left.sum()) / (rewards.size + left.sum())
 
 
 @struct.dataclass
@@ -100,7 +111,8 @@ def make_rl_train(
         absorbed = None
         if absorbing_reward is not None:
             absorbed = absorbing_reward(intention, reward_data)[None]  # [1]: the one row
-        return Rewarded(rewards, {}, {"train/reward": rewards.mean()}, absorbed)
+        earned = reward_per_step(rewards, batch, env.episode_length, absorbed)
+        return Rewarded(rewards, {}, {"train/reward": earned}, absorbed)
 
     # Fresh episodes of the improved policy, not the IRL loop's evaluation phases: the experts
     # and the baselines' cached numbers were made with these keys.
