@@ -501,14 +501,13 @@ def variant_reference(run, budget: Budget, cache: str | None, draws: int, progre
     baselines (RL seeds 0 .. draws - 1, each cached), and what each draw scored against the
     original experts."""
     found = [true_reward_baseline(run, budget, cache, progress, r) for r in range(draws)]
-    returns = np.array([b["returns"] for b in found], np.float64)  # [draws, K true]
-    best = returns.argmax(0)
+    best = best_baseline(found)
     return {
-        "returns": returns.max(0),
-        "draw": best,
-        "draws_returns": returns,
-        "original_experts_erd": [b["erd"] for b in found],
-        "meets_bar": [found[d]["meets_bar"][i] for i, d in enumerate(best)],
+        "returns": best["returns"],
+        "draw": best["draw"],
+        "draws_returns": np.array([b["returns"] for b in found], np.float64),  # [draws, K true]
+        "original_experts_erd": best["draws_erd"],
+        "meets_bar": best["meets_bar"],
     }
 
 
