@@ -628,7 +628,7 @@ def print_result(run, result: dict) -> None:
         )
 
 
-def parse_args(argv=None) -> argparse.Namespace:
+def argument_parser() -> argparse.ArgumentParser:
     from emgail_jax.method.config import REWARD_FORMS
 
     parser = argparse.ArgumentParser(
@@ -676,8 +676,9 @@ def parse_args(argv=None) -> argparse.Namespace:
         f"{REFIT['consolidate']} --consolidate-fresh --consolidate-penalty "
         f"{REFIT['consolidate_penalty']:g} --consolidate-noise {REFIT['consolidate_noise']:g} "
         f"--consolidate-batch {REFIT['consolidate_batch']}, read as log D unless the env's "
-        "episodes end early (without --consolidate-absorbing); a --consolidate-* or "
-        "--reward-form given with it replaces that one",
+        "episodes end early (without --consolidate-absorbing); on hopper also "
+        f"{refit_extras('hopper')}, on halfcheetah {refit_extras('halfcheetah')}; a "
+        "--consolidate-* or --reward-form given with it replaces that one",
     )
     parser.add_argument(
         "--consolidate",
@@ -718,7 +719,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument(
         "--consolidate-ranking",
         type=float,
-        default=0.0,
+        default=None,
         metavar="WEIGHT",
         help="with --consolidate: rank the snapshots' policies by iteration and the "
         "demonstrations above them, with this weight (emgail_jax.method.ranking; default 0: none)",
@@ -751,7 +752,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     parser.add_argument(
         "--consolidate-absorbing",
-        action="store_true",
+        action=argparse.BooleanOptionalAction,
+        default=None,
         help="with --consolidate: termination as an absorbing state (DAC) in the refit, learnt "
         "fake from the snapshots' falls; a fresh agent's fall is paid its reward for every "
         "step left, so --refit reads log D on every env (from new weights unless the run "
@@ -795,7 +797,13 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     parser.add_argument("--out", default=None, help="default: RUN_DIR/reoptimize[-...].json")
     parser.add_argument("--quiet", action="store_true")
-    return with_refit_recipe(parser.parse_args(argv))
+    return parser
+
+
+def parse_args(argv=None, env: str | None = None) -> argparse.Namespace:
+    """The command line with ``--refit``'s recipe for ``env`` filled in
+    (:func:`with_refit_recipe`)."""
+    return with_refit_recipe(argument_parser().parse_args(argv), env)
 
 
 # `--refit`: experiment 35's refit of docs/rewards-that-reoptimise.md, from new weights against
@@ -807,15 +815,40 @@ REFIT = {
     "consolidate_batch": 5000,
 }
 
+# What `--refit` adds on the locomotion envs where the plain refit's agents stay near random
+# actions: the snapshots ranked by iteration, read as the logit, and hopper's falls priced by an
+# absorbing state (experiments 43, 61, 63 and 64).
+REFIT_BY_ENV: dict[str, dict] = {
+    "hopper": {"consolidate_ranking": 10.0, "consolidate_absorbing": True, "reward_form": "logit"},
+    "halfcheetah": {"consolidate_ranking": 30.0, "reward_form": "logit"},
+}
+# The refit's options that are off unless given or in the env's recipe.
+OFF_UNLESS_GIVEN = {"consolidate_ranking": 0.0, "consolidate_absorbing": False}
 
-def with_refit_recipe(args: argparse.Namespace) -> argparse.Namespace:
-    """``args`` with every refit option it left unset at the :data:`REFIT` recipe's value if
-    ``--refit`` was given, and at none otherwise. The reward form, which depends on the env,
-    is :func:`refit_reward_form`'s."""
+
+def refit_extras(env: str) -> str:
+    """``--refit``'s options on ``env`` beyond :data:`REFIT`, spelled as on the command line."""
+    words = []
+    for option, value in REFIT_BY_ENV.get(env, {}).items():
+        words.append("--" + option.replace("_", "-"))
+        if value is not True:
+            words.append(f"{value:g}" if isinstance(value, float) else str(value))
+    return " ".join(words)
+
+
+def with_refit_recipe(args: argparse.Namespace, env: str | None = None) -> argparse.Namespace:
+    """``args`` with every refit option it left unset at the :data:`REFIT` recipe's value (and
+    ``env``'s :data:`REFIT_BY_ENV`) if ``--refit`` was given, and at none otherwise. The reward
+    form, where neither the recipe nor the command line names one, is
+    :func:`refit_reward_form`'s."""
     args = argparse.Namespace(**vars(args))
-    for option, value in REFIT.items():
+    recipe = {**REFIT, **REFIT_BY_ENV.get(env, {})} if args.refit else {}
+    unset = {**{option: type(value)(0) for option, value in REFIT.items()}, **OFF_UNLESS_GIVEN}
+    for option, off in unset.items():
         if getattr(args, option) is None:
-            setattr(args, option, value if args.refit else type(value)(0))
+            setattr(args, option, recipe.get(option, off))
+    if args.reward_form is None:
+        args.reward_form = recipe.get("reward_form")
     args.consolidate_fresh = args.consolidate_fresh or args.refit
     return args
 
@@ -987,19 +1020,20 @@ def ensemble_reward(reward_function):
 
 
 def main(argv=None) -> int:
-    args = parse_args(argv)
+    given = argument_parser().parse_args(argv)
     jax_setup.setup(host_devices=1)
 
     import envs
     from emgail_jax.host import run_lock
     from emgail_jax.host.checkpoints import CheckpointError
     from emgail_jax.host.demonstration_files import DemonstrationError
-    from emgail_jax.host.run_spec import RunError
+    from emgail_jax.host.run_spec import RunError, read_summary
 
     with contextlib.ExitStack() as held:
         try:
-            held.enter_context(run_lock.reading(args.run_dir))  # no live run writes it
-            opened = _opened(args)
+            held.enter_context(run_lock.reading(given.run_dir))  # no live run writes it
+            env = read_summary(given.run_dir).get("env")
+            opened = _opened(with_refit_recipe(given, env))
         except (RunError, CheckpointError, envs.EnvError, DemonstrationError) as error:
             print(f"error: {error}", file=sys.stderr)
             return 2

@@ -476,6 +476,36 @@ def test_refit_is_the_measured_recipe_and_any_option_given_replaces_its_own():
     assert reoptimize.refit_of(reoptimize.parse_args(["RUN"])) == Refit(0)
 
 
+def test_refit_adds_the_envs_own_recipe_and_any_option_given_replaces_its_part():
+    driver = reoptimize.parse_args(["RUN", "--refit"], env="driver")
+    assert driver == reoptimize.parse_args(["RUN", "--refit"])  # the common recipe alone
+    hopper = reoptimize.parse_args(["RUN", "--refit"], env="hopper")
+    assert reoptimize.refit_of(hopper) == dataclasses.replace(
+        reoptimize.refit_of(driver), ranking=10, absorbing=True
+    )
+    assert hopper.reward_form == "logit"
+    # Named as the spelled-out command, so the refit it saves is the one that command reads.
+    spelled = ["--consolidate-ranking", "10", "--consolidate-absorbing", "--reward-form", "logit"]
+    assert reoptimize.default_name(hopper) == reoptimize.default_name(
+        reoptimize.parse_args(["RUN", "--refit", *spelled])
+    )
+    cheetah = reoptimize.parse_args(["RUN", "--refit"], env="halfcheetah")
+    assert (cheetah.consolidate_ranking, cheetah.consolidate_absorbing) == (30, False)
+    assert cheetah.reward_form == "logit"
+    # Each part of the env's recipe can be replaced or turned off alone.
+    options = ["--consolidate-ranking", "0", "--no-consolidate-absorbing", "--reward-form", "log-d"]
+    plain = reoptimize.parse_args(["RUN", "--refit", *options], env="hopper")
+    assert reoptimize.refit_of(plain) == reoptimize.refit_of(driver)
+    assert plain.reward_form == "log-d"
+    # Without --refit the env adds nothing.
+    assert reoptimize.refit_of(reoptimize.parse_args(["RUN"], env="hopper")) == Refit(0)
+    assert reoptimize.parse_args(["RUN"], env="hopper").reward_form is None
+    assert reoptimize.refit_extras("hopper") == (
+        "--consolidate-ranking 10 --consolidate-absorbing --reward-form logit"
+    )
+    assert reoptimize.refit_extras("reacher") == ""
+
+
 def test_refit_reads_log_d_unless_episodes_end_early():
     form = reoptimize.refit_reward_form
     assert form(reoptimize.parse_args(["RUN", "--refit"]), terminates=False) == "log-d"
@@ -499,6 +529,31 @@ def test_refit_names_its_check_as_the_spelled_out_command(tiny_run, monkeypatch)
     assert reoptimize.main([str(tiny_run), "--refit"]) == 0
     name = "reoptimize-consolidated-4000-penalty-10-fresh-noise-1-batch-5000-log-d.json"
     assert reoptimize.default_name(captured["args"]) == name
+
+
+def test_refit_takes_the_recipe_of_the_runs_env(tiny_run, tmp_path, monkeypatch):
+    """``main`` reads the env from the run's summary before it fills in ``--refit``."""
+    import shutil
+
+    copy = tmp_path / "run"
+    shutil.copytree(tiny_run, copy)
+    summary = json.loads((copy / "summary.json").read_text())
+    seen = []
+
+    class Opened(Exception):
+        """Stops ``main`` once it has resolved its options."""
+
+    def opened(args):
+        seen.append(args)
+        raise Opened
+
+    monkeypatch.setattr(reoptimize, "_opened", opened)
+    for env in ("hopper", "driver"):
+        (copy / "summary.json").write_text(json.dumps({**summary, "env": env}))
+        with pytest.raises(Opened):
+            reoptimize.main([str(copy), "--refit"])
+    assert [args.consolidate_ranking for args in seen] == [10, 0]
+    assert [args.reward_form for args in seen] == ["logit", None]
 
 
 def test_a_state_only_refit_is_named_so_and_pays_every_action_alike(tiny_run, tmp_path):
