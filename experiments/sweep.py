@@ -14,9 +14,12 @@ fig6, table2, table3) or a part of cell names (``halfcheetah``, ``reacher-2``, `
 From whatever cells are finished it writes ``OUT/table2.md``, ``OUT/table3.md`` and ``.csv``,
 ``OUT/fig5a.csv``, ``OUT/fig6.csv``, ``OUT/separability.csv`` and the figures
 ``fig4a.png`` ... ``fig6.png``; ``--report-only`` writes them without training anything.
-Every EM-GAIL cell of Figure 6, and its GAIL and Info/IntentionGAIL cells at K = 2, also gets the
-paper's reward check (``python -m emgail_jax.reoptimize``: every seed, beside the true-reward
-baseline, which ``OUT/true-reward-baselines`` keeps for every cell of an env and K).
+Every EM-GAIL cell of Figure 6, and its GAIL and Info/IntentionGAIL cells at K = 2, also gets two
+reward checks (``python -m emgail_jax.reoptimize``, every seed, beside the true-reward baseline,
+which ``OUT/true-reward-baselines`` keeps for every cell of an env and K): the paper's, on the
+run's own reward (``reoptimize.json``), and the refit's, on the reward ``reoptimize --refit``
+learns after the run, the best of 3 draws kept by the learned reward (``reoptimize-refit.json``);
+these cells train with a snapshot every 10 iterations, which the refit learns from.
 ``--engine ray`` runs every cell as a Ray task, several at once, on a Ray started here or on the
 cluster at ``--ray-address`` (README, "The sweep on Ray").
 """
@@ -323,7 +326,7 @@ def sweep_status(cell: Cell, run_dir: str, seeds: int, iterations: int) -> Statu
     from emgail_jax.host.checkpoints import latest_iteration
 
     status = cell_status(run_dir, seeds, iterations)
-    if status == Status.DONE and cell.reoptimized and not reward_check_done(run_dir, seeds):
+    if status == Status.DONE and cell.reoptimized and checks_to_do(run_dir, seeds):
         return Status.CHECK if latest_iteration(run_dir) is not None else Status.RETRAIN
     return status
 
@@ -375,8 +378,8 @@ def run_in_process(args: list[str], log_path: str) -> int:
 def train_cell(
     cell: Cell, out: str, seeds: int, iterations: int, settings: tuple[str, ...] = ()
 ) -> None:
-    """Trains, resumes or skips ``cell``, then checks its reward (every seed, beside the
-    true-reward baseline) if the sweep does and has not yet."""
+    """Trains, resumes or skips ``cell``, then runs its reward checks (every seed, beside the
+    true-reward baseline) if the sweep checks it and has not yet."""
     run_dir = os.path.join(out, "runs", cell.name)
     log_path = cell.log_path(out)
     os.makedirs(os.path.dirname(log_path), exist_ok=True)
@@ -384,6 +387,8 @@ def train_cell(
     status = sweep_status(cell, run_dir, seeds, iterations)
     new_args = [*cell.run_args(settings, out), "--seeds", str(seeds)]
     new_args += ["--iterations", str(iterations)]
+    if cell.reoptimized:
+        new_args += ["--snapshot-every", str(CHECKED_SNAPSHOT_EVERY)]
     if status == Status.DAMAGED:
         status = repair_cell(cell.name, run_dir, new_args, log_path)
     if status == Status.RESUME:
@@ -399,8 +404,8 @@ def train_cell(
             code = run_command([*python, "emgail_jax.run", *args, "--quiet"], log_path)
         if code != 0:
             raise SweepError(f"cell {cell.name} failed (exit {code}): see {log_path}")
-    if cell.reoptimized and not reward_check_done(run_dir, seeds):
-        code = run_command(reward_check_command(run_dir, out), log_path)
+    for check in checks_to_do(run_dir, seeds) if cell.reoptimized else ():
+        code = run_command(reward_check_command(run_dir, out, check), log_path)
         if code != 0:
             raise SweepError(f"re-optimising {cell.name} failed (exit {code}): see {log_path}")
 
@@ -444,26 +449,56 @@ def write_demonstrations(cell: Cell, out: str) -> None:
     demonstration_files.save(make_problem(cell.env, cell.intentions).demos, path)
 
 
-# ---- the reward check: python -m emgail_jax.reoptimize ------------------------------------------
+# ---- the reward checks: python -m emgail_jax.reoptimize -----------------------------------------
 
 BASELINES_DIR = "true-reward-baselines"  # under OUT, which every node of a Ray sweep sees
 
 
-def reward_check_command(run_dir: str, out: str) -> list[str]:
-    """The reward check of the cell in ``run_dir``: every seed re-optimised, beside the
+@dataclasses.dataclass(frozen=True)
+class RewardCheck:
+    """One reward check of a cell: ``reoptimize`` with ``options``, written to ``file`` in the
+    cell's run directory."""
+
+    file: str
+    options: tuple[str, ...] = ()
+    draws: int = 1
+
+
+# The paper's check (§5.2) of the run's own reward; then the reward refitted after the run with
+# the recipe measured best per env, each intention's best of 3 draws kept by the learned reward
+# (docs/rewards-that-reoptimise.md, experiments 53 and 66).
+PAPER_CHECK = RewardCheck("reoptimize.json")
+REFIT_DRAWS = 3
+REFIT_CHECK = RewardCheck(
+    "reoptimize-refit.json", ("--refit", "--draws", str(REFIT_DRAWS)), REFIT_DRAWS
+)
+REWARD_CHECKS = (PAPER_CHECK, REFIT_CHECK)
+# The refit learns from the run's snapshots: one every 10 iterations (the default 50 gave
+# reacher-2 a worse refit, README "Known limitations").
+CHECKED_SNAPSHOT_EVERY = 10
+# Seconds per seed of a refit (4000 steps), for the estimate until a refit check has finished.
+REFIT_SECONDS_PER_SEED = 200.0
+
+
+def reward_check_command(run_dir: str, out: str, check: RewardCheck = PAPER_CHECK) -> list[str]:
+    """The ``check`` of the cell in ``run_dir``: every seed re-optimised, beside the
     true-reward baseline, cached where every cell of the env and K finds it."""
     cache = os.path.join(out, BASELINES_DIR)
-    return [sys.executable, "-m", "emgail_jax.reoptimize", run_dir, "--cache", cache, "--quiet"]
+    command = [sys.executable, "-m", "emgail_jax.reoptimize", run_dir, *check.options]
+    command += ["--cache", cache, "--quiet"]
+    if check != PAPER_CHECK:
+        command += ["--out", os.path.join(run_dir, check.file)]
+    return command
 
 
-def reward_check(run_dir: str) -> dict | None:
-    """The cell's ``reoptimize.json``, or None where it is missing or unreadable."""
+def reward_check(run_dir: str, check: RewardCheck = PAPER_CHECK) -> dict | None:
+    """The cell's ``check`` file, or None where it is missing or unreadable."""
     try:
-        with open(os.path.join(run_dir, "reoptimize.json")) as f:
-            check = json.load(f)
+        with open(os.path.join(run_dir, check.file)) as f:
+            found = json.load(f)
     except (OSError, ValueError):
         return None
-    return check if isinstance(check, dict) else None
+    return found if isinstance(found, dict) else None
 
 
 def checked_seeds(check: dict) -> list[int]:
@@ -472,15 +507,20 @@ def checked_seeds(check: dict) -> list[int]:
     return list(check.get("seeds", [check.get("run_seed", 0)]))
 
 
-def reward_check_done(run_dir: str, seeds: int) -> bool:
-    """The cell's reward check covers its ``seeds``, took their final networks (a run resumed
-    to more iterations is checked again) and has the true-reward baseline beside them."""
-    check, summary = reward_check(run_dir), _summary_or_none(run_dir)
-    if check is None or summary is None:
+def reward_check_done(run_dir: str, seeds: int, check: RewardCheck = PAPER_CHECK) -> bool:
+    """The cell's ``check`` covers its ``seeds``, took their final networks (a run resumed to
+    more iterations is checked again) and has the true-reward baseline beside them."""
+    found, summary = reward_check(run_dir, check), _summary_or_none(run_dir)
+    if found is None or summary is None:
         return False
-    every_seed = set(range(seeds)) <= set(checked_seeds(check))
-    final = check.get("iteration") == summary.get("iterations_done")
-    return every_seed and final and bool(check.get("baseline"))
+    every_seed = set(range(seeds)) <= set(checked_seeds(found))
+    final = found.get("iteration") == summary.get("iterations_done")
+    return every_seed and final and bool(found.get("baseline"))
+
+
+def checks_to_do(run_dir: str, seeds: int) -> list[RewardCheck]:
+    """The reward checks of a checked cell not yet done, in :data:`REWARD_CHECKS`' order."""
+    return [check for check in REWARD_CHECKS if not reward_check_done(run_dir, seeds, check)]
 
 
 def check_iterations(env: str, iterations: int) -> int:
@@ -534,14 +574,21 @@ def training_seconds(cell: Cell, seeds: int, iterations: int, timings: Timings) 
 
 
 def check_seconds(
-    cell: Cell, seeds: int, iterations: int, timings: Timings, with_baseline: bool
+    cell: Cell,
+    seeds: int,
+    iterations: int,
+    timings: Timings,
+    with_baseline: bool,
+    check: RewardCheck = PAPER_CHECK,
 ) -> float:
-    """The reward check's: fresh TRPO on every seed's K learned rewards in one program, and
-    ``with_baseline`` K more policies on the true rewards in another."""
+    """A reward check's: per draw, fresh TRPO on every seed's K learned rewards in one
+    program, and ``with_baseline`` K more policies on the true rewards in another; and the
+    refit of every seed's reward first if the check refits."""
     per_unit, compile_s = timings.of_checks(cell.env)
     rows = seeds + int(with_baseline)
     work = rows * check_iterations(cell.env, iterations) * cell.intentions
-    return compile_s * (1 + int(with_baseline)) + per_unit * work
+    refit = REFIT_SECONDS_PER_SEED * seeds if "--refit" in check.options else 0.0
+    return refit + check.draws * (compile_s * (1 + int(with_baseline)) + per_unit * work)
 
 
 def estimate_seconds(
@@ -551,11 +598,13 @@ def estimate_seconds(
     iterations: int,
     timings: Timings,
     with_baseline: bool = True,
+    checks: tuple[RewardCheck, ...] = REWARD_CHECKS,
 ) -> float:
-    """What ``cell`` still needs: its training (unless trained), then its reward check."""
+    """What ``cell`` still needs: its training (unless trained), then its reward ``checks``
+    (those still to do)."""
     seconds = 0.0 if status == Status.CHECK else training_seconds(cell, seeds, iterations, timings)
-    if cell.reoptimized:
-        seconds += check_seconds(cell, seeds, iterations, timings, with_baseline)
+    for check in checks if cell.reoptimized else ():
+        seconds += check_seconds(cell, seeds, iterations, timings, with_baseline, check)
     return seconds
 
 
@@ -848,6 +897,8 @@ class CellResult:
     intentions_held: np.ndarray | None = None  # [seeds], by the weights alone
     true_reward_erd: float | None = None  # the reward check's true-reward baseline
     devices: int = 2  # the XLA devices (cores) training ran on
+    refit_erd: np.ndarray | None = None  # [seeds checked], the refit's check (REFIT_CHECK)
+    refit_true_reward_erd: float | None = None  # its baseline, the best of its draws
 
 
 @dataclasses.dataclass(frozen=True)
@@ -903,7 +954,7 @@ def read_cell_result(cell: Cell, run_dir: str) -> CellResult:
     summary = read_summary(run_dir)
     final = FinalResults.from_summary(summary)
     accuracy = final.cluster_accuracy
-    check = reward_check(run_dir)
+    check, refit = reward_check(run_dir), reward_check(run_dir, REFIT_CHECK)
     timings = summary["timings"]
     return CellResult(
         cell=cell,
@@ -916,6 +967,8 @@ def read_cell_result(cell: Cell, run_dir: str) -> CellResult:
         intentions_held=final.intentions_held,
         true_reward_erd=None if check is None else true_reward_erd(check),
         devices=len(summary.get("devices", ())) or 2,
+        refit_erd=None if refit is None else reoptimized_erds(refit),
+        refit_true_reward_erd=None if refit is None else true_reward_erd(refit),
     )
 
 
@@ -1062,10 +1115,11 @@ def write_table2(out: str, results: Results, seeds: int) -> None:
 
 # fig6.csv: the jointly trained policies' ERD (what the paper's code scored), then the reward
 # check's (the paper's text's ERD, §5.2), after ``seeds`` so that every older column keeps its
-# place.
+# place, then the refit's check (REFIT_CHECK).
 FIG6_COLUMNS = (
     "env", "intentions", "algo", "separability", "erd_mean", "erd_std", "reoptimized_erd",
     "seeds", "reoptimized_erd_std", "true_reward_erd", "reoptimized_seeds",
+    "refit_erd", "refit_erd_std", "refit_true_reward_erd",
 )  # fmt: skip
 
 
@@ -1084,12 +1138,16 @@ def write_erd_csvs(out: str, results: Results, separability: SeparabilityTable) 
             cell = result.cell
             sep = (separability.of(cell.data) or {}).get("separability")
             checked = np.asarray([] if result.reoptimized_erd is None else result.reoptimized_erd)
+            refit = np.asarray([] if result.refit_erd is None else result.refit_erd)
             writer.writerow(
                 [cell.env, cell.intentions, cell.algo, _decimal(sep),
                  f"{result.erd.mean():.4f}", f"{result.erd.std():.4f}",
                  _decimal(checked.mean() if len(checked) else None), len(result.erd),
                  _decimal(checked.std() if len(checked) > 1 else None),
-                 _decimal(result.true_reward_erd), len(checked) or ""]
+                 _decimal(result.true_reward_erd), len(checked) or "",
+                 _decimal(refit.mean() if len(refit) else None),
+                 _decimal(refit.std() if len(refit) > 1 else None),
+                 _decimal(result.refit_true_reward_erd)]
             )  # fmt: skip
 
 
@@ -1219,14 +1277,15 @@ def draw_erd_against_separability(
 ERD_STYLES = {
     "-": "jointly trained policies",
     "--": "fresh TRPO on the learned reward (§5.2)",
+    "-.": f"the same on the refitted reward, best of {REFIT_DRAWS} (reoptimize --refit)",
     ":": "fresh TRPO on the true reward",
 }
 
 
 def draw_fig6(out: str, results: Results) -> str | None:
     """ERD against K per env; K = 1 is GAIL on one expert, the start of every line. Dashed,
-    the reward check of the cells that have one (mean over its seeds); dotted, its true-reward
-    baseline."""
+    the reward check of the cells that have one (mean over its seeds); dash-dotted, the refit's
+    check; dotted, the true-reward baseline."""
     fig, axes = _pyplot().subplots(1, len(ROBOTICS_INTENTIONS), figsize=(14, 3.5))
     for ax, (env, ks) in zip(axes, ROBOTICS_INTENTIONS.items(), strict=True):
         floor = results.get(env, 1, "gail")
@@ -1239,6 +1298,10 @@ def draw_fig6(out: str, results: Results) -> str | None:
             checked = [(k, r.reoptimized_erd.mean()) for k, r in found if _checked(r)]
             if checked:
                 ax.plot(*zip(*checked, strict=True), linestyle="--", marker="s",
+                        fillstyle="none", color=COLORS[algo])  # fmt: skip
+            refit = [(k, r.refit_erd.mean()) for k, r in found if r and r.refit_erd is not None]
+            if refit:
+                ax.plot(*zip(*refit, strict=True), linestyle="-.", marker="^",
                         fillstyle="none", color=COLORS[algo])  # fmt: skip
         baseline = true_reward_points(results, env, ks)
         if baseline:
@@ -1390,8 +1453,16 @@ def plan_sweep(args: argparse.Namespace) -> Plan:
     timings = measured_seconds(runs_dir)
     todo = [c for c in cells if statuses[c] != Status.DONE]
     computers = baseline_computers(todo, args.out, args.iterations)
+
+    def still_to_check(cell: Cell) -> tuple[RewardCheck, ...]:
+        if statuses[cell] != Status.CHECK:
+            return REWARD_CHECKS
+        return tuple(checks_to_do(os.path.join(runs_dir, cell.name), args.seeds))
+
     estimates = {
-        c: estimate_seconds(c, statuses[c], args.seeds, args.iterations, timings, c in computers)
+        c: estimate_seconds(
+            c, statuses[c], args.seeds, args.iterations, timings, c in computers, still_to_check(c)
+        )
         for c in todo
     }
     return Plan(cells, statuses, estimates)

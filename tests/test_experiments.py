@@ -266,12 +266,13 @@ CHECK_OF_EVERY_SEED = {
 }
 CHECK_OF_SEED_0 = {"run_seed": 0, "iterations": 4, "erd": 0.49, "compile_time_s": 3.0,
                    "train_time_s": 6.0}  # fmt: skip
+REFIT_OF_EVERY_SEED = {**CHECK_OF_EVERY_SEED, "erd": [0.1, 0.2], "baseline": {"erd": 0.02}}
 
 
-def finished_cell(out, cell, erd, check=None):
+def finished_cell(out, cell, erd, check=None, refit=None):
     """``out/runs/<cell>`` as a finished 4-iteration run leaves it: its ``summary.json`` (ERD
-    ``erd`` per seed, 1 s per seed-iteration-intention, 10 s to compile) and ``check`` as
-    ``reoptimize.json``."""
+    ``erd`` per seed, 1 s per seed-iteration-intention, 10 s to compile), ``check`` as
+    ``reoptimize.json`` and ``refit`` as ``reoptimize-refit.json``."""
     from emgail_jax.host.final_results import FinalResults
 
     k, seeds = cell.intentions, len(erd)
@@ -290,6 +291,8 @@ def finished_cell(out, cell, erd, check=None):
     (run_dir / "summary.json").write_text(json.dumps(summary))
     if check is not None:
         (run_dir / "reoptimize.json").write_text(json.dumps(check))
+    if refit is not None:
+        (run_dir / "reoptimize-refit.json").write_text(json.dumps(refit))
     return run_dir
 
 
@@ -301,10 +304,12 @@ def hopper_cells(tmp_path):
     Cell = sweep.Cell
     out = tmp_path / "results"
     finished_cell(out, Cell("hopper", 1, "gail"), [0.01, 0.01])
-    finished_cell(out, Cell("hopper", 2, "emgail"), [0.01, 0.01], CHECK_OF_EVERY_SEED)
-    finished_cell(out, Cell("hopper", 2, "infogail"), [0.02, 0.04])  # its check is to do
+    finished_cell(
+        out, Cell("hopper", 2, "emgail"), [0.01, 0.01], CHECK_OF_EVERY_SEED, REFIT_OF_EVERY_SEED
+    )
+    finished_cell(out, Cell("hopper", 2, "infogail"), [0.02, 0.04])  # its checks are to do
     gail_check = {**CHECK_OF_EVERY_SEED, "erd": [0.9, 1.1], "erd_mean": 1.0}
-    finished_cell(out, Cell("hopper", 2, "gail"), [0.5, 0.6], gail_check)
+    finished_cell(out, Cell("hopper", 2, "gail"), [0.5, 0.6], gail_check)  # its refit's to do
     finished_cell(out, Cell("hopper", 3, "emgail"), [0.03, 0.05], CHECK_OF_SEED_0)
     finished_cell(out, Cell("hopper", 3, "gail"), [0.4, 0.4])
     return sweep, sweep.collect(str(out), sweep.all_cells(), 2, 4), out
@@ -313,24 +318,27 @@ def hopper_cells(tmp_path):
 def test_sweep_fig6_csv_sets_the_reward_check_beside_the_joint_erd(hopper_cells):
     """fig6.csv keeps its columns and appends the reward check's: the mean and std of the
     re-optimised ERD over the seeds checked, the true-reward baseline and how many seeds; a
-    check of seed 0 alone has no std and no baseline; a cell without a check, empty columns."""
+    check of seed 0 alone has no std and no baseline; a cell without a check, empty columns;
+    then the refit's check: its mean, std and baseline."""
     sweep, results, out = hopper_cells
     sweep.write_erd_csvs(str(out), results, sweep.SeparabilityTable({}))
     lines = (out / "fig6.csv").read_text().splitlines()
     assert lines[0] == (
         "env,intentions,algo,separability,erd_mean,erd_std,reoptimized_erd,seeds,"
-        "reoptimized_erd_std,true_reward_erd,reoptimized_seeds"
+        "reoptimized_erd_std,true_reward_erd,reoptimized_seeds,"
+        "refit_erd,refit_erd_std,refit_true_reward_erd"
     )
     assert lines[1:] == [
-        "hopper,1,gail,,0.0100,0.0000,,2,,,",
-        "hopper,2,emgail,,0.0100,0.0000,0.6000,2,0.1000,0.0300,2",
-        "hopper,2,infogail,,0.0300,0.0100,,2,,,",
-        "hopper,2,gail,,0.5500,0.0500,1.0000,2,0.1000,0.0300,2",
-        "hopper,3,emgail,,0.0400,0.0100,0.4900,2,,,1",
-        "hopper,3,gail,,0.4000,0.0000,,2,,,",
+        "hopper,1,gail,,0.0100,0.0000,,2,,,,,,",
+        "hopper,2,emgail,,0.0100,0.0000,0.6000,2,0.1000,0.0300,2,0.1500,0.0500,0.0200",
+        "hopper,2,infogail,,0.0300,0.0100,,2,,,,,,",
+        "hopper,2,gail,,0.5500,0.0500,1.0000,2,0.1000,0.0300,2,,,",
+        "hopper,3,emgail,,0.0400,0.0100,0.4900,2,,,1,,,",
+        "hopper,3,gail,,0.4000,0.0000,,2,,,,,,",
     ]
     rows = list(csv.DictReader((out / "fig6.csv").open()))  # as readers of the columns see it
     assert [r["reoptimized_erd"] for r in rows if r["algo"] == "emgail"] == ["0.6000", "0.4900"]
+    assert [r["refit_erd"] for r in rows if r["algo"] == "emgail"] == ["0.1500", ""]
 
 
 def keep_checkpoints(monkeypatch, iteration=4):
@@ -341,8 +349,9 @@ def keep_checkpoints(monkeypatch, iteration=4):
 
 
 def test_sweep_a_cell_is_checked_until_every_seed_and_the_baseline_are(hopper_cells, monkeypatch):
-    """A trained cell whose check is missing or took seed 0 alone has its check to do (and only
-    that); one the sweep does not check, or whose check is complete, is done."""
+    """A trained cell whose checks are missing, or the paper's took seed 0 alone, or the refit's
+    is missing, has its checks to do (and only those); one the sweep does not check, or whose
+    checks are complete, is done."""
     sweep, _, out = hopper_cells
     keep_checkpoints(monkeypatch)
     status = {
@@ -354,7 +363,7 @@ def test_sweep_a_cell_is_checked_until_every_seed_and_the_baseline_are(hopper_ce
         "hopper-1-gail": "done",
         "hopper-2-emgail": "done",
         "hopper-2-infogail": "reward check",
-        "hopper-2-gail": "done",
+        "hopper-2-gail": "reward check",
         "hopper-3-emgail": "reward check",
         "hopper-3-gail": "done",
     }
@@ -363,13 +372,17 @@ def test_sweep_a_cell_is_checked_until_every_seed_and_the_baseline_are(hopper_ce
         json.dumps({**resumed, "iterations_done": 6})
     )  # trained further than its check: checked again
     assert not sweep.reward_check_done(str(out / "runs" / "hopper-2-emgail"), 2)
+    gail = str(out / "runs" / "hopper-2-gail")
+    assert sweep.checks_to_do(gail, 2) == [sweep.REFIT_CHECK]
 
 
 def test_sweep_reward_check_command_is_every_seed_beside_the_cached_baseline(
     hopper_cells, monkeypatch
 ):
-    """A trained cell whose check is to do runs reoptimize on every seed (no --seed), with the
-    baseline (no --no-baseline) cached under OUT, where every cell of the env and K finds it."""
+    """A trained cell whose checks are to do runs reoptimize on every seed (no --seed), with the
+    baseline (no --no-baseline) cached under OUT, where every cell of the env and K finds it:
+    once on the run's reward into reoptimize.json, once with --refit, best of 3 draws, into
+    reoptimize-refit.json."""
     from emgail_jax import reoptimize
 
     sweep, _, out = hopper_cells
@@ -378,13 +391,24 @@ def test_sweep_reward_check_command_is_every_seed_beside_the_cached_baseline(
     monkeypatch.setattr(sweep, "run_command", lambda command, log: ran.append(command) or 0)
     cell = sweep.Cell("hopper", 2, "infogail")
     sweep.train_cell(cell, str(out), 2, 4)
-    (command,) = ran  # trained already: the check alone
+    command, refit_command = ran  # trained already: the checks alone
     assert command[:3] == [sys.executable, "-m", "emgail_jax.reoptimize"]
     args = reoptimize.parse_args(command[3:])
     assert args.run_dir == str(out / "runs" / "hopper-2-infogail")
     assert args.seed is None and args.baseline and args.snapshot is None
     assert args.cache == str(out / "true-reward-baselines")
     assert (args.iterations, args.gamma, args.env_set) == (None, None, [])  # the env's budget
+    assert not args.refit and args.draws == 1 and args.out is None  # reoptimize.json
+    refit = reoptimize.parse_args(refit_command[3:], env="hopper")
+    assert refit.refit and refit.draws == 3 and refit.consolidate_ranking == 10
+    assert refit.out == str(out / "runs" / "hopper-2-infogail" / "reoptimize-refit.json")
+    assert (refit.seed, refit.baseline, refit.cache) == (None, True, args.cache)
+    ran.clear()
+    sweep.train_cell(sweep.Cell("hopper", 2, "gail"), str(out), 2, 4)
+    (gail_refit,) = ran  # its paper's check is done: the refit's alone
+    gail_dir = out / "runs" / "hopper-2-gail"
+    assert gail_refit[3] == str(gail_dir) and "--refit" in gail_refit
+    assert gail_refit[-1] == str(gail_dir / "reoptimize-refit.json")
     ran.clear()
     sweep.train_cell(sweep.Cell("hopper", 2, "emgail"), str(out), 2, 4)
     assert ran == []  # its check is complete
@@ -409,10 +433,11 @@ def test_sweep_a_cell_without_its_networks_is_trained_again_then_checked(hopper_
     monkeypatch.setattr(sweep, "run_command", lambda command, log: ran.append(command) or 0)
     monkeypatch.setattr(sweep, "write_demonstrations", lambda cell, out: None)
     sweep.train_cell(cell, str(out), 2, 4)
-    training, check = ran
+    training, check, refit = ran
     assert training[:3] == [sys.executable, "-m", "emgail_jax.run"]
     assert training[training.index("--out") + 1] == str(run_dir) and "--overwrite" in training
-    assert check[:3] == [sys.executable, "-m", "emgail_jax.reoptimize"]
+    assert training[training.index("--snapshot-every") + 1] == "10"  # what the refit learns from
+    assert check[:3] == refit[:3] == [sys.executable, "-m", "emgail_jax.reoptimize"]
 
 
 def test_sweep_estimates_every_seeds_check_and_each_baseline_once(hopper_cells):
@@ -427,15 +452,23 @@ def test_sweep_estimates_every_seeds_check_and_each_baseline_once(hopper_cells):
     # seed 0 alone, 6 s over 4 x 3; and of their compiles, 5, 5 and 3 s.
     assert timings.checks == {"hopper": (1.0, 5.0)}
     infogail, swimmer = Cell("hopper", 2, "infogail"), Cell("swimmer", 2, "emgail")
-    # (2 seeds + the baseline) x 4 iterations x 2 intentions at 1 s, and two compiles.
+    # (2 seeds + the baseline) x 4 iterations x 2 intentions at 1 s, and two compiles; the
+    # refit's check 3 draws of the same after 2 seeds' refits.
     check = 2 * 5.0 + 3 * 4 * 2
-    assert sweep.estimate_seconds(infogail, Status.CHECK, 2, 4, timings) == check
-    assert sweep.estimate_seconds(infogail, Status.CHECK, 2, 4, timings, False) == 5.0 + 2 * 4 * 2
+    refit = 2 * sweep.REFIT_SECONDS_PER_SEED + 3 * check
+    paper_only = (sweep.PAPER_CHECK,)
+    assert sweep.estimate_seconds(infogail, Status.CHECK, 2, 4, timings, True, paper_only) == check
+    assert sweep.estimate_seconds(infogail, Status.CHECK, 2, 4, timings) == check + refit
+    without_baseline = sweep.estimate_seconds(infogail, Status.CHECK, 2, 4, timings, False)
+    assert without_baseline == 5.0 + 2 * 4 * 2 + 2 * sweep.REFIT_SECONDS_PER_SEED + 3 * (
+        5.0 + 2 * 4 * 2
+    )
     trained = 10.0 + 1.0 * 2 * 4 * 2
-    assert sweep.estimate_seconds(infogail, Status.NEW, 2, 4, timings) == trained + check
+    assert sweep.estimate_seconds(infogail, Status.NEW, 2, 4, timings) == trained + check + refit
     per_unit, compile_s = sweep.MEASURED_SECONDS["swimmer"]  # no swimmer cell finished
     check = 2 * compile_s + per_unit * 3 * 1500 * 2  # the swimmer's experts' budget
-    assert sweep.estimate_seconds(swimmer, Status.CHECK, 2, 4, timings) == pytest.approx(check)
+    estimate = sweep.estimate_seconds(swimmer, Status.CHECK, 2, 4, timings, True, paper_only)
+    assert estimate == pytest.approx(check)
     hopper = [Cell("hopper", 2, "infogail"), Cell("hopper", 2, "gail"), Cell("hopper", 3, "emgail")]
     assert sweep.baseline_computers(hopper, str(out), 4) == {hopper[0], hopper[2]}
     cache = out / "true-reward-baselines"
@@ -444,7 +477,7 @@ def test_sweep_estimates_every_seeds_check_and_each_baseline_once(hopper_cells):
     assert sweep.baseline_computers(hopper, str(out), 4) == {hopper[2]}
 
 
-def test_sweep_fig6_draws_the_reward_check_dashed_and_its_baseline_dotted(
+def test_sweep_fig6_draws_the_reward_checks_dashed_and_the_baseline_dotted(
     hopper_cells, monkeypatch
 ):
     sweep, results, out = hopper_cells
@@ -466,10 +499,13 @@ def test_sweep_fig6_draws_the_reward_check_dashed_and_its_baseline_dotted(
     # The mean over the seeds checked, per algorithm; seed 0 alone where that is all there is.
     assert styled("--") == [("tab:red", [[2, 0.6], [3, 0.49]]), ("tab:green", [[2, 1.0]])]
     assert styled(":") == [("black", [[2, 0.03]])]
+    assert styled("-.") == [("tab:red", [[2, pytest.approx(0.15)]])]  # the refit's check
     legend = [text.get_text() for text in axes[-1].get_legend().get_texts()]
     assert legend == [
         "EM-GAIL", "Info/IntentionGAIL", "GAIL", "jointly trained policies",
-        "fresh TRPO on the learned reward (§5.2)", "fresh TRPO on the true reward",
+        "fresh TRPO on the learned reward (§5.2)",
+        "the same on the refitted reward, best of 3 (reoptimize --refit)",
+        "fresh TRPO on the true reward",
     ]  # fmt: skip
 
 
