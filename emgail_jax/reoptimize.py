@@ -756,8 +756,9 @@ def argument_parser() -> argparse.ArgumentParser:
         default=None,
         help="with --consolidate: termination as an absorbing state (DAC) in the refit, learnt "
         "fake from the snapshots' falls; a fresh agent's fall is paid its reward for every "
-        "step left, so --refit reads log D on every env (from new weights unless the run "
-        "trained with absorbing states)",
+        "step left, so --refit reads log D on any env whose recipe names no reward form "
+        "(from new weights unless the run trained with absorbing states; on hopper --refit "
+        "has it, --no-consolidate-absorbing drops it)",
     )
     parser.add_argument(
         "--ensemble",

@@ -416,14 +416,15 @@ def test_sweep_reward_check_command_is_every_seed_beside_the_cached_baseline(
 
 def test_sweep_a_cell_without_its_networks_is_trained_again_then_checked(hopper_cells, monkeypatch):
     """A trained cell whose check is to do but whose checkpoints are not kept (results/ keeps
-    none) cannot be checked as it is: it is trained again over its directory, then checked,
-    and its estimate counts both."""
+    none) cannot be checked as it is: it is trained again over its directory, then checked
+    (every check: those it had scored the networks replaced), and its estimate counts both."""
     from emgail_jax.host import checkpoints
 
     sweep, _, out = hopper_cells
     monkeypatch.setattr(checkpoints, "latest_iteration", lambda run_dir: None)
-    cell, run_dir = sweep.Cell("hopper", 2, "infogail"), out / "runs" / "hopper-2-infogail"
+    cell, run_dir = sweep.Cell("hopper", 2, "gail"), out / "runs" / "hopper-2-gail"
     assert sweep.sweep_status(cell, str(run_dir), 2, 4) == sweep.Status.RETRAIN
+    assert sweep.checks_to_do(str(run_dir), 2) == [sweep.REFIT_CHECK]  # the paper's is done
     complete = sweep.Cell("hopper", 2, "emgail")
     assert sweep.sweep_status(complete, str(out / "runs" / complete.name), 2, 4) == "done"
     timings = sweep.measured_seconds(str(out / "runs"))
@@ -433,6 +434,7 @@ def test_sweep_a_cell_without_its_networks_is_trained_again_then_checked(hopper_
     monkeypatch.setattr(sweep, "run_command", lambda command, log: ran.append(command) or 0)
     monkeypatch.setattr(sweep, "write_demonstrations", lambda cell, out: None)
     sweep.train_cell(cell, str(out), 2, 4)
+    assert not (run_dir / "reoptimize.json").exists()  # a check of the replaced networks
     training, check, refit = ran
     assert training[:3] == [sys.executable, "-m", "emgail_jax.run"]
     assert training[training.index("--out") + 1] == str(run_dir) and "--overwrite" in training
