@@ -248,20 +248,26 @@ def scored(returns, matching, run, seed: int | None) -> dict:
         "matching": np.asarray(matching),
     }
     if problem.demos.expert_returns is None:
-        none = ("erd", "erd_per_intention", "erd_curve", "erd_curve_per_intention")
-        return {**result, **dict.fromkeys(none)}
+        return {**result, **erd_summary(None)}
     random = np.asarray(problem.random_returns, np.float64)
     per_intention = reward_difference(matched, expert, random)
     in_use = None if seed is None else run.intentions_in_use(seed)
     if in_use is not None:
         per_intention = np.where(np.asarray(in_use)[matching], per_intention, 1.0)
+    return {**result, **erd_summary(per_intention)}
+
+
+def erd_summary(per_intention: np.ndarray | None) -> dict:
+    """ERD's entries of a check from ``per_intention [iterations, K true]`` (None where the
+    experts' returns are unknown): the curve and the final value, the mean of the last 10."""
+    if per_intention is None:
+        return dict.fromkeys(("erd", "erd_per_intention", "erd_curve", "erd_curve_per_intention"))
     curve = per_intention.mean(-1)
     return {
-        **result,
         "erd": float(curve[-FINAL_WINDOW:].mean()),
         "erd_per_intention": per_intention[-FINAL_WINDOW:].mean(0),
         "erd_curve": curve,
-        "erd_curve_per_intention": per_intention,  # [iterations, K true]
+        "erd_curve_per_intention": per_intention,
     }
 
 
@@ -375,18 +381,8 @@ def picked(draws: list[dict], pick) -> dict:
     pick = [int(d) for d in pick]
     column = lambda name: [np.asarray(draws[d][name])[..., i] for i, d in enumerate(pick)]
     result = {"matching": draws[0]["matching"], "returns": np.array(column("returns"))}
-    if draws[0]["erd"] is None:
-        none = ("erd", "erd_per_intention", "erd_curve", "erd_curve_per_intention")
-        result.update(dict.fromkeys(none))
-    else:
-        per_intention = np.stack(column("erd_curve_per_intention"), -1)  # [iterations, K true]
-        curve = per_intention.mean(-1)
-        result.update(
-            erd=float(curve[-FINAL_WINDOW:].mean()),  # as scored: one draw picks itself alike
-            erd_per_intention=per_intention[-FINAL_WINDOW:].mean(0),
-            erd_curve=curve,
-            erd_curve_per_intention=per_intention,
-        )
+    known = draws[0]["erd"] is not None  # as scored: one draw picks itself alike
+    result.update(erd_summary(np.stack(column("erd_curve_per_intention"), -1) if known else None))
     if "success" in draws[0]:
         result["success"] = [draws[d]["success"][i] for i, d in enumerate(pick)]
     return {**result, "draw": pick}
