@@ -1191,12 +1191,16 @@ def consolidated(
     from emgail_jax.host import consolidation
     from emgail_jax.host.run_spec import RunError
 
-    description = consolidation.refit_description(refit, run.snapshot)
+    description = consolidation.refit_description(
+        refit, run.snapshot, run.snapshot or run.iteration
+    )
     budget = budget or default_budget(run)
     if refit.agent_rounds:
         agents = {"reward_form": run.algorithm.reward_form, "budget": dataclasses.asdict(budget)}
         description["agents"] = agents
     saved_before = name in consolidation.saved_refits(run.run_dir)
+    if saved_before:
+        consolidation.check_refitted_from(run, name)
     if saved_before and consolidation.read_description(run.run_dir, name) != description:
         raise RunError(
             f"the saved reward '{name}' of '{run.run_dir}' was refitted otherwise: "

@@ -159,7 +159,11 @@ def _parser() -> tuple[argparse.ArgumentParser, tuple[str, ...]]:
         help="iterations between snapshots of the learned networks, all kept (default "
         f"{RunSchedule.snapshot_every}; 0: none)",
     )
-    parser.add_argument("--overwrite", action="store_true", help="replace an earlier run")
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace an earlier run, and the checks and refitted rewards made from it",
+    )
     parser.add_argument(
         "--coordinator",
         metavar="HOST:PORT",

@@ -396,8 +396,7 @@ def train_cell(
     elif status in (Status.NEW, Status.RETRAIN):
         args = list(new_args)
         write_demonstrations(cell, out)
-        args += ["--out", run_dir, "--overwrite"]
-        drop_reward_checks(run_dir)  # of the networks about to be replaced
+        args += ["--out", run_dir, "--overwrite"]  # with the checks of the networks replaced
     if status not in (Status.DONE, Status.CHECK):
         if cell.shares_programs:
             code = run_in_process([*args, "--quiet"], log_path)
@@ -517,15 +516,6 @@ def reward_check_done(run_dir: str, seeds: int, check: RewardCheck = PAPER_CHECK
     every_seed = set(range(seeds)) <= set(checked_seeds(found))
     final = found.get("iteration") == summary.get("iterations_done")
     return every_seed and final and bool(found.get("baseline"))
-
-
-def drop_reward_checks(run_dir: str) -> None:
-    """Removes the checks of a run about to be trained again over its directory: they scored
-    networks the new run replaces (a check is matched to its run by the final iteration
-    alone)."""
-    for check in REWARD_CHECKS:
-        with contextlib.suppress(FileNotFoundError):
-            os.remove(os.path.join(run_dir, check.file))
 
 
 def checks_to_do(run_dir: str, seeds: int) -> list[RewardCheck]:

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from emgail_jax.host import consolidation
+from emgail_jax.host.checkpoints import CheckpointError
 from emgail_jax.host.saved_run import SavedRun
 
 
@@ -87,7 +88,6 @@ def test_noisy_negatives_change_the_refit_and_not_the_samples(saved):
 
 
 def test_a_run_without_snapshots_is_a_clear_error(tiny_run, tmp_path):
-    from emgail_jax.host.checkpoints import CheckpointError
 
     copy = tmp_path / "run"
     shutil.copytree(tiny_run, copy)
@@ -121,7 +121,7 @@ def test_a_saved_refit_is_the_reward_load_reward_returns(copied_run):
     run = SavedRun.open(str(copied_run))
     refit = consolidation.Refit(steps=5, fresh=True)
     parameters, losses = consolidation.consolidated_parameters(run, 1, refit, jax.random.PRNGKey(0))
-    description = consolidation.refit_description(refit, None)
+    description = consolidation.refit_description(refit, None, run.iteration)
     consolidation.save_refitted(
         str(copied_run), "mine", 1, parameters["discriminator"], description, losses
     )
@@ -143,14 +143,13 @@ def test_a_saved_refit_is_the_reward_load_reward_returns(copied_run):
 
 
 def test_a_saved_refit_refuses_what_it_cannot_give(copied_run):
-    from emgail_jax.host.checkpoints import CheckpointError
     from emgail_jax.host.run_spec import RunError
 
     run = SavedRun.open(str(copied_run))
     with pytest.raises(CheckpointError, match=r"saved no refitted reward 'mine' .saved: none"):
         run.reward(0, refit="mine")
     discriminator = run.reward_parameters(0)["discriminator"]
-    description = consolidation.refit_description(consolidation.Refit(steps=5), None)
+    description = consolidation.refit_description(consolidation.Refit(steps=5), None, run.iteration)
     consolidation.save_refitted(str(copied_run), "mine", 0, discriminator, description, {})
     with pytest.raises(RunError, match=r"seed 1 .* has no refitted reward 'mine'.*--seed 1"):
         run.reward(1, refit="mine")
@@ -201,19 +200,51 @@ def test_random_and_still_actions_are_one_snapshot_of_samples_below_the_ranked_o
 
 
 def test_a_refit_saved_before_an_option_existed_reads_as_its_default(copied_run):
+    run = SavedRun.open(str(copied_run))
     refit = consolidation.Refit(steps=5, fresh=True)
-    description = consolidation.refit_description(refit, None)
+    description = consolidation.refit_description(refit, None, run.iteration)
     older = {
         **description,
         "refit": {k: v for k, v in description["refit"].items() if not k.startswith("ranking")},
     }
-    parameters, losses = consolidation.consolidated_parameters(
-        SavedRun.open(str(copied_run)), 0, refit, jax.random.PRNGKey(0)
-    )
+    parameters, losses = consolidation.consolidated_parameters(run, 0, refit, jax.random.PRNGKey(0))
     consolidation.save_refitted(
         str(copied_run), "older", 0, parameters["discriminator"], older, losses
     )
     assert consolidation.read_description(str(copied_run), "older") == description
+    # Saved before the iteration was recorded: a snapshot's refit is of its iteration, the
+    # final networks' of an unknown one, which no run is read with.
+    del older["iteration"]
+    consolidation.save_refitted(
+        str(copied_run), "older", 0, parameters["discriminator"], older, losses
+    )
+    assert consolidation.read_description(str(copied_run), "older")["iteration"] is None
+    with pytest.raises(CheckpointError, match="an unrecorded iteration"):
+        run.reward(0, refit="older")
+    consolidation.save_refitted(
+        str(copied_run), "older", 0, parameters["discriminator"], {**older, "snapshot": 2}, losses
+    )
+    assert consolidation.read_description(str(copied_run), "older")["iteration"] == 2
+
+
+def test_a_refit_of_networks_the_run_has_replaced_is_refused_in_one_line(copied_run):
+    """A run resumed after its reward was refitted holds other networks than those the refit
+    was made from: reading the refit with them would pair it with other statistics."""
+    import emgail_jax
+
+    run = SavedRun.open(str(copied_run))
+    refit = consolidation.Refit(steps=5, fresh=True)
+    parameters, losses = consolidation.consolidated_parameters(run, 0, refit, jax.random.PRNGKey(0))
+    earlier = consolidation.refit_description(refit, None, run.iteration - 1)
+    consolidation.save_refitted(
+        str(copied_run), "earlier", 0, parameters["discriminator"], earlier, losses
+    )
+    expected = (
+        f"refitted from the networks of iteration {run.iteration - 1}, not those of iteration "
+        f"{run.iteration}: delete .*rewards/earlier to refit it"
+    )
+    with pytest.raises(CheckpointError, match=expected):
+        emgail_jax.load_reward(str(copied_run), seed=0, refit="earlier")
 
 
 def test_fresh_agents_each_act_on_their_own_intentions_row():
@@ -258,7 +289,7 @@ def test_a_state_only_refit_pays_no_action_more_than_another(copied_run):
     run = SavedRun.open(str(copied_run))
     refit = consolidation.Refit(steps=5, fresh=True, state_only=True)
     parameters, losses = consolidation.consolidated_parameters(run, 0, refit, jax.random.PRNGKey(0))
-    description = consolidation.refit_description(refit, None)
+    description = consolidation.refit_description(refit, None, run.iteration)
     consolidation.save_refitted(
         str(copied_run), "states", 0, parameters["discriminator"], description, losses
     )
@@ -332,7 +363,7 @@ def test_a_saved_absorbing_refit_is_read_with_its_absorbing_state(copied_run):
     parameters, losses = consolidation.consolidated_parameters(
         absorbing_run, 0, refit, jax.random.PRNGKey(0)
     )
-    description = consolidation.refit_description(refit, None)
+    description = consolidation.refit_description(refit, None, run.iteration)
     consolidation.save_refitted(
         str(copied_run), "falls", 0, parameters["discriminator"], description, losses
     )
@@ -354,7 +385,7 @@ def test_a_saved_absorbing_refit_is_read_with_its_absorbing_state(copied_run):
         "plain",
         0,
         plain_parameters["discriminator"],
-        consolidation.refit_description(plain, None),
+        consolidation.refit_description(plain, None, run.iteration),
         losses,
     )
     assert not SavedRun.open(str(copied_run)).for_refit("plain").networks.discriminator.absorbing

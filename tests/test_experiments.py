@@ -419,6 +419,7 @@ def test_sweep_a_cell_without_its_networks_is_trained_again_then_checked(hopper_
     none) cannot be checked as it is: it is trained again over its directory, then checked
     (every check: those it had scored the networks replaced), and its estimate counts both."""
     from emgail_jax.host import checkpoints
+    from emgail_jax.host.run_directory import prepare_output
 
     sweep, _, out = hopper_cells
     monkeypatch.setattr(checkpoints, "latest_iteration", lambda run_dir: None)
@@ -431,10 +432,16 @@ def test_sweep_a_cell_without_its_networks_is_trained_again_then_checked(hopper_
     retrain = sweep.estimate_seconds(cell, sweep.Status.RETRAIN, 2, 4, timings)
     assert retrain == sweep.estimate_seconds(cell, sweep.Status.NEW, 2, 4, timings)
     ran = []
-    monkeypatch.setattr(sweep, "run_command", lambda command, log: ran.append(command) or 0)
+
+    def run_command(command, log):
+        if "--overwrite" in command:  # what the run starts with
+            prepare_output(command[command.index("--out") + 1], overwrite=True)
+        return ran.append(command) or 0
+
+    monkeypatch.setattr(sweep, "run_command", run_command)
     monkeypatch.setattr(sweep, "write_demonstrations", lambda cell, out: None)
     sweep.train_cell(cell, str(out), 2, 4)
-    assert not (run_dir / "reoptimize.json").exists()  # a check of the replaced networks
+    # The run's --overwrite removed the paper's check of the networks it replaced: both run.
     training, check, refit = ran
     assert training[:3] == [sys.executable, "-m", "emgail_jax.run"]
     assert training[training.index("--out") + 1] == str(run_dir) and "--overwrite" in training
@@ -862,7 +869,7 @@ def test_reward_generalisation_scores_a_refit_with_absorbing_states(tiny_run, tm
         parameters, losses = consolidation.consolidated_parameters(
             run, seed, refit, jax.random.PRNGKey(seed)
         )
-        description = consolidation.refit_description(refit, None)
+        description = consolidation.refit_description(refit, None, run.iteration)
         consolidation.save_refitted(
             str(copy), "falls", seed, parameters["discriminator"], description, losses
         )

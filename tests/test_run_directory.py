@@ -56,6 +56,22 @@ def test_prepare_output_replaces_a_run_only_when_told(tmp_path):
     with pytest.raises(RunError, match=r"already holds a run \(metrics.csv, checkpoints\)"):
         prepare_output(str(out), overwrite=False)
     assert (out / "metrics.csv").exists()
+    (out / "reoptimize.json").write_text("{}")
+    (out / "reoptimize-refit.json").write_text("{}")
+    (out / "rewards" / "refit").mkdir(parents=True)
+    with pytest.raises(RunError, match="already holds a run"):
+        prepare_output(str(out), overwrite=False)
+    assert (out / "reoptimize.json").exists() and (out / "rewards" / "refit").exists()
     prepare_output(str(out), overwrite=True)
     assert not any((out / name).exists() for name in OUTPUTS)
+    # The checks and refits of the replaced networks go with them.
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
     assert (out / "notes.txt").read_text() == "mine"  # not a run's output: kept
+
+
+def test_prepare_output_keeps_checks_where_there_is_no_run_to_replace(tmp_path):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "reoptimize.json").write_text("{}")
+    prepare_output(str(out), overwrite=False)
+    assert (out / "reoptimize.json").read_text() == "{}"

@@ -415,10 +415,12 @@ def read_losses(run_dir: str, name: str, number: int) -> dict:
         return json.load(f)
 
 
-def refit_description(refit: Refit, snapshot: int | None) -> dict:
-    """What ``reward.json`` says of a saved refit: its options, and the snapshot whose
-    networks (observation statistics, posterior) the reward reads beside the refit."""
-    return {"refit": asdict(refit), "snapshot": snapshot}
+def refit_description(refit: Refit, snapshot: int | None, iteration: int) -> dict:
+    """What ``reward.json`` says of a saved refit: its options, the snapshot whose networks
+    (observation statistics, posterior) the reward reads beside the refit (None: the final
+    ones), and the iteration of those networks, so that a run resumed since is not read with
+    the refit of its earlier networks."""
+    return {"refit": asdict(refit), "snapshot": snapshot, "iteration": iteration}
 
 
 def read_description(run_dir: str, name: str) -> dict:
@@ -436,7 +438,24 @@ def read_description(run_dir: str, name: str) -> dict:
         )
     with open(path) as f:
         description = json.load(f)
-    return {**description, "refit": asdict(Refit(**description["refit"]))}
+    # Refits saved before the iteration was recorded: a snapshot's is its iteration, the final
+    # networks' is unknown (None).
+    iteration = description.get("iteration", description["snapshot"])
+    return {**description, "refit": asdict(Refit(**description["refit"])), "iteration": iteration}
+
+
+def check_refitted_from(run, name: str) -> None:
+    """Raises CheckpointError unless the saved reward ``name`` was refitted from the networks
+    ``run`` holds (a run resumed since has others)."""
+    refitted_from = read_description(run.run_dir, name)["iteration"]
+    networks = run.snapshot or run.iteration
+    if refitted_from != networks:
+        of = "an unrecorded iteration" if refitted_from is None else f"iteration {refitted_from}"
+        raise checkpoints.CheckpointError(
+            f"the saved reward '{name}' of '{run.run_dir}' was refitted from the networks of "
+            f"{of}, not those of iteration {networks}: delete "
+            f"{os.path.join(rewards_directory(run.run_dir), name)} to refit it"
+        )
 
 
 def saved_parameters(run, name: str, seed: int) -> dict | None:
@@ -444,11 +463,13 @@ def saved_parameters(run, name: str, seed: int) -> dict | None:
     refitted reward ``name``; None when that seed was not refitted under that name.
 
     Raises:
-      CheckpointError: a file that cannot be read or does not fit the run's discriminator.
+      CheckpointError: a file that cannot be read or does not fit the run's discriminator,
+        or one refitted from the networks of another iteration than ``run``'s.
     """
     path = _seed_path(run.run_dir, name, run.seed_number(seed))
     if not os.path.exists(path):
         return None
+    check_refitted_from(run, name)
     # The network's shapes, not the run's own weights: a refit with absorbing states reads
     # one input more than a run trained without them.
     shapes = jax.eval_shape(lambda key: new_discriminator_weights(run, key), jax.random.PRNGKey(0))

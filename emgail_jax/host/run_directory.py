@@ -7,6 +7,7 @@ before JAX starts.
 from __future__ import annotations
 
 import contextlib
+import glob
 import itertools
 import os
 import shutil
@@ -15,6 +16,9 @@ from emgail_jax.host import run_lock
 from emgail_jax.host.run_spec import RunError, read_summary
 
 OUTPUTS = ("summary.json", "metrics.csv", "tensorboard", "checkpoints", "snapshots")
+# What `reoptimize` derives from a run's networks in its directory: its checks and the rewards
+# it refitted. They go with the run they were made from.
+DERIVED = ("rewards", "reoptimize*.json")
 
 
 def default_output(env: str, algo: str, root: str = "runs") -> str:
@@ -52,7 +56,8 @@ def writing(out: str, new: bool):
 
 
 def prepare_output(out: str, overwrite: bool) -> None:
-    """Creates ``out``; refuses to mix with an earlier run unless ``overwrite``."""
+    """Creates ``out``; refuses to mix with an earlier run unless ``overwrite``, which removes
+    the earlier run and what was derived from its networks (:data:`DERIVED`)."""
     create_output(out)
     existing = [name for name in OUTPUTS if os.path.exists(os.path.join(out, name))]
     if existing and not overwrite:
@@ -60,6 +65,6 @@ def prepare_output(out: str, overwrite: bool) -> None:
             f"'{out}' already holds a run ({', '.join(existing)}): "
             "pass --resume to continue it, --overwrite to replace it, or choose another --out"
         )
-    for name in existing:
-        path = os.path.join(out, name)
+    derived = [path for pattern in DERIVED for path in glob.glob(os.path.join(out, pattern))]
+    for path in [os.path.join(out, name) for name in existing] + (derived if overwrite else []):
         shutil.rmtree(path) if os.path.isdir(path) else os.remove(path)

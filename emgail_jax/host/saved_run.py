@@ -237,7 +237,8 @@ class SavedRun:
 
         Raises:
           RunError: the refit was made from another snapshot, or not for ``seed``.
-          CheckpointError: no saved reward ``name``, or one that does not fit.
+          CheckpointError: no saved reward ``name``, one that does not fit, or one refitted
+            from the networks of another iteration (the run resumed since).
         """
         from emgail_jax.host import consolidation
 
