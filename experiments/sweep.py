@@ -48,7 +48,7 @@ import numpy as np
 
 from emgail_jax.host.final_results import FinalResults
 from emgail_jax.host.run_spec import RunError, read_summary
-from emgail_jax.reoptimize import BUDGETS, baseline_prefix
+from emgail_jax.reoptimize import BUDGETS, REFIT_BY_ENV, baseline_prefix
 
 ROBOTICS_INTENTIONS = {
     "swimmer": (2,),
@@ -523,29 +523,34 @@ def checks_to_do(run_dir: str, seeds: int) -> list[RewardCheck]:
     return [check for check in REWARD_CHECKS if not reward_check_done(run_dir, seeds, check)]
 
 
-def check_iterations(env: str, iterations: int) -> int:
-    """The fresh policies' TRPO iterations: the run's, unless the env's experts needed more."""
-    return BUDGETS[env].iterations if env in BUDGETS else iterations
+def check_iterations(env: str, iterations: int, check: RewardCheck = PAPER_CHECK) -> int:
+    """The fresh policies' TRPO iterations in ``check``: the run's, unless the env's experts
+    needed more or the env's refit recipe gives more."""
+    refit_recipe = REFIT_BY_ENV.get(env, {}) if "--refit" in check.options else {}
+    default = BUDGETS[env].iterations if env in BUDGETS else iterations
+    return refit_recipe.get("iterations", default)
 
 
-def baseline_cached(out: str, env: str, intentions: int, iterations: int) -> bool:
-    """A true-reward baseline of the env and K at the sweep's budget is in the cache already."""
-    prefix = baseline_prefix(env, intentions, check_iterations(env, iterations))
+def baseline_cached(out: str, env: str, intentions: int, check_iterations: int) -> bool:
+    """A true-reward baseline of the env and K at ``check_iterations`` is in the cache."""
+    prefix = baseline_prefix(env, intentions, check_iterations)
     cache = os.path.join(out, BASELINES_DIR)
     names = os.listdir(cache) if os.path.isdir(cache) else ()
     return any(name.startswith(prefix) for name in names)
 
 
-def baseline_computers(cells: list[Cell], out: str, iterations: int) -> set[Cell]:
-    """Of the ``cells`` whose reward check is to do, the first of each env and K whose
-    baseline is not cached: it computes the baseline, the others read it."""
+def baseline_computers(
+    cells: list[Cell], out: str, iterations: int
+) -> set[tuple[Cell, RewardCheck]]:
+    """Of the ``cells`` whose reward checks are to do, the first check of each env, K and
+    budget whose true-reward baseline is not cached: it computes the baseline, the others
+    read it."""
     first = {}
     for cell in cells:
-        if cell.reoptimized:
-            first.setdefault((cell.env, cell.intentions), cell)
-    return {
-        cell for (env, k), cell in first.items() if not baseline_cached(out, env, k, iterations)
-    }
+        for check in REWARD_CHECKS if cell.reoptimized else ():
+            budget = check_iterations(cell.env, iterations, check)
+            first.setdefault((cell.env, cell.intentions, budget), (cell, check))
+    return {pair for (env, k, its), pair in first.items() if not baseline_cached(out, env, k, its)}
 
 
 # ---- time estimates -----------------------------------------------------------------------------
@@ -586,7 +591,7 @@ def check_seconds(
     refit of every seed's reward first if the check refits."""
     per_unit, compile_s = timings.of_checks(cell.env)
     rows = seeds + int(with_baseline)
-    work = rows * check_iterations(cell.env, iterations) * cell.intentions
+    work = rows * check_iterations(cell.env, iterations, check) * cell.intentions
     refit = REFIT_SECONDS_PER_SEED * seeds if "--refit" in check.options else 0.0
     return refit + check.draws * (compile_s * (1 + int(with_baseline)) + per_unit * work)
 
@@ -597,13 +602,14 @@ def estimate_seconds(
     seeds: int,
     iterations: int,
     timings: Timings,
-    with_baseline: bool = True,
+    computing_baselines: tuple[RewardCheck, ...] = REWARD_CHECKS,
     checks: tuple[RewardCheck, ...] = REWARD_CHECKS,
 ) -> float:
     """What ``cell`` still needs: its training (unless trained), then its reward ``checks``
-    (those still to do)."""
+    (those still to do), those of ``computing_baselines`` with the true-reward baseline."""
     seconds = 0.0 if status == Status.CHECK else training_seconds(cell, seeds, iterations, timings)
     for check in checks if cell.reoptimized else ():
+        with_baseline = check in computing_baselines
         seconds += check_seconds(cell, seeds, iterations, timings, with_baseline, check)
     return seconds
 
@@ -1459,9 +1465,12 @@ def plan_sweep(args: argparse.Namespace) -> Plan:
             return REWARD_CHECKS
         return tuple(checks_to_do(os.path.join(runs_dir, cell.name), args.seeds))
 
+    def computing(cell: Cell) -> tuple[RewardCheck, ...]:
+        return tuple(check for check in REWARD_CHECKS if (cell, check) in computers)
+
     estimates = {
         c: estimate_seconds(
-            c, statuses[c], args.seeds, args.iterations, timings, c in computers, still_to_check(c)
+            c, statuses[c], args.seeds, args.iterations, timings, computing(c), still_to_check(c)
         )
         for c in todo
     }

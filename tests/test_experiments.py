@@ -466,9 +466,10 @@ def test_sweep_estimates_every_seeds_check_and_each_baseline_once(hopper_cells):
     check = 2 * 5.0 + 3 * 4 * 2
     refit = 2 * sweep.REFIT_SECONDS_PER_SEED + 3 * check
     paper_only = (sweep.PAPER_CHECK,)
-    assert sweep.estimate_seconds(infogail, Status.CHECK, 2, 4, timings, True, paper_only) == check
+    both = sweep.REWARD_CHECKS
+    assert sweep.estimate_seconds(infogail, Status.CHECK, 2, 4, timings, both, paper_only) == check
     assert sweep.estimate_seconds(infogail, Status.CHECK, 2, 4, timings) == check + refit
-    without_baseline = sweep.estimate_seconds(infogail, Status.CHECK, 2, 4, timings, False)
+    without_baseline = sweep.estimate_seconds(infogail, Status.CHECK, 2, 4, timings, ())
     assert without_baseline == 5.0 + 2 * 4 * 2 + 2 * sweep.REFIT_SECONDS_PER_SEED + 3 * (
         5.0 + 2 * 4 * 2
     )
@@ -476,14 +477,29 @@ def test_sweep_estimates_every_seeds_check_and_each_baseline_once(hopper_cells):
     assert sweep.estimate_seconds(infogail, Status.NEW, 2, 4, timings) == trained + check + refit
     per_unit, compile_s = sweep.MEASURED_SECONDS["swimmer"]  # no swimmer cell finished
     check = 2 * compile_s + per_unit * 3 * 1500 * 2  # the swimmer's experts' budget
-    estimate = sweep.estimate_seconds(swimmer, Status.CHECK, 2, 4, timings, True, paper_only)
+    estimate = sweep.estimate_seconds(swimmer, Status.CHECK, 2, 4, timings, both, paper_only)
     assert estimate == pytest.approx(check)
+    # Halfcheetah's refit check trains its fresh agents 1000 iterations, as its recipe says.
+    cheetah = Cell("halfcheetah", 2, "emgail")
+    assert sweep.check_iterations("halfcheetah", 4, sweep.PAPER_CHECK) == 4
+    assert sweep.check_iterations("halfcheetah", 4, sweep.REFIT_CHECK) == 1000
+    per_unit, compile_s = sweep.MEASURED_SECONDS["halfcheetah"]
+    refit_check = sweep.estimate_seconds(
+        cheetah, Status.CHECK, 2, 4, timings, (), (sweep.REFIT_CHECK,)
+    )
+    assert refit_check == pytest.approx(
+        2 * sweep.REFIT_SECONDS_PER_SEED + 3 * (compile_s + per_unit * 2 * 1000 * 2)
+    )
+    # One baseline per env, K and budget: the paper's check computes it where the refit's
+    # check has the same budget, each its own where not.
+    paper, refit = sweep.PAPER_CHECK, sweep.REFIT_CHECK
     hopper = [Cell("hopper", 2, "infogail"), Cell("hopper", 2, "gail"), Cell("hopper", 3, "emgail")]
-    assert sweep.baseline_computers(hopper, str(out), 4) == {hopper[0], hopper[2]}
+    assert sweep.baseline_computers(hopper, str(out), 4) == {(hopper[0], paper), (hopper[2], paper)}
     cache = out / "true-reward-baselines"
     cache.mkdir()
     (cache / CHECK_OF_EVERY_SEED["baseline"]["cache"]).write_text("{}")
-    assert sweep.baseline_computers(hopper, str(out), 4) == {hopper[2]}
+    assert sweep.baseline_computers(hopper, str(out), 4) == {(hopper[2], paper)}
+    assert sweep.baseline_computers([cheetah], str(out), 4) == {(cheetah, paper), (cheetah, refit)}
 
 
 def test_sweep_fig6_draws_the_reward_checks_dashed_and_the_baseline_dotted(

@@ -491,7 +491,10 @@ def test_refit_adds_the_envs_own_recipe_and_any_option_given_replaces_its_part()
     )
     cheetah = reoptimize.parse_args(["RUN", "--refit"], env="halfcheetah")
     assert (cheetah.consolidate_ranking, cheetah.consolidate_absorbing) == (30, False)
-    assert cheetah.reward_form == "logit"
+    assert cheetah.reward_form == "logit" and cheetah.iterations == 1000
+    shorter = reoptimize.parse_args(["RUN", "--refit", "--iterations", "400"], env="halfcheetah")
+    assert shorter.iterations == 400 and shorter.consolidate_ranking == 30
+    assert reoptimize.parse_args(["RUN"], env="halfcheetah").iterations is None
     # Each part of the env's recipe can be replaced or turned off alone.
     options = ["--consolidate-ranking", "0", "--no-consolidate-absorbing", "--reward-form", "log-d"]
     plain = reoptimize.parse_args(["RUN", "--refit", *options], env="hopper")
@@ -502,6 +505,9 @@ def test_refit_adds_the_envs_own_recipe_and_any_option_given_replaces_its_part()
     assert reoptimize.parse_args(["RUN"], env="hopper").reward_form is None
     assert reoptimize.refit_extras("hopper") == (
         "--consolidate-ranking 10 --consolidate-absorbing --reward-form logit"
+    )
+    assert reoptimize.refit_extras("halfcheetah") == (
+        "--consolidate-ranking 30 --reward-form logit --iterations 1000"
     )
     assert reoptimize.refit_extras("reacher") == ""
 
