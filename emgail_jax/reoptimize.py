@@ -15,7 +15,9 @@ for ``load_reward(RUN_DIR, refit=NAME)`` and reused by any later check of it), n
 seeing the true reward; the seeds' and intentions' policies are vmapped in one program
 (``--rl-seed R``: another draw of their initialisation and samples, to tell a reward that fails
 from a search that did; ``--draws N``: N draws, keeping per intention the agent that earns the
-most learned reward, as a user without the true reward would). Their deterministic episodes
+most learned reward, as a user without the true reward would; each finished draw is kept
+beside the check's file until it is written, so a check stopped part-way goes on from there).
+Their deterministic episodes
 (as many per iteration as training evaluates, ``num_envs``) are scored under the true
 rewards; the ERD matches each true intention to the learned one the run itself matched it to
 (its jointly trained policies' matching at that iteration), one matching for every number
@@ -67,6 +69,7 @@ import dataclasses
 import hashlib
 import json
 import os
+import shutil
 import sys
 import time
 
@@ -652,7 +655,7 @@ def argument_parser() -> argparse.ArgumentParser:
         metavar="N",
         help="train N draws (RL seeds R .. R + N - 1) and keep per intention the agent that "
         "earns the most learned reward; the true-reward baseline's the one that earns the "
-        "most true reward (default 1)",
+        "most true reward (default 1); a check stopped part-way reuses the draws it finished",
     )
     parser.add_argument(
         "--snapshot", type=int, default=None, metavar="ITER", help="the rewards of this snapshot"
@@ -1058,19 +1061,25 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
         }
         run.problem = with_expert_returns(run.problem, reference["returns"])
     rl_seeds = range(args.rl_seed, args.rl_seed + args.draws)
-    draws = [
-        reoptimize(
-            run,
-            seeds,
-            budget,
-            progress=not args.quiet,
-            parameters=chosen.parameters,
-            reward_function=chosen.function,
-            absorbing_function=chosen.absorbing,
-            rl_seed=rl_seed,
-        )
-        for rl_seed in rl_seeds
-    ]
+    path = args.out or os.path.join(args.run_dir, default_name(args))
+    finished = FinishedDraws(path, check_identity(args, run)) if args.draws > 1 else None
+    draws = []
+    for rl_seed in rl_seeds:
+        draw = finished.read(rl_seed, not args.quiet) if finished else None
+        if draw is None:
+            draw = reoptimize(
+                run,
+                seeds,
+                budget,
+                progress=not args.quiet,
+                parameters=chosen.parameters,
+                reward_function=chosen.function,
+                absorbing_function=chosen.absorbing,
+                rl_seed=rl_seed,
+            )
+            if finished:
+                finished.write(rl_seed, draw)
+        draws.append(draw)
     result = draws[0] if args.draws == 1 else chosen_by_learned_reward(draws)
     # What the fresh agents were paid: an AIRL run's policies trained on f - log pi, its
     # fresh agents on g_i(s).
@@ -1088,11 +1097,61 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
             for rl_seed in rl_seeds
         ]
         result["baseline"] = baselines[0] if args.draws == 1 else best_baseline(baselines)
-    path = args.out or os.path.join(args.run_dir, default_name(args))
     records.write_json(path, result)
+    if finished:
+        finished.remove()
     print_result(run, records.to_json_value(result))
     print(f"wrote {path}")
     return 0
+
+
+def check_identity(args: argparse.Namespace, run) -> dict:
+    """What a check's draws depend on: its options (not how many draws, nor where and how it
+    reports) and the iteration of the networks checked."""
+    unrelated = ("draws", "quiet", "out", "baseline", "cache")
+    options = {k: v for k, v in sorted(vars(args).items()) if k not in unrelated}
+    return {"options": options, "iteration": run.snapshot or run.iteration}
+
+
+@dataclasses.dataclass(frozen=True)
+class FinishedDraws:
+    """The draws of a check of several (``--draws``) finished so far, kept beside its file
+    (``NAME.draws/rl-R.json``) until the check is written, so that a check stopped part-way
+    goes on from its last finished draw. A draw kept for other options or networks is done
+    again."""
+
+    check_path: str
+    identity: dict
+
+    @property
+    def directory(self) -> str:
+        return os.path.splitext(self.check_path)[0] + ".draws"
+
+    def _path(self, rl_seed: int) -> str:
+        return os.path.join(self.directory, f"rl-{rl_seed}.json")
+
+    def read(self, rl_seed: int, progress: bool) -> dict | None:
+        from emgail_jax.host import records
+
+        try:
+            with open(self._path(rl_seed)) as f:
+                kept = json.load(f)
+        except (OSError, ValueError):
+            return None
+        if kept.get("check") != records.to_json_value(self.identity):
+            return None
+        if progress:
+            print(f"RL draw {rl_seed}: finished before, reused")
+        return kept["draw"]
+
+    def write(self, rl_seed: int, draw: dict) -> None:
+        from emgail_jax.host import records
+
+        os.makedirs(self.directory, exist_ok=True)
+        records.write_json(self._path(rl_seed), {"check": self.identity, "draw": draw})
+
+    def remove(self) -> None:
+        shutil.rmtree(self.directory, ignore_errors=True)
 
 
 def default_name(args) -> str:

@@ -677,3 +677,48 @@ def test_draws_are_trained_and_the_learned_reward_keeps_one_per_intention(tiny_r
     again = reoptimize.chosen_by_learned_reward(result["draws"])
     assert again["erd"] == result["erd"]
     assert len(result["baseline"]["draw"]) == 2 and len(result["baseline"]["cache"]) == 2
+
+
+def test_a_check_of_several_draws_goes_on_from_its_last_finished_draw(
+    tiny_run, reoptimized, tmp_path, monkeypatch
+):
+    """Each finished draw is kept beside the check's file: a check stopped part-way trains
+    only the draws it had not finished, and one with other options trains them all."""
+    one_draw, _ = reoptimized
+    trained, stops = [], [2]
+
+    class Stopped(Exception):
+        pass
+
+    def draw(run, seeds, budget, rl_seed=0, **_):
+        if rl_seed in stops:
+            stops.remove(rl_seed)
+            raise Stopped  # while training draw 2
+        trained.append(rl_seed)
+        return {**one_draw, "rl_seed": rl_seed, "train_time_s": float(rl_seed)}
+
+    monkeypatch.setattr(reoptimize, "reoptimize", draw)
+    out = tmp_path / "check.json"
+    args = [str(tiny_run), "--iterations", "2", "--draws", "3", "--no-baseline", "--quiet"]
+    with pytest.raises(Stopped):
+        reoptimize.main([*args, "--out", str(out)])
+    kept = tmp_path / "check.draws"
+    assert sorted(p.name for p in kept.iterdir()) == ["rl-0.json", "rl-1.json"]
+    assert not out.exists()
+    trained.clear()
+    assert reoptimize.main([*args, "--out", str(out)]) == 0
+    assert trained == [2]  # draws 0 and 1 read back
+    result = json.loads(out.read_text())
+    assert [d["train_time_s"] for d in result["draws"]] == [0.0, 1.0, 2.0]
+    assert result["rl_seeds"] == [0, 1, 2] and not kept.exists()
+    # Read back or trained, a draw gives the same check.
+    from emgail_jax.host.records import to_json_value
+
+    again = to_json_value(reoptimize.chosen_by_learned_reward(result["draws"]))
+    assert {name: result[name] for name in again} == again
+    # Draws kept for other options are trained again.
+    kept.mkdir()
+    (kept / "rl-0.json").write_text((tiny_run / "reoptimize-it-2.json").read_text())
+    trained.clear()
+    assert reoptimize.main([*args, "--iterations", "3", "--out", str(out)]) == 0
+    assert trained == [0, 1, 2]
