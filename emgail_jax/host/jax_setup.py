@@ -21,6 +21,14 @@ DEFAULT_CACHE = os.path.join(os.path.expanduser("~"), ".cache", "emgail_jax", "x
 XLA_WORKAROUNDS = ("--xla_cpu_enable_concurrency_optimized_scheduler=false",)
 
 
+def available_cores() -> int:
+    """The cores this process may run on: those of its CPU affinity (``taskset``, a batch
+    scheduler's allocation), not every core of the machine."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
+
+
 def add_xla_flags(*flags: str) -> None:
     current = os.environ.get("XLA_FLAGS", "")
     missing = [f for f in flags if f.split("=")[0] not in current]
@@ -102,13 +110,14 @@ def setup(
     Args:
       host_devices: split the CPU into this many XLA devices (XLA runs one core per device, so
         seeds sharded over two devices use both cores of a 2-core machine). ``None`` uses one
-        device per core. Has no effect once JAX's backend exists or on GPU/TPU.
+        device per core the process may run on (:func:`available_cores`). Has no effect once JAX's
+        backend exists or on GPU/TPU.
       cache_dir: JAX's persistent compilation cache, which removes repeated compiles across
         processes; ``None`` disables it.
       distributed: join a run of several processes (``jax.distributed``): ``jax.devices()``
         then lists every process's devices, and seeds are sharded over all of them.
     """
-    devices = host_devices or os.cpu_count() or 1
+    devices = host_devices or available_cores()
     add_xla_flags(f"--xla_force_host_platform_device_count={devices}")
     import jax
 
