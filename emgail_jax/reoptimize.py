@@ -43,8 +43,8 @@ reward refitted with absorbing states (``--consolidate-absorbing``), whatever th
 Beside the learned reward, the **true-reward baseline**: the same TRPO, settings and budget on
 the env's true rewards, the floor any learned reward is judged against (computed once per env,
 K and budget, then read from ``--cache``; no algorithm enters its key, so one baseline serves
-every algorithm's runs). The budget is the run's iterations and gamma unless :data:`BUDGETS` or
-the flags say otherwise.
+every algorithm's runs). The budget is the run's iterations and gamma unless
+:data:`~emgail_jax.host.reward_check.BUDGETS` or the flags say otherwise.
 
 Also the learned reward per step that the fresh policies earn and that the demonstrations the
 run assigned to each intention earn: fresh policies that out-earn the demonstrations yet score
@@ -66,495 +66,17 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
-import hashlib
-import json
 import os
-import shutil
 import sys
-import time
 
-import numpy as np
-
-from emgail_jax.host import jax_setup
+from emgail_jax.host import jax_setup, reward_check
 from emgail_jax.host.schedule import FINAL_WINDOW  # the iterations averaged, as training's
 
 
-@dataclasses.dataclass(frozen=True)
-class Budget:
-    """What the fresh policies get: TRPO iterations and the discount."""
-
-    iterations: int
-    gamma: float
-
-
-# Envs whose experts needed more than an IRL run's budget (emgail_jax.experts.SPECS): the
-# swimmer's gait pays off over many steps.
-BUDGETS: dict[str, Budget] = {"swimmer": Budget(iterations=1500, gamma=0.9999)}
-
-# The fields of a run's config that shape TRPO on a given reward (the baseline's cache key).
-RL_FIELDS = (
-    "num_envs",
-    "rollout_length",
-    "hidden",
-    "init_log_std",
-    "obs_clip",
-    "gamma",
-    "gae_lambda",
-    "trpo",
-    "value_learning_rate",
-    "value_epochs",
-    "value_minibatches",
-)
-SUCCESS_EPISODES = 10  # the experts' bars are defined over 10 deterministic episodes
-
-
-def drawn(key, rl_seed: int):
-    """``key`` for RL seed ``rl_seed``: folded with it, RL seed 0 the key itself (the draw
-    every check made before there were RL seeds)."""
-    import jax
-
-    return jax.random.fold_in(key, rl_seed) if rl_seed else key
-
-
-def default_budget(run) -> Budget:
-    return BUDGETS.get(
-        run.spec.env, Budget(run.config.schedule.iterations, run.config.method.b_step.gamma)
-    )
-
-
-def budget_of(args: argparse.Namespace, run) -> Budget:
+def budget_of(args: argparse.Namespace, run) -> reward_check.Budget:
     """The env's budget with ``--iterations`` and ``--gamma`` in place of its own if given."""
-    budget = default_budget(run)
-    return Budget(args.iterations or budget.iterations, args.gamma or budget.gamma)
-
-
-def default_cache() -> str:
-    root = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return os.path.join(root, "emgail-jax", "true-reward-baselines")
-
-
-@dataclasses.dataclass
-class FreshAgents:
-    """What training fresh policies on a reward left: per reward row ``S`` and policy ``K``."""
-
-    states: object  # RLState [S, K]
-    returns: np.ndarray  # [S, iterations, K, K env] deterministic true returns
-    earned: np.ndarray  # [S, iterations, K] the reward trained on, per step
-    compile_s: float
-    train_s: float
-
-
-def train_fresh(trainer, keys, reward_data, iterations: int, label: str, progress: bool):
-    """Trains ``trainer``'s policies from ``keys [S, K]`` (policy k of row s on intention k of
-    the reward ``reward_data[s]``) for ``iterations``, in chunks of 10."""
-    import jax
-    import jax.numpy as jnp
-
-    from emgail_jax.host.progress import ProgressBar
-    from emgail_jax.host.seed_runner import chunk_length, chunks, run_chunks
-    from emgail_jax.method.rl import seeds_chunk
-
-    k = keys.shape[1]
-    states = jax.jit(jax.vmap(jax.vmap(trainer.init)))(keys)
-    plan = chunks(0, iterations, chunk_length(iterations, 10))
-    inputs = lambda first, length: np.zeros(length, bool)
-    start = time.perf_counter()
-    chunk = seeds_chunk(trainer, jnp.arange(k))
-    step = chunk.lower(states, inputs(*plan[0]), reward_data).compile()
-    compile_s = time.perf_counter() - start
-    returns, earned = [], []
-    bar = ProgressBar(label, iterations, {"return": "-"}, enabled=progress)
-
-    def after_chunk(first, length, states, metrics) -> bool:
-        returns.append(np.asarray(metrics["eval/returns"]))  # [L, S, K, K env]
-        earned.append(np.asarray(metrics["train/reward"]))  # [L, S, K]
-        own = np.diagonal(returns[-1][-1], axis1=-2, axis2=-1).mean(0)
-        bar.update(length, **{"return": " ".join(f"{r:.1f}" for r in own)})
-        return True
-
-    start = time.perf_counter()
-    states = run_chunks(lambda s, x: step(s, x, reward_data), states, plan, inputs, after_chunk)
-    bar.close()
-    train_s = time.perf_counter() - start
-    to_seed_major = lambda parts: np.swapaxes(np.concatenate(parts), 0, 1)
-    return FreshAgents(states, to_seed_major(returns), to_seed_major(earned), compile_s, train_s)
-
-
-def success(env, trainer, states, matching) -> list[dict]:
-    """The experts' quality and bars (:func:`emgail_jax.experts.quality`) of the fresh policies
-    ``states [K]``, true intention i acted by learned policy ``matching[i]``."""
-    import jax
-    import jax.numpy as jnp
-
-    from emgail_jax import experts
-
-    acting = jnp.asarray(matching)
-
-    def policy(obs, intention):
-        every = jax.vmap(lambda state: trainer.policy(state)(obs, None))(states)  # [K, ..., A]
-        chosen = acting[intention]
-        return jnp.take_along_axis(every, chosen[None, ..., None], axis=0)[0]
-
-    key_quality, _ = experts.evaluation_keys()
-    k_true = len(matching)
-    return experts.quality(env, policy, key_quality, SUCCESS_EPISODES)[:k_true]
-
-
-def _fresh_trainer(run, budget: Budget, reward_fn=None, absorbing_reward=None):
-    from emgail_jax.method.rl import make_rl_train, true_reward
-
-    # A fresh agent learns no discriminator: its rollouts need no AIRL successors.
-    config = run.config.with_values(gamma=budget.gamma, discriminator_form="gail").method
-    env = run.problem.env
-    episodes = config.rollout.num_envs
-    return make_rl_train(config, env, reward_fn or true_reward, episodes, absorbing_reward)
-
-
-def learned_reward_trainer(run, budget: Budget, learned, absorbing_function=None):
-    """The fresh agents' trainer on ``learned(parameters, obs, action, intention)`` (the reward
-    data each row trains on is its ``parameters``), a termination paid
-    ``absorbing_function(parameters, intention)`` per step left (default the run's absorbing
-    reward, None without absorbing states)."""
-    reward_fn = lambda obs, action, true, intention, parameters: learned(
-        parameters, obs, action, intention
-    )
-    absorbing = absorbing_function or run.absorbing_reward_function()
-    absorbing_fn = None
-    if absorbing is not None:
-        absorbing_fn = lambda intention, parameters: absorbing(parameters, intention)
-    return _fresh_trainer(run, budget, reward_fn, absorbing_fn)
-
-
-def fresh_keys(run, seeds: list[int], rl_seed: int = 0) -> np.ndarray:
-    """``[S, K]`` keys of the fresh agents: each run seed's from that seed, one per learned
-    intention, drawn for ``rl_seed`` (:func:`drawn`)."""
-    import jax
-
-    seed_key = lambda s: drawn(jax.random.PRNGKey(run.spec.first_seed + s + 1000), rl_seed)
-    return np.stack([jax.random.split(seed_key(s), run.num_intentions) for s in seeds])
-
-
-def scored(returns, matching, run, seed: int | None) -> dict:
-    """ERD per iteration and final (mean of the last 10) of ``returns [iterations, K, K env]``
-    with ``matching [K true]`` held fixed; a true intention matched to a learned one the run
-    does not keep scores 1, as random actions."""
-    from emgail_jax.method.metrics import reward_difference
-
-    problem = run.problem
-    # In float64: a baseline read back from its cache scores exactly as when computed.
-    expert = np.asarray(problem.demos.expert_returns, np.float64)
-    k_true = len(matching)
-    matched = np.asarray(returns, np.float64)[:, matching, np.arange(k_true)]  # [iter, K true]
-    result = {
-        "returns": matched[-FINAL_WINDOW:].mean(0),  # [K true] of the matched policies
-        "learned_returns": returns[-FINAL_WINDOW:].mean(0),  # [K learned, K env] unmatched
-        "matching": np.asarray(matching),
-    }
-    if problem.demos.expert_returns is None:
-        return {**result, **erd_summary(None)}
-    random = np.asarray(problem.random_returns, np.float64)
-    per_intention = reward_difference(matched, expert, random)
-    in_use = None if seed is None else run.intentions_in_use(seed)
-    if in_use is not None:
-        per_intention = np.where(np.asarray(in_use)[matching], per_intention, 1.0)
-    return {**result, **erd_summary(per_intention)}
-
-
-def erd_summary(per_intention: np.ndarray | None) -> dict:
-    """ERD's entries of a check from ``per_intention [iterations, K true]`` (None where the
-    experts' returns are unknown): the curve and the final value, the mean of the last 10."""
-    if per_intention is None:
-        return dict.fromkeys(("erd", "erd_per_intention", "erd_curve", "erd_curve_per_intention"))
-    curve = per_intention.mean(-1)
-    return {
-        "erd": float(curve[-FINAL_WINDOW:].mean()),
-        "erd_per_intention": per_intention[-FINAL_WINDOW:].mean(0),
-        "erd_curve": curve,
-        "erd_curve_per_intention": per_intention,
-    }
-
-
-def run_matching(run, seed: int, iteration: int) -> np.ndarray:
-    """``[K true]`` the learned intention the run matched each true intention to when it last
-    evaluated its policies at or before ``iteration`` (the first evaluation after it if none
-    before); the identity when the run never evaluated (no expert returns)."""
-    matchings = np.asarray(run.history["eval/matching"][seed])  # [iterations, K true]
-    evaluated = np.flatnonzero(matchings[:, 0] >= 0) + 1  # iteration numbers
-    if not len(evaluated):
-        return np.arange(run.problem.true_intentions)
-    before = evaluated[evaluated <= iteration]
-    chosen = before[-1] if len(before) else evaluated[0]
-    return matchings[chosen - 1]
-
-
-def demonstrations_reward(run, seed: int, parameters=None, reward_function=None) -> np.ndarray:
-    """``[K]``: learned intention i's reward per step on the demonstration pairs, weighted by
-    the run's responsibilities gamma_i (every pair alike without a posterior); NaN for an
-    intention the run assigned no demonstration to. ``parameters`` replace the seed's reward
-    parameters (a consolidated reward), read by ``reward_function`` (default the run's)."""
-    pairs = run.demonstration_pairs
-    k = run.num_intentions
-    if run.algorithm.learns_posterior:
-        gamma = np.asarray(run.responsibilities(seed).gamma)  # [N, K]
-    else:
-        gamma = np.ones((pairs.observations.shape[0], k))
-    parameters = parameters or run.reward_parameters(seed)
-    learned = reward_function or run.reward_function()
-    reward = lambda obs, action, i: learned(parameters, obs, action, i)
-    per_pair = np.stack(
-        [np.asarray(reward(pairs.observations, pairs.actions, i)) for i in range(k)], -1
-    )  # [N, K]
-    weight = gamma.sum(0)
-    total = (gamma * per_pair).sum(0)
-    return np.divide(total, weight, out=np.full(k, np.nan), where=weight > 0)
-
-
-def reoptimize(
-    run,
-    seeds: list[int],
-    budget: Budget,
-    progress: bool = True,
-    parameters=None,
-    reward_function=None,
-    absorbing_function=None,
-    rl_seed: int = 0,
-) -> dict:
-    """Trains one policy per learned intention on each of ``seeds``' frozen rewards of ``run``
-    (all seeds vmapped in one program) and scores them; ``rl_seed`` picks another draw of the
-    fresh policies' keys (0: the default's); ``parameters`` (one per seed) replace
-    the run's :meth:`~emgail_jax.host.saved_run.SavedRun.reward_parameters`, read by
-    ``reward_function`` and ``absorbing_function`` (default the run's
-    :meth:`~emgail_jax.host.saved_run.SavedRun.reward_function` and
-    :meth:`~emgail_jax.host.saved_run.SavedRun.absorbing_reward_function`)."""
-    import jax
-
-    from emgail_jax.host.saved_run import stacked
-
-    learned = reward_function or run.reward_function()
-    trainer = learned_reward_trainer(run, budget, learned, absorbing_function)
-    per_seed_parameters = parameters or [run.reward_parameters(seed) for seed in seeds]
-    parameters = stacked(per_seed_parameters)
-    keys = fresh_keys(run, seeds, rl_seed)
-    fresh = train_fresh(trainer, keys, parameters, budget.iterations, "re-optimising", progress)
-    iteration = run.snapshot or run.iteration
-    per_seed = []
-    for row, seed in enumerate(seeds):
-        matching = run_matching(run, seed, iteration)
-        scores = scored(fresh.returns[row], matching, run, seed)
-        result = {"run_seed": run.seed_number(seed), **scores}
-        states = jax.tree.map(lambda x, r=row: x[r], fresh.states)
-        result["success"] = success(run.problem.env, trainer, states, matching)
-        result["learned_reward_per_step"] = {  # learned intentions' order
-            "fresh_policies": fresh.earned[row, -FINAL_WINDOW:].mean(0),
-            "demonstrations": demonstrations_reward(run, seed, per_seed_parameters[row], learned),
-        }
-        per_seed.append(result)
-    return {
-        "iteration": iteration,
-        "snapshot": run.snapshot,
-        "budget": dataclasses.asdict(budget),
-        "absorbing_state": (absorbing_function or run.absorbing_reward_function()) is not None,
-        "eval_episodes": run.config.method.rollout.num_envs,
-        "expert_returns": run.problem.demos.expert_returns,
-        "random_returns": run.problem.random_returns,
-        "seeds": [run.seed_number(seed) for seed in seeds],
-        "rl_seed": rl_seed,
-        **over_seeds(per_seed),
-        "compile_time_s": fresh.compile_s,
-        "train_time_s": fresh.train_s,
-    }
-
-
-def over_seeds(per_seed: list[dict]) -> dict:
-    """What a check reports of its seeds' results: each seed's ERD, their mean and spread, and
-    which of the experts' bars each seed's agents meet."""
-    erds = [r["erd"] for r in per_seed]
-    return {
-        "erd": erds,
-        "erd_mean": None if None in erds else float(np.mean(erds)),
-        "erd_std": None if None in erds else float(np.std(erds)),
-        "meets_bar": [[q["meets_bar"] for q in r["success"]] for r in per_seed],
-        "per_seed": per_seed,
-    }
-
-
-def picked(draws: list[dict], pick) -> dict:
-    """One :func:`scored` result (with its ``success``) whose true intention i is the agent of
-    draw ``pick[i]`` of ``draws``, scores of agents trained alike under one matching."""
-    pick = [int(d) for d in pick]
-    column = lambda name: [np.asarray(draws[d][name])[..., i] for i, d in enumerate(pick)]
-    result = {"matching": draws[0]["matching"], "returns": np.array(column("returns"))}
-    known = draws[0]["erd"] is not None  # as scored: one draw picks itself alike
-    result.update(erd_summary(np.stack(column("erd_curve_per_intention"), -1) if known else None))
-    if "success" in draws[0]:
-        result["success"] = [draws[d]["success"][i] for i, d in enumerate(pick)]
-    return {**result, "draw": pick}
-
-
-def chosen_by_learned_reward(draws: list[dict]) -> dict:
-    """Several draws of fresh agents on the same rewards (:func:`reoptimize` results of the same
-    seeds, one per RL seed) as one check: per run seed and learned intention, the agent that
-    earned the most learned reward per step over the last iterations (a fall paid the absorbing
-    state's reward for every step left, :func:`~emgail_jax.method.rl.reward_per_step`), the
-    choice a user without the true reward can make. Each seed's ``draw`` says which draw acts
-    each true intention."""
-    per_seed = []
-    for rows in zip(*(d["per_seed"] for d in draws), strict=True):
-        earned = np.array([r["learned_reward_per_step"]["fresh_policies"] for r in rows])
-        best = earned.argmax(0)  # [K learned]
-        chosen = picked(rows, best[np.asarray(rows[0]["matching"])])
-        chosen["learned_reward_per_step"] = {
-            "fresh_policies": earned[best, np.arange(len(best))],
-            "demonstrations": rows[0]["learned_reward_per_step"]["demonstrations"],
-        }
-        per_seed.append(
-            {"run_seed": rows[0]["run_seed"], **chosen, "draws_erd": [r["erd"] for r in rows]}
-        )
-    shared = ("iteration", "snapshot", "budget", "absorbing_state", "eval_episodes")
-    shared += ("expert_returns", "random_returns", "seeds")
-    return {
-        **{name: draws[0][name] for name in shared},
-        "rl_seeds": [d["rl_seed"] for d in draws],
-        **over_seeds(per_seed),
-        "draws_erd_mean": [d["erd_mean"] for d in draws],
-        "draws": draws,
-        "compile_time_s": sum(d["compile_time_s"] for d in draws),
-        "train_time_s": sum(d["train_time_s"] for d in draws),
-    }
-
-
-def best_baseline(baselines: list[dict]) -> dict:
-    """Several true-reward baselines' draws (:func:`true_reward_baseline`) as one: per true
-    intention the agent with the highest true return, each agent kept by the reward it trained
-    on as :func:`chosen_by_learned_reward` keeps the learned reward's."""
-    best = np.array([b["returns"] for b in baselines]).argmax(0)  # [K true]
-    result = picked(baselines, best)
-    return {
-        **result,
-        "meets_bar": [q["meets_bar"] for q in result["success"]],
-        "draws_erd": [b["erd"] for b in baselines],
-        "cache": [b["cache"] for b in baselines],
-    }
-
-
-def baseline_key(run, budget: Budget, rl_seed: int = 0) -> str:
-    """What the true-reward baseline depends on: the env, its options and K, the budget, the
-    TRPO settings and the RL seed, as a file name (another RL seed's does not begin with
-    :func:`baseline_prefix`: the sweep's checks read RL seed 0's)."""
-    config = run.config.to_dict()
-    env = run.problem.env
-    described = {
-        "env": env.name,
-        "options": env.options(),
-        "intentions": env.num_intentions,
-        "budget": dataclasses.asdict(budget),
-        "config": {name: config[name] for name in RL_FIELDS if name != "gamma"},
-    }
-    text = json.dumps(described, sort_keys=True, default=str)
-    digest = hashlib.sha256(text.encode()).hexdigest()[:12]
-    prefix = baseline_prefix(env.name, env.num_intentions, budget.iterations)
-    return (f"rl{rl_seed}-" if rl_seed else "") + f"{prefix}g{budget.gamma}-{digest}"
-
-
-def baseline_prefix(env_name: str, intentions: int, iterations: int) -> str:
-    """How the :func:`baseline_key` of every baseline of an env, K and budget iterations
-    begins, whatever its gamma and settings (the sweep looks for one it need not compute)."""
-    return f"{env_name}-k{intentions}-{iterations}it-"
-
-
-def true_reward_baseline(
-    run, budget: Budget, cache: str | None, progress: bool = True, rl_seed: int = 0
-) -> dict:
-    """TRPO on the env's true rewards with the fresh policies' settings and budget, policy i on
-    intention i (one RL seed, ``rl_seed``'s draw), scored like them; read from ``cache`` when
-    computed before."""
-    import jax
-
-    from emgail_jax.host import records
-
-    key = baseline_key(run, budget, rl_seed)
-    path = None if cache is None else os.path.join(cache, key + ".json")
-    k_true = run.problem.true_intentions
-    identity = np.arange(k_true)
-    if path is not None and os.path.exists(path):
-        with open(path) as f:
-            stored = json.load(f)
-        returns = np.asarray(stored["returns"])
-        found = stored["success"]
-    else:
-        trainer = _fresh_trainer(run, budget)
-        keys = jax.random.split(drawn(jax.random.PRNGKey(1000), rl_seed), run.num_intentions)[None]
-        fresh = train_fresh(trainer, keys, None, budget.iterations, "true reward", progress)
-        returns = fresh.returns[0]
-        states = jax.tree.map(lambda x: x[0], fresh.states)
-        found = records.to_json_value(success(run.problem.env, trainer, states, identity))
-        if path is not None:
-            os.makedirs(cache, exist_ok=True)
-            records.write_json(path, {"returns": returns, "success": found})
-    result = scored(returns, identity, run, None)
-    return {**result, "success": found, "meets_bar": [q["meets_bar"] for q in found], "cache": path}
-
-
-def variant_reference(run, budget: Budget, cache: str | None, draws: int, progress: bool) -> dict:
-    """ERD's 0 in a variant: per true intention the highest true return of ``draws`` true-reward
-    baselines (RL seeds 0 .. draws - 1, each cached), and what each draw scored against the
-    original experts."""
-    found = [true_reward_baseline(run, budget, cache, progress, r) for r in range(draws)]
-    best = best_baseline(found)
-    return {
-        "returns": best["returns"],
-        "draw": best["draw"],
-        "draws_returns": np.array([b["returns"] for b in found], np.float64),  # [draws, K true]
-        "original_experts_erd": best["draws_erd"],
-        "meets_bar": best["meets_bar"],
-    }
-
-
-def joint_policies(run, seeds: list[int], iteration: int) -> dict:
-    """The run's own jointly trained policies, unchanged, in ``run.problem``'s env (a variant):
-    ``num_envs`` deterministic episodes per learned intention, scored like the fresh policies
-    (the run's matching at ``iteration``). What a reward re-optimised in the variant is
-    compared with: the policy a user would otherwise deploy there."""
-    import jax
-
-    count = run.config.method.rollout.num_envs
-    key = jax.random.PRNGKey(run.spec.first_seed + 3000)
-    per_seed = []
-    for seed in seeds:
-        returns, _, _ = run.episodes(seed, count, key)
-        mean = np.asarray(returns, np.float64).mean(1)[None]  # [1, K learned, K env]
-        scores = scored(mean, run_matching(run, seed, iteration), run, seed)
-        per_seed.append(
-            {"run_seed": run.seed_number(seed), **{n: scores[n] for n in ("erd", "returns")}}
-        )
-    erds = [r["erd"] for r in per_seed]
-    return {
-        "erd": erds,
-        "erd_mean": None if None in erds else float(np.mean(erds)),
-        "per_seed": per_seed,
-    }
-
-
-def variant_problem(run, settings: list[str]):
-    """The run's problem in a variant of its env (``settings``: ``KEY=FACTOR``); ERD's
-    references then follow the variant (random actions in it; the expert: see
-    :func:`with_expert_returns`)."""
-    import envs
-    from emgail_jax.host.run_spec import RunError
-
-    problem = run.problem
-    options = {**run.spec.env_options, "dynamics": settings}
-    try:
-        env = envs.make(run.spec.env, intentions=problem.env.num_intentions, **options)
-    except envs.EnvError as error:
-        raise RunError(f"--env-set: {error}") from None
-    return dataclasses.replace(problem, env=env)
-
-
-def with_expert_returns(problem, returns):
-    """``problem`` with ``returns [K true]`` as ERD's expert reference (0)."""
-    demos = dataclasses.replace(problem.demos, expert_returns=np.asarray(returns, np.float64))
-    return dataclasses.replace(problem, demos=demos)
+    budget = reward_check.default_budget(run)
+    return reward_check.Budget(args.iterations or budget.iterations, args.gamma or budget.gamma)
 
 
 def print_result(run, result: dict) -> None:
@@ -666,7 +188,9 @@ def argument_parser() -> argparse.ArgumentParser:
         "--no-baseline", dest="baseline", action="store_false", help="skip the true reward"
     )
     parser.add_argument(
-        "--cache", default=None, help=f"true-reward baselines (default {default_cache()})"
+        "--cache",
+        default=None,
+        help=f"true-reward baselines (default {reward_check.default_cache()})",
     )
     parser.add_argument(
         "--refit",
@@ -815,6 +339,7 @@ REFIT = {
     "consolidate_batch": 5000,
 }
 
+
 # What `--refit` adds on the locomotion envs where the plain refit's agents stay near random
 # actions: the snapshots ranked by iteration, read as the logit, and hopper's falls priced by an
 # absorbing state (experiments 43, 61, 63 and 64); halfcheetah's agents are still closing on the
@@ -823,6 +348,8 @@ REFIT_BY_ENV: dict[str, dict] = {
     "hopper": {"consolidate_ranking": 10.0, "consolidate_absorbing": True, "reward_form": "logit"},
     "halfcheetah": {"consolidate_ranking": 30.0, "reward_form": "logit", "iterations": 1000},
 }
+
+
 # The refit's options that are off unless given or in the env's recipe.
 OFF_UNLESS_GIVEN = {"consolidate_ranking": 0.0, "consolidate_absorbing": False}
 
@@ -943,7 +470,7 @@ def _opened(args: argparse.Namespace):
     _check_options(args)
     run = SavedRun.open(args.run_dir, snapshot=args.snapshot)
     if args.env_set:
-        run.problem = variant_problem(run, args.env_set)
+        run.problem = reward_check.variant_problem(run, args.env_set)
     seeds = list(range(run.spec.seeds)) if args.seed is None else [run.seed_index(args.seed)]
     if run.config.method.m_step.form.airl and (args.reward_form or args.consolidate):
         # Its reward is g_i(s), no reading of a GAIL discriminator's logit, nor refitted as one.
@@ -964,17 +491,17 @@ def _opened(args: argparse.Namespace):
                     "discriminator was trained without absorbing states"
                 )
             run = run.with_absorbing_states()
-        chosen.parameters, chosen.details["consolidation"] = consolidated(
+        chosen.parameters, chosen.details["consolidation"] = reward_check.consolidated(
             run, seeds, refit, name, budget_of(args, run), progress=not args.quiet
         )
         chosen.details["saved_reward"] = name
         if refit.state_only:
             chosen.function = run.reward_function(state_only=True)
     if args.ensemble:
-        chosen.parameters, iterations = ensemble_parameters(run, seeds, args.ensemble)
-        chosen.function = ensemble_reward(run.reward_function())
+        chosen.parameters, iterations = reward_check.ensemble_parameters(run, seeds, args.ensemble)
+        chosen.function = reward_check.ensemble_reward(run.reward_function())
         if run.absorbing_reward_function() is not None:
-            chosen.absorbing = ensemble_reward(run.absorbing_reward_function())
+            chosen.absorbing = reward_check.ensemble_reward(run.absorbing_reward_function())
         chosen.details["ensemble"] = iterations
     if args.across_seeds:
         if run.spec.seeds < 2:
@@ -986,39 +513,6 @@ def _opened(args: argparse.Namespace):
         # [seed][t][i]: seed t's intention averaged into intention i of each checked seed
         chosen.details["across_seeds"] = [p["intentions"] for p in chosen.parameters]
     return args, run, seeds, chosen
-
-
-def ensemble_parameters(run, seeds: list[int], size: int) -> tuple[list, list[int]]:
-    """Each seed's reward parameters of the last ``size`` snapshots up to the networks ``run``
-    holds, stacked ``[size, ...]``, and those snapshots' iterations."""
-    from emgail_jax.host import checkpoints
-    from emgail_jax.host.saved_run import stacked
-
-    last = run.snapshot or run.iteration
-    kept = [i for i in checkpoints.snapshot_iterations(run.run_dir) if i <= last]
-    if len(kept) < size:
-        raise checkpoints.CheckpointError(
-            f"--ensemble {size} needs {size} snapshots up to iteration {last}; "
-            f"'{run.run_dir}' kept {len(kept)} (run --snapshot-every)"
-        )
-    iterations = kept[-size:]
-    runs = [
-        dataclasses.replace(run, state=checkpoints.restore_snapshot(run.run_dir, i, run.state))
-        for i in iterations
-    ]
-    return [stacked([r.reward_parameters(seed) for r in runs]) for seed in seeds], iterations
-
-
-def ensemble_reward(reward_function):
-    """``reward_function(parameters, *inputs)`` (a reward, or the absorbing state's)
-    averaged over ``parameters`` stacked ``[N, ...]`` (:func:`ensemble_parameters`)."""
-    import jax
-
-    def mean_reward(parameters, *inputs):
-        every = jax.vmap(lambda one: reward_function(one, *inputs))(parameters)
-        return every.mean(0)
-
-    return mean_reward
 
 
 def main(argv=None) -> int:
@@ -1047,10 +541,12 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
     from emgail_jax.host import records
 
     budget = budget_of(args, run)
-    cache = args.cache or default_cache()
+    cache = args.cache or reward_check.default_cache()
     variant = None
     if args.env_set:  # the variant's own expert, its best true-reward agents, first
-        reference = variant_reference(run, budget, cache, args.reference_draws, not args.quiet)
+        reference = reward_check.variant_reference(
+            run, budget, cache, args.reference_draws, not args.quiet
+        )
         variant = {
             "dynamics": args.env_set,
             "reference_draws": args.reference_draws,
@@ -1059,15 +555,17 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
             "original_experts_erd": reference["original_experts_erd"],
             "reference_meets_bar": reference["meets_bar"],
         }
-        run.problem = with_expert_returns(run.problem, reference["returns"])
+        run.problem = reward_check.with_expert_returns(run.problem, reference["returns"])
     rl_seeds = range(args.rl_seed, args.rl_seed + args.draws)
     path = args.out or os.path.join(args.run_dir, default_name(args))
-    finished = FinishedDraws(path, check_identity(args, run)) if args.draws > 1 else None
+    finished = (
+        reward_check.FinishedDraws(path, check_identity(args, run)) if args.draws > 1 else None
+    )
     draws = []
     for rl_seed in rl_seeds:
         draw = finished.read(rl_seed, not args.quiet) if finished else None
         if draw is None:
-            draw = reoptimize(
+            draw = reward_check.reoptimize(
                 run,
                 seeds,
                 budget,
@@ -1080,23 +578,25 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
             if finished:
                 finished.write(rl_seed, draw)
         draws.append(draw)
-    result = draws[0] if args.draws == 1 else chosen_by_learned_reward(draws)
+    result = draws[0] if args.draws == 1 else reward_check.chosen_by_learned_reward(draws)
     # What the fresh agents were paid: an AIRL run's policies trained on f - log pi, its
     # fresh agents on g_i(s).
     airl = run.config.method.m_step.form.airl
     result["reward_form"] = "airl-g" if airl else run.algorithm.reward_form
     result.update(chosen.details)
     if variant is not None:
-        variant["joint_policies"] = joint_policies(run, seeds, result["iteration"])
+        variant["joint_policies"] = reward_check.joint_policies(run, seeds, result["iteration"])
     result["variant"] = variant
     result["baseline"] = None
     if args.baseline:
         # The baseline's own draws: how far the search varies on the true reward.
         baselines = [
-            true_reward_baseline(run, budget, cache, not args.quiet, rl_seed=rl_seed)
+            reward_check.true_reward_baseline(run, budget, cache, not args.quiet, rl_seed=rl_seed)
             for rl_seed in rl_seeds
         ]
-        result["baseline"] = baselines[0] if args.draws == 1 else best_baseline(baselines)
+        result["baseline"] = (
+            baselines[0] if args.draws == 1 else reward_check.best_baseline(baselines)
+        )
     records.write_json(path, result)
     if finished:
         finished.remove()
@@ -1111,47 +611,6 @@ def check_identity(args: argparse.Namespace, run) -> dict:
     unrelated = ("draws", "quiet", "out", "baseline", "cache")
     options = {k: v for k, v in sorted(vars(args).items()) if k not in unrelated}
     return {"options": options, "iteration": run.snapshot or run.iteration}
-
-
-@dataclasses.dataclass(frozen=True)
-class FinishedDraws:
-    """The draws of a check of several (``--draws``) finished so far, kept beside its file
-    (``NAME.draws/rl-R.json``) until the check is written, so that a check stopped part-way
-    goes on from its last finished draw. A draw kept for other options or networks is done
-    again."""
-
-    check_path: str
-    identity: dict
-
-    @property
-    def directory(self) -> str:
-        return os.path.splitext(self.check_path)[0] + ".draws"
-
-    def _path(self, rl_seed: int) -> str:
-        return os.path.join(self.directory, f"rl-{rl_seed}.json")
-
-    def read(self, rl_seed: int, progress: bool) -> dict | None:
-        from emgail_jax.host import records
-
-        try:
-            with open(self._path(rl_seed)) as f:
-                kept = json.load(f)
-        except (OSError, ValueError):
-            return None
-        if kept.get("check") != records.to_json_value(self.identity):
-            return None
-        if progress:
-            print(f"RL draw {rl_seed}: finished before, reused")
-        return kept["draw"]
-
-    def write(self, rl_seed: int, draw: dict) -> None:
-        from emgail_jax.host import records
-
-        os.makedirs(self.directory, exist_ok=True)
-        records.write_json(self._path(rl_seed), {"check": self.identity, "draw": draw})
-
-    def remove(self) -> None:
-        shutil.rmtree(self.directory, ignore_errors=True)
 
 
 def default_name(args) -> str:
@@ -1237,106 +696,6 @@ def refit_of(args):
         state_only=args.consolidate_state_only,
         absorbing=args.consolidate_absorbing,
     )
-
-
-def consolidated(
-    run, seeds: list[int], refit, name: str, budget: Budget | None = None, progress: bool = True
-):
-    """Every seed's consolidated reward parameters and the refit's losses; each seed's refit is
-    read from the run's saved reward ``name`` when it was made before, and saved there when
-    not (:mod:`~emgail_jax.host.consolidation`). A refit against fresh agents trains them with
-    ``budget`` (default the env's) on the run's reward form, which its saved description
-    records."""
-    import jax
-
-    from emgail_jax.host import consolidation
-    from emgail_jax.host.run_spec import RunError
-
-    description = consolidation.refit_description(
-        refit, run.snapshot, run.snapshot or run.iteration
-    )
-    budget = budget or default_budget(run)
-    if refit.agent_rounds:
-        agents = {"reward_form": run.algorithm.reward_form, "budget": dataclasses.asdict(budget)}
-        description["agents"] = agents
-    saved_before = name in consolidation.saved_refits(run.run_dir)
-    if saved_before:
-        consolidation.check_refitted_from(run, name)
-    if saved_before and consolidation.read_description(run.run_dir, name) != description:
-        raise RunError(
-            f"the saved reward '{name}' of '{run.run_dir}' was refitted otherwise: "
-            "delete its directory under rewards/ to refit it"
-        )
-    parameters, metrics = [], []
-    for seed in seeds:
-        number = run.seed_number(seed)
-        found = consolidation.saved_parameters(run, name, seed)
-        if found is not None:
-            losses = consolidation.read_losses(run.run_dir, name, number)
-            if progress:
-                print(f"seed {number}: the refitted reward '{name}' saved before, reused")
-        else:
-            key = jax.random.PRNGKey(number + 2000)
-            samples = consolidation.snapshot_policy_samples(run, seed, key)
-            found, losses = consolidation.consolidated_parameters(
-                run, seed, refit, key, samples=samples
-            )
-            if refit.agent_rounds:
-                found, losses = refitted_against_agents(
-                    run, seed, refit, key, budget, found, samples, progress
-                )
-            consolidation.save_refitted(
-                run.run_dir, name, number, found["discriminator"], description, losses
-            )
-        parameters.append(found)
-        metrics.append({"run_seed": number, **dataclasses.asdict(refit), **losses})
-    return parameters, metrics
-
-
-# The fresh agents a refit is fitted against are RL draws from this one on (round r's is
-# AGENT_DRAWS + r), never one that ``--rl-seed`` checks the refit with.
-AGENT_DRAWS = 1000
-
-
-def refitted_against_agents(
-    run, seed: int, refit, key, budget: Budget, first, samples, progress: bool
-):
-    """``(reward parameters, losses)``: ``refit.agent_rounds`` rounds, each training fresh
-    agents on the last refit ``first`` onwards with ``budget``, one training rollout of them
-    (with exploration) added to every earlier round's, and the refit made again from the same
-    start against those rollouts too (and the snapshots' ``samples`` the first refit saw,
-    not collected again); the losses are the last refit's, with each round's
-    agents' ERD, true returns and learned reward per step (``agent_rounds``)."""
-    import jax
-
-    from emgail_jax.host import consolidation
-    from emgail_jax.host.saved_run import stacked
-
-    trainer = learned_reward_trainer(run, budget, run.reward_function(refit.state_only))
-    acting = lambda state: trainer.policy(state, deterministic=False)
-    matching = run_matching(run, seed, run.snapshot or run.iteration)
-    found, rollouts, rounds = first, [], []
-    for number in range(1, refit.agent_rounds + 1):
-        keys = fresh_keys(run, [seed], AGENT_DRAWS + number)
-        label = f"refit's agents, round {number}"
-        fresh = train_fresh(trainer, keys, stacked([found]), budget.iterations, label, progress)
-        states = jax.tree.map(lambda x: x[0], fresh.states)
-        policy = consolidation.agents_policy(acting, states)
-        rollout_key = jax.random.fold_in(key, AGENT_DRAWS + number)
-        rollouts.append(consolidation.fixed_policy_samples(run, policy, rollout_key))
-        agents = tuple(np.concatenate(parts, 1) for parts in zip(*rollouts, strict=True))
-        scores = scored(fresh.returns[0], matching, run, seed)
-        rounds.append(
-            {
-                "erd": scores["erd"],
-                "returns": scores["returns"],
-                "learned_reward_per_step": fresh.earned[0, -FINAL_WINDOW:].mean(0),
-            }
-        )
-        found, losses = consolidation.consolidated_parameters(
-            run, seed, refit, key, agents, samples
-        )
-    return found, {**losses, "agent_rounds": rounds}
 
 
 if __name__ == "__main__":

@@ -36,7 +36,7 @@ def main(argv=None) -> int:
     jax_setup.setup(host_devices=1)
     import jax
 
-    from emgail_jax import reoptimize as check
+    from emgail_jax.host import reward_check as check
     from emgail_jax.host.saved_run import SavedRun, stacked
 
     run = SavedRun.open(args.run_dir)

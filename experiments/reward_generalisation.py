@@ -92,7 +92,7 @@ def matched_reward(run, seed: int, parameters, state_only: bool = False):
     import jax
     import jax.numpy as jnp
 
-    from emgail_jax import reoptimize as check
+    from emgail_jax.host import reward_check as check
 
     matching = check.run_matching(run, seed, run.snapshot or run.iteration)  # true -> learned
     learned = run.reward_function(state_only)
@@ -108,7 +108,7 @@ def seed_columns(
     intention ``matching[i]`` the run matched it to, whose policy also acts for it."""
     import numpy as np
 
-    from emgail_jax import reoptimize as check
+    from emgail_jax.host import reward_check as check
     from emgail_jax.method.rollout import still_policy, uniform_random_policy
 
     env, k_true = run.problem.env, run.problem.true_intentions

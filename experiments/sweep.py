@@ -47,8 +47,9 @@ from collections.abc import Callable, Iterator
 import numpy as np
 
 from emgail_jax.host.final_results import FinalResults
+from emgail_jax.host.reward_check import BUDGETS, baseline_prefix
 from emgail_jax.host.run_spec import RunError, read_summary
-from emgail_jax.reoptimize import BUDGETS, REFIT_BY_ENV, baseline_prefix
+from emgail_jax.reoptimize import REFIT_BY_ENV
 
 ROBOTICS_INTENTIONS = {
     "swimmer": (2,),

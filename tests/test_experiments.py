@@ -854,14 +854,14 @@ def test_reward_generalisation_scores_the_runs_snapshots_along_training(tiny_run
 
 
 def test_reward_generalisation_matches_intentions_where_the_run_was_opened(tiny_run, monkeypatch):
-    from emgail_jax import reoptimize
+    from emgail_jax.host import reward_check
     from emgail_jax.host.saved_run import SavedRun
 
     module = _load("reward_generalisation")
     asked = []
-    matching = reoptimize.run_matching
+    matching = reward_check.run_matching
     monkeypatch.setattr(
-        reoptimize, "run_matching", lambda run, seed, i: asked.append(i) or matching(run, seed, i)
+        reward_check, "run_matching", lambda run, seed, i: asked.append(i) or matching(run, seed, i)
     )
     for snapshot, iteration in ((2, 2), (None, 4)):
         run = SavedRun.open(str(tiny_run), snapshot=snapshot)

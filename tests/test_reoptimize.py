@@ -4,11 +4,11 @@ one matching, the success measures, snapshots."""
 import dataclasses
 import json
 
-import jax
 import numpy as np
 import pytest
 
 from emgail_jax import reoptimize
+from emgail_jax.host import reward_check
 from emgail_jax.host.consolidation import Refit
 from emgail_jax.method.metrics import reward_difference
 
@@ -59,14 +59,6 @@ def test_one_matching_scores_every_number(reoptimized, saved):
         assert np.allclose(np.asarray(per_seed["erd_per_intention"]), e, rtol=1e-5)
 
 
-def test_the_run_matching_is_the_last_evaluation_at_or_before_the_iteration(saved):
-    history = saved.history["eval/matching"]
-    for iteration in (1, 2, 4):
-        np.testing.assert_array_equal(
-            reoptimize.run_matching(saved, 1, iteration), history[1, iteration - 1]
-        )
-
-
 def test_the_baseline_is_read_from_the_cache_the_second_time(tiny_run, reoptimized):
     """A second reoptimize reads the true-reward baseline the first stored: with its bars
     flipped in the cache file, the flipped bars come back (the same baseline trained again,
@@ -93,24 +85,6 @@ def test_the_baseline_is_read_from_the_cache_the_second_time(tiny_run, reoptimiz
     assert again["baseline"]["meets_bar"] == flipped
     assert again["baseline"]["erd_curve"] == first["baseline"]["erd_curve"]
     assert again["erd"] == first["erd"]  # the same keys: the same fresh policies
-
-
-def test_one_true_reward_baseline_serves_every_algorithm(saved):
-    """The baseline's cache key holds the env, K, budget and TRPO settings, not the algorithm
-    whose reward is checked: the sweep's EM-GAIL, Info/IntentionGAIL and GAIL cells of an env
-    and K share one baseline."""
-    budget = reoptimize.Budget(iterations=400, gamma=0.995)
-    key = reoptimize.baseline_key(saved, budget)
-    assert key.startswith("driver-k2-400it-g0.995-")
-    for algo in ("gail", "infogail"):
-        other = dataclasses.replace(saved, config=saved.config.with_values(algo=algo))
-        assert other.config.method.algo == algo
-        assert reoptimize.baseline_key(other, budget) == key
-    wider = dataclasses.replace(saved, config=saved.config.with_values(num_envs=3))
-    assert reoptimize.baseline_key(wider, budget) != key
-    # The true reward has no absorbing state, whatever the run learned.
-    absorbing = dataclasses.replace(saved, config=saved.config.with_values(absorbing_state=True))
-    assert reoptimize.baseline_key(absorbing, budget) == key
 
 
 @pytest.mark.slow  # a tiny GAIL run and its re-optimisation: two compiles
@@ -149,9 +123,9 @@ def test_a_run_with_absorbing_states_is_reoptimised_with_them(tmp_path):
         every = [absorbing(saved.reward_parameters(seed), i) for i in range(2)]
         logged = saved.history["train/absorbing_reward"][seed, -1]
         assert float(np.mean(every)) == pytest.approx(float(logged), rel=1e-5)
-    parameters, _ = reoptimize.ensemble_parameters(saved, [0], 2)
+    parameters, _ = reward_check.ensemble_parameters(saved, [0], 2)
     earlier = SavedRun.open(str(out), snapshot=2).reward_parameters(0)
-    mean = reoptimize.ensemble_reward(absorbing)(parameters[0], 1)
+    mean = reward_check.ensemble_reward(absorbing)(parameters[0], 1)
     expected = (absorbing(earlier, 1) + absorbing(saved.reward_parameters(0), 1)) / 2
     assert float(mean) == pytest.approx(float(expected), rel=1e-5)
     for extra in ([], ["--ensemble", "2"]):
@@ -227,37 +201,6 @@ def test_a_directory_without_a_run(tmp_path, capsys):
     assert "no summary.json" in capsys.readouterr().err
 
 
-def test_demonstrations_reward_weights_pairs_by_their_responsibilities(saved):
-    expert = saved.demonstration_pairs
-    gamma = np.asarray(saved.responsibilities(0).gamma)
-    reward = saved.reward(0)
-    earned = reoptimize.demonstrations_reward(saved, 0)
-    for i in range(2):
-        if gamma[:, i].sum() == 0:  # no demonstration assigned: nothing to earn on
-            assert np.isnan(earned[i])
-            continue
-        per_pair = np.asarray(reward(expert.observations, expert.actions, i))
-        expected = (gamma[:, i] * per_pair).sum() / gamma[:, i].sum()
-        np.testing.assert_allclose(earned[i], expected, rtol=1e-5)
-
-
-def test_an_ensemble_reward_is_the_mean_of_the_snapshots_rewards(tiny_run, saved):
-    from emgail_jax.host.saved_run import SavedRun
-
-    parameters, iterations = reoptimize.ensemble_parameters(saved, [1], 2)
-    assert iterations == [2, 4]
-    ensemble = reoptimize.ensemble_reward(saved.reward_function())
-    pairs = saved.demonstration_pairs
-    earlier = SavedRun.open(str(tiny_run), snapshot=2)
-    for i in range(2):
-        every = [r.reward(1)(pairs.observations, pairs.actions, i) for r in (earlier, saved)]
-        assert not np.allclose(every[0], every[1])  # two discriminators
-        mean = ensemble(parameters[0], pairs.observations, pairs.actions, i)
-        np.testing.assert_allclose(mean, np.mean(every, 0), rtol=1e-5)
-    _, last = reoptimize.ensemble_parameters(saved, [1], 1)
-    assert last == [4]
-
-
 @pytest.mark.slow  # a second re-optimisation (the plain one runs always)
 def test_another_rl_seed_trains_other_fresh_agents_on_the_same_rewards(tiny_run, reoptimized):
     first, _ = reoptimized
@@ -311,59 +254,6 @@ def test_a_consolidated_reward_in_the_logit_form(tiny_run, reoptimized):
     assert saved == ["reward.json", *seeds]
 
 
-def test_a_refit_is_saved_once_and_reused(tiny_run, tmp_path, capsys):
-    import shutil
-
-    from emgail_jax.host.run_spec import RunError
-    from emgail_jax.host.saved_run import SavedRun
-
-    copy = tmp_path / "run"
-    shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("rewards"))
-    run = SavedRun.open(str(copy))
-    first, first_losses = reoptimize.consolidated(run, [1], Refit(steps=3), "consolidated-3")
-    assert "reused" not in capsys.readouterr().out
-    again, again_losses = reoptimize.consolidated(run, [1], Refit(steps=3), "consolidated-3")
-    assert "seed 1: the refitted reward 'consolidated-3' saved before, reused" in (
-        capsys.readouterr().out
-    )
-    for a, b in zip(jax.tree.leaves(first), jax.tree.leaves(again), strict=True):
-        np.testing.assert_array_equal(a, b)
-    loss = lambda losses: losses[0]["after"]["discriminator/loss"]
-    assert loss(again_losses) == pytest.approx(float(loss(first_losses)))
-    with pytest.raises(RunError, match=r"'consolidated-3' .* was refitted otherwise"):
-        reoptimize.consolidated(run, [1], Refit(steps=4), "consolidated-3")
-
-
-@pytest.mark.slow  # fresh agents trained twice inside the refit
-def test_a_refit_against_fresh_agents_trains_them_and_records_each_round(tiny_run, tmp_path):
-    import shutil
-
-    from emgail_jax.host import consolidation
-    from emgail_jax.host.run_spec import RunError
-    from emgail_jax.host.saved_run import SavedRun
-
-    copy = tmp_path / "run"
-    shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("rewards"))
-    run = SavedRun.open(str(copy))
-    budget = reoptimize.Budget(iterations=2, gamma=0.99)
-    plain = Refit(steps=5, fresh=True, batch=20)
-    (before,), _ = reoptimize.consolidated(run, [1], plain, "plain", budget, progress=False)
-    against = dataclasses.replace(plain, agent_rounds=2)
-    (after,), (losses,) = reoptimize.consolidated(run, [1], against, "agents", budget, False)
-    rounds = losses["agent_rounds"]
-    assert len(rounds) == 2
-    for one in rounds:
-        assert one["erd"] >= 0 and len(one["returns"]) == 2
-        assert np.asarray(one["learned_reward_per_step"]).shape == (2,)
-    leaves = zip(jax.tree.leaves(before), jax.tree.leaves(after), strict=True)
-    assert not all(np.array_equal(a, b) for a, b in leaves)
-    description = consolidation.read_description(str(copy), "agents")
-    assert description["agents"] == {"reward_form": "gail", "budget": dataclasses.asdict(budget)}
-    with pytest.raises(RunError, match="refitted otherwise"):
-        other = reoptimize.Budget(iterations=3, gamma=0.99)
-        reoptimize.consolidated(run, [1], against, "agents", other, False)
-
-
 @pytest.mark.slow  # a tiny swimmer run and its re-optimisation in a variant: two compiles
 def test_a_variant_is_scored_against_its_own_true_reward_agent(tmp_path):
     from emgail_jax import run
@@ -396,13 +286,6 @@ def test_a_variant_is_scored_against_its_own_true_reward_agent(tmp_path):
     plain = json.loads((out / "reoptimize-it-2.json").read_text())
     assert plain["variant"] is None and plain["baseline"]["cache"] != baseline["cache"]
     assert plain["random_returns"] != pytest.approx(result["random_returns"])
-
-
-def test_another_rl_seeds_baseline_is_kept_apart_from_the_sweeps(saved):
-    budget = reoptimize.default_budget(saved)
-    first = reoptimize.baseline_key(saved, budget)
-    assert first.startswith(reoptimize.baseline_prefix("driver", 2, budget.iterations))
-    assert reoptimize.baseline_key(saved, budget, rl_seed=1) == "rl1-" + first
 
 
 def test_the_default_file_names_what_was_checked():
@@ -531,7 +414,7 @@ def test_refit_names_its_check_as_the_spelled_out_command(tiny_run, monkeypatch)
     monkeypatch.setattr(
         reoptimize, "_reoptimized", lambda args, *opened: captured.update(args=args) or 0
     )
-    monkeypatch.setattr(reoptimize, "consolidated", lambda *a, **k: (None, []))
+    monkeypatch.setattr(reward_check, "consolidated", lambda *a, **k: (None, []))
     assert reoptimize.main([str(tiny_run), "--refit"]) == 0
     name = "reoptimize-consolidated-4000-penalty-10-fresh-noise-1-batch-5000-log-d.json"
     assert reoptimize.default_name(captured["args"]) == name
@@ -602,70 +485,6 @@ def test_an_absorbing_refit_is_named_so_and_prices_the_fresh_agents_falls(tiny_r
     assert reoptimize._opened(plain)[1].absorbing_reward_function() is None
 
 
-def _draw(rl_seed, earned, erd_per_intention, matching=(1, 0)):
-    """One seed's check as :func:`reoptimize.reoptimize` writes it: 3 iterations, 2 true and
-    learned intentions, true intention i acted by learned ``matching[i]``."""
-    per_intention = np.tile(np.asarray(erd_per_intention, float), (3, 1))  # [iterations, K true]
-    seed = {
-        "run_seed": 0,
-        "matching": list(matching),
-        "returns": 100 * (1 - per_intention[-1]),
-        "erd": float(per_intention.mean(-1)[-reoptimize.FINAL_WINDOW :].mean()),
-        "erd_per_intention": per_intention[-1],
-        "erd_curve": per_intention.mean(-1),
-        "erd_curve_per_intention": per_intention,
-        "success": [{"intention": f"path{i + 1}", "draw": rl_seed} for i in range(2)],
-        "learned_reward_per_step": {"fresh_policies": earned, "demonstrations": [0.5, 0.4]},
-    }
-    shared = {"iteration": 4, "snapshot": None, "budget": {}, "absorbing_state": False}
-    shared |= {"eval_episodes": 2, "expert_returns": [100, 100], "random_returns": [0, 0]}
-    for q in seed["success"]:
-        q["meets_bar"] = bool(rl_seed)
-    return {
-        **shared,
-        "seeds": [0],
-        "rl_seed": rl_seed,
-        **reoptimize.over_seeds([seed]),
-        "compile_time_s": 1.0,
-        "train_time_s": 2.0,
-    }
-
-
-def test_each_intention_keeps_the_draw_that_earns_the_most_learned_reward():
-    """Learned intention 0 earns most in draw 0, learned 1 in draw 1; true intention 0 is acted
-    by learned 1 (draw 1's agent), true 1 by learned 0 (draw 0's): the true ERDs play no part."""
-    draws = [_draw(0, [0.5, -1.0], [0.9, 0.2]), _draw(1, [0.1, 0.2], [0.3, 0.8])]
-    chosen = reoptimize.chosen_by_learned_reward(draws)
-    seed = chosen["per_seed"][0]
-    assert seed["draw"] == [1, 0] and chosen["rl_seeds"] == [0, 1]
-    np.testing.assert_allclose(seed["erd_per_intention"], [0.3, 0.2])
-    assert np.isclose(seed["erd"], 0.25) and chosen["erd"] == [seed["erd"]]
-    np.testing.assert_allclose(seed["returns"], [70, 80])
-    assert [q["draw"] for q in seed["success"]] == [1, 0]
-    assert chosen["meets_bar"] == [[True, False]]
-    np.testing.assert_allclose(seed["learned_reward_per_step"]["fresh_policies"], [0.5, 0.2])
-    np.testing.assert_allclose(seed["draws_erd"], [0.55, 0.55])
-    assert chosen["draws"] == draws
-    assert chosen["train_time_s"] == 4.0
-
-
-def test_one_draw_chosen_is_that_draw():
-    draw = _draw(0, [0.3, 0.1], [0.123456789, 0.987654321])
-    chosen = reoptimize.chosen_by_learned_reward([draw])
-    assert chosen["erd"] == draw["erd"]  # bit for bit: the same sum in the same order
-    curve = lambda result: result["per_seed"][0]["erd_curve"]
-    np.testing.assert_array_equal(curve(chosen), curve(draw))
-
-
-def test_the_best_baseline_keeps_the_highest_true_return_per_intention():
-    draws = [_draw(r, [0, 0], erd)["per_seed"][0] for r, erd in ((0, [0.1, 0.6]), (1, [0.4, 0.2]))]
-    baselines = [{**d, "cache": f"draw{r}.json"} for r, d in enumerate(draws)]
-    best = reoptimize.best_baseline(baselines)
-    assert best["draw"] == [0, 1] and best["meets_bar"] == [False, True]
-    np.testing.assert_allclose(best["erd_per_intention"], [0.1, 0.2])
-    assert best["cache"] == ["draw0.json", "draw1.json"]
-
-
 @pytest.mark.slow  # three re-optimisations (the plain one runs always)
 def test_draws_are_trained_and_the_learned_reward_keeps_one_per_intention(tiny_run, reoptimized):
     _, cache = reoptimized
@@ -674,7 +493,7 @@ def test_draws_are_trained_and_the_learned_reward_keeps_one_per_intention(tiny_r
     result = json.loads((tiny_run / "reoptimize-draws-2-it-2.json").read_text())
     assert result["rl_seeds"] == [0, 1] and [d["rl_seed"] for d in result["draws"]] == [0, 1]
     assert result["draws"][0]["erd"] == reoptimized[0]["erd"]  # draw 0 is the plain check
-    again = reoptimize.chosen_by_learned_reward(result["draws"])
+    again = reward_check.chosen_by_learned_reward(result["draws"])
     assert again["erd"] == result["erd"]
     assert len(result["baseline"]["draw"]) == 2 and len(result["baseline"]["cache"]) == 2
 
@@ -697,7 +516,7 @@ def test_a_check_of_several_draws_goes_on_from_its_last_finished_draw(
         trained.append(rl_seed)
         return {**one_draw, "rl_seed": rl_seed, "train_time_s": float(rl_seed)}
 
-    monkeypatch.setattr(reoptimize, "reoptimize", draw)
+    monkeypatch.setattr(reward_check, "reoptimize", draw)
     out = tmp_path / "check.json"
     args = [str(tiny_run), "--iterations", "2", "--draws", "3", "--no-baseline", "--quiet"]
     with pytest.raises(Stopped):
@@ -714,7 +533,7 @@ def test_a_check_of_several_draws_goes_on_from_its_last_finished_draw(
     # Read back or trained, a draw gives the same check.
     from emgail_jax.host.records import to_json_value
 
-    again = to_json_value(reoptimize.chosen_by_learned_reward(result["draws"]))
+    again = to_json_value(reward_check.chosen_by_learned_reward(result["draws"]))
     assert {name: result[name] for name in again} == again
     # Draws kept for other options are trained again.
     kept.mkdir()

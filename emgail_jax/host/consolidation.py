@@ -69,7 +69,7 @@ class Refit:
     first, one rollout of uniformly random actions (``ranking_random``) and one of actions held
     still (``ranking_still``), each a ranking level only. ``agent_rounds`` > 0 refits that many
     times more, each time against fresh agents trained on the last refit too
-    (:func:`emgail_jax.reoptimize.consolidated`): every step's negatives are then ``batch``
+    (:func:`emgail_jax.host.reward_check.consolidated`): every step's negatives are then ``batch``
     samples of the snapshots and ``batch`` of those agents' rollouts (a GAIL negative only, not
     a ranking level). ``state_only`` refits D(s, i), every action read as zeros
     (:func:`~emgail_jax.method.discriminator.state_only`), here and wherever the reward is read.

@@ -1,0 +1,201 @@
+"""The reward check on a tiny run: the run's matching, the true-reward baseline shared by every
+algorithm and cached, the demonstrations' reward, ensembles, a saved refit, the draws."""
+
+import dataclasses
+
+import jax
+import numpy as np
+import pytest
+
+from emgail_jax.host import reward_check
+from emgail_jax.host.consolidation import Refit
+
+pytestmark = pytest.mark.heavy
+
+
+@pytest.fixture(scope="module")
+def saved(tiny_run):
+    from emgail_jax.host.saved_run import SavedRun
+
+    return SavedRun.open(str(tiny_run))
+
+
+def test_the_run_matching_is_the_last_evaluation_at_or_before_the_iteration(saved):
+    history = saved.history["eval/matching"]
+    for iteration in (1, 2, 4):
+        np.testing.assert_array_equal(
+            reward_check.run_matching(saved, 1, iteration), history[1, iteration - 1]
+        )
+
+
+def test_one_true_reward_baseline_serves_every_algorithm(saved):
+    """The baseline's cache key holds the env, K, budget and TRPO settings, not the algorithm
+    whose reward is checked: the sweep's EM-GAIL, Info/IntentionGAIL and GAIL cells of an env
+    and K share one baseline."""
+    budget = reward_check.Budget(iterations=400, gamma=0.995)
+    key = reward_check.baseline_key(saved, budget)
+    assert key.startswith("driver-k2-400it-g0.995-")
+    for algo in ("gail", "infogail"):
+        other = dataclasses.replace(saved, config=saved.config.with_values(algo=algo))
+        assert other.config.method.algo == algo
+        assert reward_check.baseline_key(other, budget) == key
+    wider = dataclasses.replace(saved, config=saved.config.with_values(num_envs=3))
+    assert reward_check.baseline_key(wider, budget) != key
+    # The true reward has no absorbing state, whatever the run learned.
+    absorbing = dataclasses.replace(saved, config=saved.config.with_values(absorbing_state=True))
+    assert reward_check.baseline_key(absorbing, budget) == key
+
+
+def test_demonstrations_reward_weights_pairs_by_their_responsibilities(saved):
+    expert = saved.demonstration_pairs
+    gamma = np.asarray(saved.responsibilities(0).gamma)
+    reward = saved.reward(0)
+    earned = reward_check.demonstrations_reward(saved, 0)
+    for i in range(2):
+        if gamma[:, i].sum() == 0:  # no demonstration assigned: nothing to earn on
+            assert np.isnan(earned[i])
+            continue
+        per_pair = np.asarray(reward(expert.observations, expert.actions, i))
+        expected = (gamma[:, i] * per_pair).sum() / gamma[:, i].sum()
+        np.testing.assert_allclose(earned[i], expected, rtol=1e-5)
+
+
+def test_an_ensemble_reward_is_the_mean_of_the_snapshots_rewards(tiny_run, saved):
+    from emgail_jax.host.saved_run import SavedRun
+
+    parameters, iterations = reward_check.ensemble_parameters(saved, [1], 2)
+    assert iterations == [2, 4]
+    ensemble = reward_check.ensemble_reward(saved.reward_function())
+    pairs = saved.demonstration_pairs
+    earlier = SavedRun.open(str(tiny_run), snapshot=2)
+    for i in range(2):
+        every = [r.reward(1)(pairs.observations, pairs.actions, i) for r in (earlier, saved)]
+        assert not np.allclose(every[0], every[1])  # two discriminators
+        mean = ensemble(parameters[0], pairs.observations, pairs.actions, i)
+        np.testing.assert_allclose(mean, np.mean(every, 0), rtol=1e-5)
+    _, last = reward_check.ensemble_parameters(saved, [1], 1)
+    assert last == [4]
+
+
+def test_a_refit_is_saved_once_and_reused(tiny_run, tmp_path, capsys):
+    import shutil
+
+    from emgail_jax.host.run_spec import RunError
+    from emgail_jax.host.saved_run import SavedRun
+
+    copy = tmp_path / "run"
+    shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("rewards"))
+    run = SavedRun.open(str(copy))
+    first, first_losses = reward_check.consolidated(run, [1], Refit(steps=3), "consolidated-3")
+    assert "reused" not in capsys.readouterr().out
+    again, again_losses = reward_check.consolidated(run, [1], Refit(steps=3), "consolidated-3")
+    assert "seed 1: the refitted reward 'consolidated-3' saved before, reused" in (
+        capsys.readouterr().out
+    )
+    for a, b in zip(jax.tree.leaves(first), jax.tree.leaves(again), strict=True):
+        np.testing.assert_array_equal(a, b)
+    loss = lambda losses: losses[0]["after"]["discriminator/loss"]
+    assert loss(again_losses) == pytest.approx(float(loss(first_losses)))
+    with pytest.raises(RunError, match=r"'consolidated-3' .* was refitted otherwise"):
+        reward_check.consolidated(run, [1], Refit(steps=4), "consolidated-3")
+
+
+@pytest.mark.slow  # fresh agents trained twice inside the refit
+def test_a_refit_against_fresh_agents_trains_them_and_records_each_round(tiny_run, tmp_path):
+    import shutil
+
+    from emgail_jax.host import consolidation
+    from emgail_jax.host.run_spec import RunError
+    from emgail_jax.host.saved_run import SavedRun
+
+    copy = tmp_path / "run"
+    shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("rewards"))
+    run = SavedRun.open(str(copy))
+    budget = reward_check.Budget(iterations=2, gamma=0.99)
+    plain = Refit(steps=5, fresh=True, batch=20)
+    (before,), _ = reward_check.consolidated(run, [1], plain, "plain", budget, progress=False)
+    against = dataclasses.replace(plain, agent_rounds=2)
+    (after,), (losses,) = reward_check.consolidated(run, [1], against, "agents", budget, False)
+    rounds = losses["agent_rounds"]
+    assert len(rounds) == 2
+    for one in rounds:
+        assert one["erd"] >= 0 and len(one["returns"]) == 2
+        assert np.asarray(one["learned_reward_per_step"]).shape == (2,)
+    leaves = zip(jax.tree.leaves(before), jax.tree.leaves(after), strict=True)
+    assert not all(np.array_equal(a, b) for a, b in leaves)
+    description = consolidation.read_description(str(copy), "agents")
+    assert description["agents"] == {"reward_form": "gail", "budget": dataclasses.asdict(budget)}
+    with pytest.raises(RunError, match="refitted otherwise"):
+        other = reward_check.Budget(iterations=3, gamma=0.99)
+        reward_check.consolidated(run, [1], against, "agents", other, False)
+
+
+def test_another_rl_seeds_baseline_is_kept_apart_from_the_sweeps(saved):
+    budget = reward_check.default_budget(saved)
+    first = reward_check.baseline_key(saved, budget)
+    assert first.startswith(reward_check.baseline_prefix("driver", 2, budget.iterations))
+    assert reward_check.baseline_key(saved, budget, rl_seed=1) == "rl1-" + first
+
+
+def _draw(rl_seed, earned, erd_per_intention, matching=(1, 0)):
+    """One seed's check as :func:`reward_check.reoptimize` writes it: 3 iterations, 2 true and
+    learned intentions, true intention i acted by learned ``matching[i]``."""
+    per_intention = np.tile(np.asarray(erd_per_intention, float), (3, 1))  # [iterations, K true]
+    seed = {
+        "run_seed": 0,
+        "matching": list(matching),
+        "returns": 100 * (1 - per_intention[-1]),
+        "erd": float(per_intention.mean(-1)[-reward_check.FINAL_WINDOW :].mean()),
+        "erd_per_intention": per_intention[-1],
+        "erd_curve": per_intention.mean(-1),
+        "erd_curve_per_intention": per_intention,
+        "success": [{"intention": f"path{i + 1}", "draw": rl_seed} for i in range(2)],
+        "learned_reward_per_step": {"fresh_policies": earned, "demonstrations": [0.5, 0.4]},
+    }
+    shared = {"iteration": 4, "snapshot": None, "budget": {}, "absorbing_state": False}
+    shared |= {"eval_episodes": 2, "expert_returns": [100, 100], "random_returns": [0, 0]}
+    for q in seed["success"]:
+        q["meets_bar"] = bool(rl_seed)
+    return {
+        **shared,
+        "seeds": [0],
+        "rl_seed": rl_seed,
+        **reward_check.over_seeds([seed]),
+        "compile_time_s": 1.0,
+        "train_time_s": 2.0,
+    }
+
+
+def test_each_intention_keeps_the_draw_that_earns_the_most_learned_reward():
+    """Learned intention 0 earns most in draw 0, learned 1 in draw 1; true intention 0 is acted
+    by learned 1 (draw 1's agent), true 1 by learned 0 (draw 0's): the true ERDs play no part."""
+    draws = [_draw(0, [0.5, -1.0], [0.9, 0.2]), _draw(1, [0.1, 0.2], [0.3, 0.8])]
+    chosen = reward_check.chosen_by_learned_reward(draws)
+    seed = chosen["per_seed"][0]
+    assert seed["draw"] == [1, 0] and chosen["rl_seeds"] == [0, 1]
+    np.testing.assert_allclose(seed["erd_per_intention"], [0.3, 0.2])
+    assert np.isclose(seed["erd"], 0.25) and chosen["erd"] == [seed["erd"]]
+    np.testing.assert_allclose(seed["returns"], [70, 80])
+    assert [q["draw"] for q in seed["success"]] == [1, 0]
+    assert chosen["meets_bar"] == [[True, False]]
+    np.testing.assert_allclose(seed["learned_reward_per_step"]["fresh_policies"], [0.5, 0.2])
+    np.testing.assert_allclose(seed["draws_erd"], [0.55, 0.55])
+    assert chosen["draws"] == draws
+    assert chosen["train_time_s"] == 4.0
+
+
+def test_one_draw_chosen_is_that_draw():
+    draw = _draw(0, [0.3, 0.1], [0.123456789, 0.987654321])
+    chosen = reward_check.chosen_by_learned_reward([draw])
+    assert chosen["erd"] == draw["erd"]  # bit for bit: the same sum in the same order
+    curve = lambda result: result["per_seed"][0]["erd_curve"]
+    np.testing.assert_array_equal(curve(chosen), curve(draw))
+
+
+def test_the_best_baseline_keeps_the_highest_true_return_per_intention():
+    draws = [_draw(r, [0, 0], erd)["per_seed"][0] for r, erd in ((0, [0.1, 0.6]), (1, [0.4, 0.2]))]
+    baselines = [{**d, "cache": f"draw{r}.json"} for r, d in enumerate(draws)]
+    best = reward_check.best_baseline(baselines)
+    assert best["draw"] == [0, 1] and best["meets_bar"] == [False, True]
+    np.testing.assert_allclose(best["erd_per_intention"], [0.1, 0.2])
+    assert best["cache"] == ["draw0.json", "draw1.json"]
