@@ -2,8 +2,9 @@
 
 The closed-loop companion of ``check_mjx_dynamics.py``: every MJX env trades solver iterations
 (and, for the swimmer and the reacher, contacts) for speed, and its experts were trained on
-those fast dynamics. Here each expert is scored twice with ``emgail_jax.experts.quality`` (10
-deterministic episodes per intention, the same start states):
+those fast dynamics. Here each expert is scored twice with
+``emgail_jax.host.expert_bars.quality`` (10 deterministic episodes per intention, the same
+start states):
 
 - ``mjx``: the env as shipped (MJX, float32, the env's solver settings);
 - ``native``: the same env, rewards, termination and observations, but every physics step
@@ -29,7 +30,7 @@ import numpy as np
 
 import envs
 from emgail_jax import experts
-from emgail_jax.host import jax_setup
+from emgail_jax.host import expert_bars, jax_setup
 from envs.mjx_base import mujoco_default_solver
 
 MJX_ENVS = ("swimmer", "hopper", "halfcheetah", "reacher")
@@ -78,7 +79,7 @@ def main() -> int:
     parser.add_argument("--episodes", type=int, default=10)
     args = parser.parse_args()
     jax_setup.setup(host_devices=1)
-    key, _ = experts.evaluation_keys()  # the start states `python -m emgail_jax.experts` scores
+    key, _ = expert_bars.evaluation_keys()  # the start states `python -m emgail_jax.experts` scores
     print(
         f"{'env':12s} {'intention':10s} {'bar':34s} {'':7s} {'return':>9s} {'velocity':>8s} "
         f"{'upright':>7s} {'turn':>6s} {'reached':>7s}  met"
@@ -93,8 +94,8 @@ def main() -> int:
             continue
         reference = use_native_physics(envs.make(name), env.native_model(mujoco_default_solver()))
         scores = {
-            "mjx": experts.quality(env, policy, key, args.episodes),
-            "native": experts.quality(reference, policy, key, args.episodes),
+            "mjx": expert_bars.quality(env, policy, key, args.episodes),
+            "native": expert_bars.quality(reference, policy, key, args.episodes),
         }
         for i, intention in enumerate(env.intention_names):
             for label, rows in scores.items():

@@ -122,12 +122,12 @@ def train_fresh(trainer, keys, reward_data, iterations: int, label: str, progres
 
 
 def success(env, trainer, states, matching) -> list[dict]:
-    """The experts' quality and bars (:func:`emgail_jax.experts.quality`) of the fresh policies
-    ``states [K]``, true intention i acted by learned policy ``matching[i]``."""
+    """The experts' quality and bars (:func:`~emgail_jax.host.expert_bars.quality`) of the
+    fresh policies ``states [K]``, true intention i acted by learned policy ``matching[i]``."""
     import jax
     import jax.numpy as jnp
 
-    from emgail_jax import experts
+    from emgail_jax.host import expert_bars
 
     acting = jnp.asarray(matching)
 
@@ -136,9 +136,9 @@ def success(env, trainer, states, matching) -> list[dict]:
         chosen = acting[intention]
         return jnp.take_along_axis(every, chosen[None, ..., None], axis=0)[0]
 
-    key_quality, _ = experts.evaluation_keys()
+    key_quality, _ = expert_bars.evaluation_keys()
     k_true = len(matching)
-    return experts.quality(env, policy, key_quality, SUCCESS_EPISODES)[:k_true]
+    return expert_bars.quality(env, policy, key_quality, SUCCESS_EPISODES)[:k_true]
 
 
 def _fresh_trainer(run, budget: Budget, reward_fn=None, absorbing_reward=None):

@@ -1,0 +1,85 @@
+"""The experts' bars: what each shipped expert must do (velocity, upright, pitch turn, ball
+reached) over 10 deterministic episodes, and the measures a policy is held to them by. The
+experts are trained to them (:mod:`emgail_jax.experts`) and the reward check's fresh agents
+are scored by them (:mod:`emgail_jax.host.reward_check`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+# The bars of the shipped experts (README, "Experts"): what each must do over 10 deterministic
+# episodes. `velocity` is the mean x-velocity of an episode, `upright` the share of episodes
+# that did not end early (hopper's fall), `turn` the largest pitch change from the start
+# (halfcheetah), `reached` the share of episodes ending within 0.02 of the intended ball.
+BARS: dict[tuple[str, str], tuple[str, object]] = {
+    ("swimmer", "forward"): ("velocity >= 0.25", lambda q: q["velocity"] >= 0.25),
+    ("swimmer", "backward"): ("velocity <= -0.25", lambda q: q["velocity"] <= -0.25),
+    ("hopper", "forward"): (
+        "velocity >= 0.8, upright >= 90 %",
+        lambda q: q["velocity"] >= 0.8 and q["upright"] >= 0.9,
+    ),
+    ("hopper", "backward"): (
+        "velocity <= -0.8, upright >= 90 %",
+        lambda q: q["velocity"] <= -0.8 and q["upright"] >= 0.9,
+    ),
+    ("hopper", "stand"): (
+        "|velocity| < 0.1, upright 100 %",
+        lambda q: abs(q["velocity"]) < 0.1 and q["upright"] == 1.0,
+    ),
+    ("halfcheetah", "forward"): ("velocity >= 2.0", lambda q: q["velocity"] >= 2.0),
+    ("halfcheetah", "backward"): ("velocity <= -1.5", lambda q: q["velocity"] <= -1.5),
+    ("halfcheetah", "flip"): (
+        "turn >= pi, |velocity| < 0.5",
+        lambda q: q["turn"] >= np.pi and abs(q["velocity"]) < 0.5,
+    ),
+}
+for _ball in range(4):
+    BARS[("reacher", f"ball{_ball + 1}")] = ("reached >= 90 %", lambda q: q["reached"] >= 0.9)
+
+
+def evaluation_keys():
+    """``(key_quality, key_demos)``: fixed, so that scores and demos depend on the experts
+    only, not on the seed they were trained with."""
+    import jax
+
+    key_quality, key_demos = jax.random.split(jax.random.PRNGKey(0))
+    return key_quality, key_demos
+
+
+def quality(env, policy, key, episodes: int = 10) -> list[dict]:
+    """Per intention: mean own return, x-velocity, upright share, pitch turn, reached share, and
+    whether the bar is met, over ``episodes`` deterministic episodes of ``policy``."""
+    import jax
+    import jax.numpy as jnp
+
+    import envs
+    from emgail_jax.method.rollout import episodes as run_episodes
+
+    k = env.num_intentions
+    rows = jnp.broadcast_to(jnp.arange(k)[:, None], (k, episodes))
+    act = lambda state, _: policy(state.obs, rows)
+    limited = envs.EpisodeWrapper(env)
+    returns, alive, trace = jax.device_get(
+        jax.jit(lambda key: run_episodes(limited, act, key, k, episodes, traces=True))(key)
+    )  # [K, E, K], [T, K, E], {name: [T, K, E]}
+    steps = alive.sum(0).astype(int)  # [K, E]
+    last = lambda values: np.take_along_axis(values, steps[None] - 1, 0)[0]  # [K, E]
+    results = []
+    for i, name in enumerate(env.intention_names[:k]):
+        q = {"intention": name, "return": float(returns[i, :, i].mean())}
+        q["upright"] = float(np.mean(steps[i] == env.episode_length))
+        if "x" in trace and hasattr(env, "dt"):  # the driver has no time step
+            duration = np.maximum(steps[i] - 1, 1) * env.dt
+            q["velocity"] = float(np.mean((last(trace["x"])[i] - trace["x"][0, i]) / duration))
+        if "pitch" in trace:
+            turn = np.abs(trace["pitch"][:, i] - trace["pitch"][0, i]) * alive[:, i]
+            q["turn"] = float(np.mean(turn.max(0)))
+        ball = f"distance to ball {i + 1}"
+        if ball in trace:
+            q["final_distance"] = float(np.mean(last(trace[ball])[i]))
+            q["reached"] = float(np.mean(last(trace[ball])[i] < 0.02))
+        bar = BARS.get((env.name, name))
+        q["bar"] = bar[0] if bar else None
+        q["meets_bar"] = bool(bar[1](q)) if bar else None
+        results.append(q)
+    return results
