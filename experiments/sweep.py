@@ -49,7 +49,7 @@ import numpy as np
 from emgail_jax.host.final_results import FinalResults
 from emgail_jax.host.reward_check import BUDGETS, baseline_prefix
 from emgail_jax.host.run_spec import RunError, read_summary
-from emgail_jax.reoptimize import REFIT_BY_ENV
+from emgail_jax.reoptimize import parse_args as reoptimize_args
 
 ROBOTICS_INTENTIONS = {
     "swimmer": (2,),
@@ -525,11 +525,11 @@ def checks_to_do(run_dir: str, seeds: int) -> list[RewardCheck]:
 
 
 def check_iterations(env: str, iterations: int, check: RewardCheck = PAPER_CHECK) -> int:
-    """The fresh policies' TRPO iterations in ``check``: the run's, unless the env's experts
-    needed more or the env's refit recipe gives more."""
-    refit_recipe = REFIT_BY_ENV.get(env, {}) if "--refit" in check.options else {}
-    default = BUDGETS[env].iterations if env in BUDGETS else iterations
-    return refit_recipe.get("iterations", default)
+    """The fresh policies' TRPO iterations in ``check`` as ``reoptimize`` resolves its options
+    (``--refit``'s recipe for the env included): the run's, unless the env's experts needed
+    more or the options give another."""
+    given = reoptimize_args(["RUN", *check.options], env).iterations
+    return given or (BUDGETS[env].iterations if env in BUDGETS else iterations)
 
 
 def baseline_cached(out: str, env: str, intentions: int, check_iterations: int) -> bool:
