@@ -167,6 +167,21 @@ def test_write_json_is_atomic_and_replaces_the_file(tmp_path):
     assert path.read_text().endswith("}\n")
 
 
+def test_write_json_keeps_a_list_of_numbers_on_one_line_and_reads_back_exactly(tmp_path):
+    path = tmp_path / "check.json"
+    curve = np.linspace(0.0, 1.0, 7) ** 3  # [iterations] float64, 17 digits
+    data = {"erd_curve": curve, "per_seed": [{"curve": curve[:, None] * [1, 2]}], "empty": {}}
+    records.write_json(str(path), data)
+    lines = path.read_text().splitlines()
+    assert lines[1] == f'  "erd_curve": {json.dumps(curve.tolist())},'
+    assert sum(line.strip().startswith("[0.0, 0.0]") for line in lines) == 1  # one row a line
+    assert _strict_load(path) == {
+        "erd_curve": curve.tolist(),
+        "per_seed": [{"curve": (curve[:, None] * [1, 2]).tolist()}],
+        "empty": {},
+    }
+
+
 def test_write_json_failure_keeps_the_previous_file(tmp_path):
     path = tmp_path / "summary.json"
     records.write_json(str(path), {"status": "running"})

@@ -251,8 +251,23 @@ def write_json(path: str, data: dict) -> None:
     """Writes ``data`` atomically: a reader never sees a half-written file. Each writer has its
     own temporary file, so that processes writing one path at once (the sweep's cells sharing a
     true-reward baseline's cache) do not rename each other's away."""
+    text = json_text(to_json_value(data))
     tmp = f"{path}.{platform.node()}-{os.getpid()}.tmp"
     with open(tmp, "w") as f:
-        json.dump(to_json_value(data), f, indent=2)
-        f.write("\n")
+        f.write(text + "\n")
     os.replace(tmp, path)
+
+
+def json_text(value: Any, depth: int = 0) -> str:
+    """Strict JSON of plain values, indented like ``indent=2`` except that a list of scalars
+    stays on one line: a check's learning curves take a line each, not one per number."""
+    pad, inner = "  " * depth, "  " * (depth + 1)
+    if isinstance(value, dict) and value:
+        items = [
+            f"{inner}{json.dumps(str(k))}: {json_text(v, depth + 1)}" for k, v in value.items()
+        ]
+        return "{\n" + ",\n".join(items) + f"\n{pad}}}"
+    if isinstance(value, list) and any(isinstance(v, (dict, list)) for v in value):
+        items = [inner + json_text(v, depth + 1) for v in value]
+        return "[\n" + ",\n".join(items) + f"\n{pad}]"
+    return json.dumps(value, allow_nan=False)
