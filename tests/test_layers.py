@@ -1,6 +1,7 @@
 """The package's layers: commands (emgail_jax/*.py) over the host side (emgail_jax/host) over
 the method (emgail_jax/method) over the envs; every import points down (README, "Where each
-part of the paper lives"). Read from the source, so nothing is imported."""
+part of the paper lives"), and no module reaches itself through its imports. Read from the
+source, so nothing is imported."""
 
 import ast
 import pathlib
@@ -50,6 +51,44 @@ def test_imports_point_down_the_layers(layer):
             if not below or name in COMMANDS:
                 upward.append(f"{path.relative_to(ROOT)} imports {name}")
     assert not upward, "\n".join(upward)
+
+
+def import_circles(root: pathlib.Path, packages=("emgail_jax", "envs")) -> list[str]:
+    """Every project module under ``root`` that reaches itself through its imports."""
+    modules = {}
+    for package in packages:
+        for path in (root / package).rglob("*.py"):
+            parts = path.relative_to(root).with_suffix("").parts
+            modules[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    graph = {
+        name: {n for n in project_imports(path) if n in modules and n != name}
+        for name, path in modules.items()
+    }
+    circles = []
+    for name in sorted(modules):
+        seen, stack = set(), list(graph[name])
+        while stack:
+            module = stack.pop()
+            if module not in seen:
+                seen.add(module)
+                stack.extend(graph[module])
+        if name in seen:
+            circles.append(name)
+    return circles
+
+
+def test_no_module_imports_itself_through_others():
+    assert not import_circles(ROOT), "modules in an import circle: " + ", ".join(
+        import_circles(ROOT)
+    )
+
+
+def test_the_checker_sees_an_import_circle(tmp_path):
+    (tmp_path / "envs").mkdir()
+    (tmp_path / "envs" / "a.py").write_text("import envs.b\n")
+    (tmp_path / "envs" / "b.py").write_text("def f():\n    from envs.a import g\n")
+    (tmp_path / "envs" / "c.py").write_text("import envs.a\n")
+    assert import_circles(tmp_path, ("envs",)) == ["envs.a", "envs.b"]
 
 
 def test_the_checker_sees_an_upward_import(tmp_path):

@@ -44,13 +44,16 @@ def imitation_reward(logit: jax.Array, form: RewardForm | str = RewardForm.GAIL)
 class Algorithm:
     name: AlgorithmName
     conditional_policy: bool
-    learns_posterior: bool
     conditional_discriminator: bool
     info_reward: bool = False  # the reward adds lambda log P(i | s, a) (eq. 23)
     # lambda of eq. 23: a float, or a traced scalar when the program takes it as an argument
     # (runs that differ only in lambda then share one compiled program).
     info_weight: float | jax.Array = 0.0
     reward_form: RewardForm = RewardForm.GAIL
+
+    @property
+    def learns_posterior(self) -> bool:
+        return self.name.learns_posterior
 
     def policy_condition(self, intentions: jax.Array, num_intentions: int) -> jax.Array:
         """``[..., K]`` one-hot of ``intentions [...]``; ``[..., 0]`` if unconditioned."""
@@ -90,20 +93,17 @@ ALGORITHMS = {
     AlgorithmName.EMGAIL: Algorithm(
         AlgorithmName.EMGAIL,
         conditional_policy=True,
-        learns_posterior=True,
         conditional_discriminator=True,
     ),
     AlgorithmName.INFOGAIL: Algorithm(
         AlgorithmName.INFOGAIL,
         conditional_policy=True,
-        learns_posterior=True,
         conditional_discriminator=False,
         info_reward=True,
     ),
     AlgorithmName.GAIL: Algorithm(
         AlgorithmName.GAIL,
         conditional_policy=False,
-        learns_posterior=False,
         conditional_discriminator=False,
     ),
 }

@@ -29,18 +29,10 @@ class AlgorithmName(enum.StrEnum):
     GAIL = "gail"
 
     @property
-    def algorithm(self):
-        """Its choices, the paper's table (:data:`emgail_jax.method.algorithms.ALGORITHMS`;
-        Info/IntentionGAIL's lambda unset: see ``make_algorithm``)."""
-        # Imported here: the table's functions need JAX, and this module must not import it
-        # (a command refused at its options ends before JAX starts).
-        from emgail_jax.method.algorithms import ALGORITHMS
-
-        return ALGORITHMS[self]
-
-    @property
     def learns_posterior(self) -> bool:
-        return self.algorithm.learns_posterior
+        """Whether it trains P(i | s, a) (EM-GAIL's E-step, Info/IntentionGAIL's eq. 21). Its
+        other choices, which need JAX: :data:`emgail_jax.method.algorithms.ALGORITHMS`."""
+        return self is not AlgorithmName.GAIL
 
 
 class RewardForm(enum.StrEnum):
