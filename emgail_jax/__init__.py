@@ -13,7 +13,7 @@ add_xla_flags(*XLA_WORKAROUNDS)
 def __getattr__(name: str):
     # Imported on first use, so that `import emgail_jax` stays light and sets the XLA flags
     # above before anything imports JAX.
-    if name in ("load_policy", "load_reward", "SavedRun"):
+    if name in ("load_policy", "load_reward", "load_absorbing_reward", "SavedRun"):
         from emgail_jax.host import saved_run
 
         return getattr(saved_run, name)

@@ -2,8 +2,8 @@
 
     python -m emgail_jax.reoptimize RUN_DIR [--seed S] [--rl-seed R] [--draws N] [--snapshot ITER]
         [--ensemble N | --across-seeds | --consolidate STEPS [--consolidate-*]]
-        [--reward-form FORM] [--iterations N] [--gamma G] [--no-baseline]
-        [--cache DIR] [--env-set KEY=FACTOR ...] [--out PATH]
+        [--reward-form FORM] [--absorbing-reward learned|random] [--iterations N] [--gamma G]
+        [--no-baseline] [--cache DIR] [--env-set KEY=FACTOR ...] [--out PATH]
 
 For every run seed (or ``--seed S`` alone) and every learned intention, a new policy is trained
 from scratch with TRPO on the frozen pseudo-reward R_i(s, a) of that seed (the run's final
@@ -39,6 +39,9 @@ A run trained with absorbing states (``--set absorbing_state=true``) is checked 
 a fresh policy's termination is worth the learned reward of the absorbing state for every step
 left, as in the run's own B-step; the true-reward baseline has no absorbing state. So is a
 reward refitted with absorbing states (``--consolidate-absorbing``), whatever the run trained.
+``--absorbing-reward random`` pays a termination, in place of that learned value, what
+uniformly random actions earn per step under the reward being checked, seed by seed and
+intention by intention (:func:`~emgail_jax.host.consolidation.random_actions_reward`).
 
 Beside the learned reward, the **true-reward baseline**: the same TRPO, settings and budget on
 the env's true rewards, the floor any learned reward is judged against (computed once per env,
@@ -139,6 +142,17 @@ def print_result(run, result: dict) -> None:
             f"seed {seed_result['run_seed']}: best of {len(result['draws'])} draws by the "
             f"learned reward (each draw's ERD {draws_erd}), true intentions acted by draws "
             + " ".join(str(result["rl_seeds"][d]) for d in seed_result["draw"])
+        )
+    for seed_number, price in zip(
+        result["seeds"], result.get("absorbing_price") or [], strict=False
+    ):
+        console.print(
+            f"seed {seed_number}: a fall paid per step left "
+            + ", ".join(
+                f"{two(r)} (learned {two(a)})"
+                for r, a in zip(price["random_actions"], price["learned"], strict=True)
+            )
+            + ", what random actions earn"
         )
     for seed_result in result["per_seed"]:
         earned = seed_result["learned_reward_per_step"]
@@ -284,6 +298,15 @@ def argument_parser() -> argparse.ArgumentParser:
         "has it, --no-consolidate-absorbing drops it)",
     )
     parser.add_argument(
+        "--absorbing-reward",
+        default=None,
+        choices=ABSORBING_REWARDS,
+        help="what a fresh agent's fall is paid for every step left, with a reward that has an "
+        "absorbing state: its learned reward (learned), or what uniformly random actions earn "
+        "per step under the learned reward (random: a fall costs acting at random for the rest "
+        "of the episode); default learned, on hopper --refit random",
+    )
+    parser.add_argument(
         "--ensemble",
         type=int,
         default=0,
@@ -328,6 +351,9 @@ def parse_args(argv=None, env: str | None = None) -> argparse.Namespace:
     """The command line with ``--refit``'s recipe for ``env`` filled in
     (:func:`with_refit_recipe`)."""
     return with_refit_recipe(argument_parser().parse_args(argv), env)
+
+
+ABSORBING_REWARDS = ("learned", "random")
 
 
 # `--refit`: experiment 35's refit of docs/rewards-that-reoptimise.md, from new weights against
@@ -375,7 +401,7 @@ def with_refit_recipe(args: argparse.Namespace, env: str | None = None) -> argpa
     for option, off in unset.items():
         if getattr(args, option) is None:
             setattr(args, option, recipe.get(option, off))
-    for option in ("reward_form", "iterations"):
+    for option in ("reward_form", "iterations", "absorbing_reward"):
         if getattr(args, option) is None:
             setattr(args, option, recipe.get(option))
     args.consolidate_fresh = args.consolidate_fresh or args.refit
@@ -439,6 +465,11 @@ def _check_options(args: argparse.Namespace) -> None:
         raise RunError(
             "--across-seeds averages the run's own rewards: not with --ensemble or --consolidate"
         )
+    if args.absorbing_reward == "random" and (args.ensemble or args.across_seeds):
+        raise RunError(
+            "--absorbing-reward random prices one seed's reward: not with --ensemble or "
+            "--across-seeds"
+        )
     if args.reference_draws < 1:
         raise RunError("--reference-draws must be at least 1")
     if args.env_set and not args.baseline:
@@ -481,7 +512,14 @@ def _opened(args: argparse.Namespace):
     args = argparse.Namespace(**{**vars(args), "reward_form": form})
     if args.reward_form is not None:
         run = run.with_reward_form(args.reward_form)
-    chosen = Chosen(details={"consolidation": None, "ensemble": None, "across_seeds": None})
+    chosen = Chosen(
+        details={
+            "consolidation": None,
+            "ensemble": None,
+            "across_seeds": None,
+            "absorbing_price": None,
+        }
+    )
     if args.consolidate:
         name, refit = "-".join(refit_parts(args)), refit_of(args)
         if refit.absorbing:
@@ -512,7 +550,36 @@ def _opened(args: argparse.Namespace):
             chosen.absorbing = across_seeds_reward(run.absorbing_reward_function())
         # [seed][t][i]: seed t's intention averaged into intention i of each checked seed
         chosen.details["across_seeds"] = [p["intentions"] for p in chosen.parameters]
+    if args.absorbing_reward == "random":
+        priced_at_random_actions(run, seeds, chosen)
     return args, run, seeds, chosen
+
+
+def priced_at_random_actions(run, seeds: list[int], chosen: Chosen) -> None:
+    """``chosen`` with its absorbing state paid, seed by seed, what uniformly random actions
+    earn per step under its reward (``--absorbing-reward random``)."""
+    import jax.numpy as jnp
+    import numpy as np
+
+    from emgail_jax.host import consolidation
+    from emgail_jax.host.run_spec import RunError
+
+    learned_absorbing = chosen.absorbing or run.absorbing_reward_function()
+    if learned_absorbing is None:
+        raise RunError(
+            "--absorbing-reward prices an absorbing state, and this reward has none: refit it "
+            "with --consolidate-absorbing, or check a run trained with absorbing_state"
+        )
+    function = chosen.function or run.reward_function()
+    parameters = chosen.parameters or [run.reward_parameters(seed) for seed in seeds]
+    intentions = jnp.arange(run.num_intentions)
+    chosen.parameters, chosen.details["absorbing_price"] = [], []
+    for seed_parameters in parameters:
+        price = consolidation.random_actions_reward(run, seed_parameters, function)
+        chosen.parameters.append({**seed_parameters, "absorbing_price": price})
+        learned = np.asarray(learned_absorbing(seed_parameters, intentions))
+        chosen.details["absorbing_price"].append({"learned": learned, "random_actions": price})
+    chosen.absorbing = consolidation.priced_absorbing_reward
 
 
 def main(argv=None) -> int:
@@ -645,6 +712,8 @@ def reward_parts(args) -> list[str]:
         parts.append("across-seeds")
     if args.reward_form:
         parts.append(args.reward_form)
+    if args.absorbing_reward == "random":
+        parts.append("absorbing-random")
     return parts
 
 

@@ -4,6 +4,7 @@ import dataclasses
 import shutil
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -341,6 +342,30 @@ def test_an_absorbing_refit_learns_the_falls_absorbing_state_as_fake(saved):
     assert metrics["after"]["discriminator/absorbing_d"] < 0.25
 
 
+def test_random_actions_reward_is_the_mean_a_fixed_draw_of_random_actions_earns(saved):
+    parameters, reward = saved.reward_parameters(0), saved.reward_function()
+    price = consolidation.random_actions_reward(saved, parameters, reward)
+    assert price.shape == (2,)
+    np.testing.assert_array_equal(
+        price, consolidation.random_actions_reward(saved, parameters, reward)
+    )
+    key = jax.random.key(consolidation.ABSORBING_PRICE_KEY)
+    obs, actions, _ = consolidation.random_action_samples(saved, key)
+    for intention in range(2):
+        paid = reward(parameters, obs[intention], actions[intention], intention)
+        assert price[intention] == pytest.approx(float(np.mean(paid)), rel=1e-6)
+    # Another seed's reward prices it otherwise.
+    other = consolidation.random_actions_reward(saved, saved.reward_parameters(1), reward)
+    assert not np.array_equal(price, other)
+    # The price a check's parameters carry is the absorbing reward, jitted or not.
+    carried = {**parameters, "absorbing_price": price}
+    for absorbing in (
+        consolidation.priced_absorbing_reward,
+        jax.jit(consolidation.priced_absorbing_reward),
+    ):
+        assert float(absorbing(carried, 1)) == price[1]
+
+
 def test_an_absorbing_refit_needs_the_network_and_fresh_weights(saved):
     key = jax.random.PRNGKey(0)
     with pytest.raises(ValueError, match="with_absorbing_states"):
@@ -375,6 +400,23 @@ def test_a_saved_absorbing_refit_is_read_with_its_absorbing_state(copied_run):
     expected = absorbing_run.reward_function()(parameters, obs, actions, 0)
     reward = emgail_jax.load_reward(str(copied_run), seed=0, refit="falls")
     np.testing.assert_allclose(reward(obs, actions, 0), expected, rtol=1e-6, atol=1e-6)
+    # What a fall is worth under it: the absorbing state's learned reward, or what random
+    # actions earn per step under the same reward, jitted or not.
+    fall = emgail_jax.load_absorbing_reward(str(copied_run), seed=0, refit="falls")
+    learned = absorbing_run.absorbing_reward_function()(parameters, jnp.arange(2))
+    for paid in (fall, jax.jit(fall)):
+        np.testing.assert_allclose(paid(jnp.arange(2)), learned, rtol=1e-6)
+    random = emgail_jax.load_absorbing_reward(
+        str(copied_run), seed=0, refit="falls", price="random"
+    )
+    price = consolidation.random_actions_reward(
+        absorbing_run, parameters, absorbing_run.reward_function()
+    )
+    np.testing.assert_allclose(random(jnp.arange(2)), price, rtol=1e-6)
+    with pytest.raises(ValueError, match="unknown absorbing price 'zero': learned or random"):
+        emgail_jax.load_absorbing_reward(str(copied_run), seed=0, refit="falls", price="zero")
+    # The run's own reward, trained without absorbing states, has none.
+    assert emgail_jax.load_absorbing_reward(str(copied_run), seed=0) is None
     # A refit without absorbing states still reads the run's own network.
     plain = consolidation.Refit(steps=5, fresh=True)
     plain_parameters, _ = consolidation.consolidated_parameters(

@@ -144,6 +144,13 @@ def test_to_json_value_maps_nan_to_null_and_numpy_to_plain_types():
     json.dumps(value, allow_nan=False)
 
 
+def test_to_json_value_converts_jax_arrays():
+    import jax.numpy as jnp
+
+    value = records.to_json_value({"price": jnp.array([-1.5, jnp.nan]), "one": jnp.int32(3)})
+    assert value == {"price": [-1.5, None], "one": 3} and type(value["one"]) is int
+
+
 def test_to_json_value_converts_numpy_booleans():
     value = records.to_json_value({"flag": np.bool_(True), "flags": np.array([True, False])})
     assert value == {"flag": True, "flags": [True, False]}

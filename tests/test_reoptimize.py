@@ -188,6 +188,11 @@ def test_a_snapshot_is_reoptimised_on_its_own_networks(tiny_run, reoptimized):
         (["--env-set", "gravity=2", "--no-baseline"], "drop --no-baseline"),
         (["--reference-draws", "0"], "--reference-draws must be at least 1"),
         (["--draws", "0"], "--draws must be at least 1"),
+        (["--absorbing-reward", "random"], "--absorbing-reward prices an absorbing state, and"),
+        (
+            ["--absorbing-reward", "random", "--ensemble", "2"],
+            "--absorbing-reward random prices one seed's reward: not with --ensemble",
+        ),
     ],
 )
 def test_bad_input_gives_one_line_and_exit_code_2(tiny_run, capsys, extra, message):
@@ -483,6 +488,52 @@ def test_an_absorbing_refit_is_named_so_and_prices_the_fresh_agents_falls(tiny_r
     ).shape == (5,)
     plain = reoptimize.parse_args([str(copy), "--consolidate", "3", "--consolidate-fresh"])
     assert reoptimize._opened(plain)[1].absorbing_reward_function() is None
+
+
+def test_absorbing_reward_random_pays_a_fall_what_random_actions_earn(tiny_run, tmp_path, capsys):
+    import shutil
+
+    import jax.numpy as jnp
+
+    from emgail_jax.host import consolidation
+
+    copy = tmp_path / "run"
+    shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("rewards"))
+    refit = ["--consolidate", "3", "--consolidate-fresh", "--consolidate-absorbing"]
+    args = reoptimize.parse_args([str(copy), *refit, "--absorbing-reward", "random"])
+    assert reoptimize.reward_parts(args)[-1] == "absorbing-random"
+    _, run, seeds, chosen = reoptimize._opened(args)
+    _, _, _, learned = reoptimize._opened(reoptimize.parse_args([str(copy), *refit]))
+    reward = run.reward_function()
+    for seed in seeds:
+        priced, own = chosen.parameters[seed], learned.parameters[seed]
+        # The same refit (read back from disk), its absorbing state priced anew.
+        assert same_tree(priced["discriminator"], own["discriminator"])
+        expected = consolidation.random_actions_reward(run, own, reward)
+        np.testing.assert_array_equal(priced["absorbing_price"], expected)
+        for intention in range(2):
+            assert float(chosen.absorbing(priced, jnp.int32(intention))) == expected[intention]
+        details = chosen.details["absorbing_price"][seed]
+        np.testing.assert_array_equal(details["random_actions"], expected)
+        learned_value = run.absorbing_reward_function()(own, jnp.arange(2))
+        np.testing.assert_allclose(details["learned"], learned_value)
+        assert not np.allclose(expected, learned_value)
+    # The whole command: the check records both prices and says what a fall was paid.
+    command = [str(copy), *refit, "--absorbing-reward", "random", "--iterations", "2"]
+    assert reoptimize.main([*command, "--seed", "1", "--no-baseline"]) == 0
+    name = "reoptimize-seed-1-it-2-consolidated-3-fresh-absorbing-absorbing-random.json"
+    result = json.loads((copy / name).read_text())
+    assert result["absorbing_price"][0]["random_actions"] == pytest.approx(
+        chosen.details["absorbing_price"][1]["random_actions"].tolist()
+    )
+    assert "seed 1: a fall paid per step left" in capsys.readouterr().out
+
+
+def same_tree(a, b) -> bool:
+    import jax
+
+    leaves = zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True)
+    return all(np.array_equal(x, y) for x, y in leaves)
 
 
 @pytest.mark.slow  # three re-optimisations (the plain one runs always)

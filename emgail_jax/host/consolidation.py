@@ -172,6 +172,28 @@ def random_action_samples(run, key: jax.Array):
     return fixed_policy_samples(run, uniform_random_policy(run.problem.env), key)
 
 
+# One fixed draw, so that a reward's absorbing price is the same wherever it is read.
+ABSORBING_PRICE_KEY = 20260
+
+
+def random_actions_reward(run, parameters: dict, reward_function) -> np.ndarray:
+    """``[K]``: the reward ``reward_function(parameters, obs, action, intention)`` pays per
+    step, intention by intention, to uniformly random actions over one training rollout (a
+    fixed draw): the price of the absorbing state under ``--absorbing-reward random``. A fall
+    then costs what acting at random for the rest of the episode would earn, rather than the
+    absorbing state's own learned reward, which the refit drives as low as its penalty lets
+    it, no demonstration ever reaching that state."""
+    obs, actions, _ = random_action_samples(run, jax.random.key(ABSORBING_PRICE_KEY))
+    rows = lambda i: jnp.full(obs.shape[1], i)
+    paid = [reward_function(parameters, obs[i], actions[i], rows(i)) for i in range(len(obs))]
+    return np.array([float(jnp.mean(p)) for p in paid])
+
+
+def priced_absorbing_reward(parameters: dict, intention: jax.Array) -> jax.Array:
+    """The absorbing reward of parameters that carry their ``absorbing_price [K]``."""
+    return jnp.take(parameters["absorbing_price"], intention)
+
+
 def still_action_samples(run, key: jax.Array):
     """:func:`fixed_policy_samples` of actions held at the middle of the box."""
     return fixed_policy_samples(run, still_policy(run.problem.env), key)

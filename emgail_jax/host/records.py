@@ -236,8 +236,8 @@ def to_json_value(value: Any) -> Any:
         return {k: to_json_value(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
         return [to_json_value(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return to_json_value(value.tolist())
+    if isinstance(value, np.ndarray) or hasattr(value, "__array__"):  # a JAX array too
+        return to_json_value(np.asarray(value).tolist())
     if isinstance(value, (np.floating, float)):
         return float(value) if math.isfinite(float(value)) else None
     if isinstance(value, np.integer):

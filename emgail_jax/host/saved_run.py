@@ -284,6 +284,33 @@ class SavedRun:
             reward = self.reward_function()
         return lambda obs, action, intention: reward(parameters, obs, action, intention)
 
+    def absorbing_reward(
+        self, seed: int = 0, refit: str | None = None, price: str = "learned"
+    ) -> Callable[[jax.Array], jax.Array] | None:
+        """What :meth:`reward` (of ``seed`` and ``refit``) pays a termination for every step
+        left to the time limit, as the fresh agents of ``reoptimize`` are paid it:
+        ``R_abs(intention [...]) -> [...]``, the absorbing state's learned reward, or with
+        ``price="random"`` what uniformly random actions earn per step under that reward
+        (``reoptimize --absorbing-reward random``); None for a reward without an absorbing
+        state, whose episodes simply end."""
+        run = self.for_refit(refit) if refit is not None else self
+        learned = run.absorbing_reward_function()
+        if learned is None:
+            return None
+        if refit is None:
+            parameters, reward = run.reward_parameters(seed), run.reward_function()
+        else:
+            parameters = run.refitted_parameters(refit, seed)
+            reward = run.reward_function(run.refit_is_state_only(refit))
+        if price == "learned":
+            return lambda intention: learned(parameters, intention)
+        if price != "random":
+            raise ValueError(f"unknown absorbing price '{price}': learned or random")
+        from emgail_jax.host import consolidation
+
+        paid = jnp.asarray(consolidation.random_actions_reward(run, parameters, reward))
+        return lambda intention: jnp.take(paid, intention)
+
     def reward_parameters(self, seed: int = 0) -> dict:
         """What :meth:`reward_function` reads of ``seed``: its discriminator's and posterior's
         parameters and its observation statistics."""
@@ -457,16 +484,37 @@ def load_reward(
     ``refit``, the refitted reward of that name that ``reoptimize --consolidate`` saved under
     ``RUN/rewards/`` (``emgail_jax.host.consolidation.saved_refits`` lists them);
     ``reward_form`` reads the discriminator as another of ``REWARD_FORMS`` than the run's
-    (``log-d``: below 0 wherever D < 1, as ``reoptimize --reward-form log-d``)."""
+    (``log-d``: below 0 wherever D < 1, as ``reoptimize --reward-form log-d``). Where
+    episodes end early, what a fall is worth: :func:`load_absorbing_reward`."""
+    run = _opened_for(run_dir, refit, reward_form)
+    return run.reward(run.seed_index(seed), across_seeds, refit)
+
+
+def load_absorbing_reward(
+    run_dir: str,
+    seed: int | None = None,
+    refit: str | None = None,
+    reward_form: str | None = None,
+    price: str = "learned",
+):
+    """What a fall is worth under the reward :func:`load_reward` gives for the same arguments:
+    jittable ``R_abs(intention) -> reward``, paid for every step left to the time limit
+    when an episode ends early (:meth:`SavedRun.absorbing_reward`); None when that reward has
+    no absorbing state. An agent trained on the reward alone, its falls worth nothing, is not
+    trained on what ``reoptimize`` checked."""
+    run = _opened_for(run_dir, refit, reward_form)
+    return run.absorbing_reward(run.seed_index(seed), refit, price)
+
+
+def _opened_for(run_dir: str, refit: str | None, reward_form: str | None) -> SavedRun:
+    """The run as its reward (``refit``, read as ``reward_form``) is read."""
     snapshot = None
     if refit is not None:
         from emgail_jax.host.consolidation import read_description
 
         snapshot = read_description(run_dir, refit)["snapshot"]
     run = SavedRun.open(run_dir, snapshot=snapshot)
-    if reward_form is not None:
-        run = run.with_reward_form(reward_form)
-    return run.reward(run.seed_index(seed), across_seeds, refit)
+    return run if reward_form is None else run.with_reward_form(reward_form)
 
 
 def stacked(trees: list):
