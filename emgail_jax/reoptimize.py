@@ -215,7 +215,8 @@ def argument_parser() -> argparse.ArgumentParser:
         f"--consolidate-batch {REFIT['consolidate_batch']}, read as log D unless the env's "
         "episodes end early (without --consolidate-absorbing); on hopper also "
         f"{refit_extras('hopper')}, on halfcheetah {refit_extras('halfcheetah')}; a "
-        "--consolidate-*, --reward-form or --iterations given with it replaces that one",
+        "--consolidate-*, --reward-form, --absorbing-reward or --iterations given with it "
+        "replaces that one",
     )
     parser.add_argument(
         "--consolidate",
@@ -368,10 +369,16 @@ REFIT = {
 
 # What `--refit` adds on the locomotion envs where the plain refit's agents stay near random
 # actions: the snapshots ranked by iteration, read as the logit, and hopper's falls priced by an
-# absorbing state (experiments 43, 61, 63 and 64); halfcheetah's agents are still closing on the
-# experts' speed at 400 TRPO iterations and reach them by 1000 (experiment 64).
+# absorbing state at what random actions earn, not at its learned reward, whose price for a
+# fall kept agents standing (experiments 43, 61, 63, 64 and 70); halfcheetah's agents are still
+# closing on the experts' speed at 400 TRPO iterations and reach them by 1000 (experiment 64).
 REFIT_BY_ENV: dict[str, dict] = {
-    "hopper": {"consolidate_ranking": 10.0, "consolidate_absorbing": True, "reward_form": "logit"},
+    "hopper": {
+        "consolidate_ranking": 10.0,
+        "consolidate_absorbing": True,
+        "reward_form": "logit",
+        "absorbing_reward": "random",
+    },
     "halfcheetah": {"consolidate_ranking": 30.0, "reward_form": "logit", "iterations": 1000},
 }
 
@@ -401,6 +408,8 @@ def with_refit_recipe(args: argparse.Namespace, env: str | None = None) -> argpa
     for option, off in unset.items():
         if getattr(args, option) is None:
             setattr(args, option, recipe.get(option, off))
+    if not args.consolidate_absorbing:  # the recipe prices no absorbing state it was told to drop
+        recipe.pop("absorbing_reward", None)
     for option in ("reward_form", "iterations", "absorbing_reward"):
         if getattr(args, option) is None:
             setattr(args, option, recipe.get(option))

@@ -371,9 +371,10 @@ def test_refit_adds_the_envs_own_recipe_and_any_option_given_replaces_its_part()
     assert reoptimize.refit_of(hopper) == dataclasses.replace(
         reoptimize.refit_of(driver), ranking=10, absorbing=True
     )
-    assert hopper.reward_form == "logit"
+    assert hopper.reward_form == "logit" and hopper.absorbing_reward == "random"
     # Named as the spelled-out command, so the refit it saves is the one that command reads.
     spelled = ["--consolidate-ranking", "10", "--consolidate-absorbing", "--reward-form", "logit"]
+    spelled += ["--absorbing-reward", "random"]
     assert reoptimize.default_name(hopper) == reoptimize.default_name(
         reoptimize.parse_args(["RUN", "--refit", *spelled])
     )
@@ -387,12 +388,19 @@ def test_refit_adds_the_envs_own_recipe_and_any_option_given_replaces_its_part()
     options = ["--consolidate-ranking", "0", "--no-consolidate-absorbing", "--reward-form", "log-d"]
     plain = reoptimize.parse_args(["RUN", "--refit", *options], env="hopper")
     assert reoptimize.refit_of(plain) == reoptimize.refit_of(driver)
-    assert plain.reward_form == "log-d"
+    assert plain.reward_form == "log-d" and plain.absorbing_reward is None
+    learned = reoptimize.parse_args(["RUN", "--refit", "--absorbing-reward", "learned"], "hopper")
+    assert learned.absorbing_reward == "learned" and "absorbing-random" not in (
+        reoptimize.reward_parts(learned)
+    )
+    assert reoptimize.refit_of(learned) == reoptimize.refit_of(hopper)
     # Without --refit the env adds nothing.
     assert reoptimize.refit_of(reoptimize.parse_args(["RUN"], env="hopper")) == Refit(0)
     assert reoptimize.parse_args(["RUN"], env="hopper").reward_form is None
+    assert reoptimize.parse_args(["RUN"], env="hopper").absorbing_reward is None
     assert reoptimize.refit_extras("hopper") == (
-        "--consolidate-ranking 10 --consolidate-absorbing --reward-form logit"
+        "--consolidate-ranking 10 --consolidate-absorbing --reward-form logit "
+        "--absorbing-reward random"
     )
     assert reoptimize.refit_extras("halfcheetah") == (
         "--consolidate-ranking 30 --reward-form logit --iterations 1000"
@@ -490,7 +498,7 @@ def test_an_absorbing_refit_is_named_so_and_prices_the_fresh_agents_falls(tiny_r
     assert reoptimize._opened(plain)[1].absorbing_reward_function() is None
 
 
-def test_absorbing_reward_random_pays_a_fall_what_random_actions_earn(tiny_run, tmp_path, capsys):
+def test_absorbing_reward_random_pays_a_fall_what_random_actions_earn(tiny_run, tmp_path):
     import shutil
 
     import jax.numpy as jnp
@@ -518,13 +526,23 @@ def test_absorbing_reward_random_pays_a_fall_what_random_actions_earn(tiny_run, 
         learned_value = run.absorbing_reward_function()(own, jnp.arange(2))
         np.testing.assert_allclose(details["learned"], learned_value)
         assert not np.allclose(expected, learned_value)
-    # The whole command: the check records both prices and says what a fall was paid.
+
+
+@pytest.mark.slow  # a re-optimisation with a refit
+def test_a_check_at_random_actions_price_records_both_prices(tiny_run, tmp_path, capsys):
+    import shutil
+
+    copy = tmp_path / "run"
+    shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("rewards"))
+    refit = ["--consolidate", "3", "--consolidate-fresh", "--consolidate-absorbing"]
     command = [str(copy), *refit, "--absorbing-reward", "random", "--iterations", "2"]
     assert reoptimize.main([*command, "--seed", "1", "--no-baseline"]) == 0
     name = "reoptimize-seed-1-it-2-consolidated-3-fresh-absorbing-absorbing-random.json"
     result = json.loads((copy / name).read_text())
-    assert result["absorbing_price"][0]["random_actions"] == pytest.approx(
-        chosen.details["absorbing_price"][1]["random_actions"].tolist()
+    price = result["absorbing_price"][0]
+    assert len(price["random_actions"]) == len(price["learned"]) == 2
+    assert (
+        np.all(np.isfinite(price["random_actions"])) and price["random_actions"] != price["learned"]
     )
     assert "seed 1: a fall paid per step left" in capsys.readouterr().out
 
