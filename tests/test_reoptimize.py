@@ -501,6 +501,7 @@ def test_an_absorbing_refit_is_named_so_and_prices_the_fresh_agents_falls(tiny_r
 def test_absorbing_reward_random_pays_a_fall_what_random_actions_earn(tiny_run, tmp_path):
     import shutil
 
+    import jax
     import jax.numpy as jnp
 
     from emgail_jax.host import consolidation
@@ -516,7 +517,8 @@ def test_absorbing_reward_random_pays_a_fall_what_random_actions_earn(tiny_run, 
     for seed in seeds:
         priced, own = chosen.parameters[seed], learned.parameters[seed]
         # The same refit (read back from disk), its absorbing state priced anew.
-        assert same_tree(priced["discriminator"], own["discriminator"])
+        equal = jax.tree.map(np.array_equal, priced["discriminator"], own["discriminator"])
+        assert all(jax.tree.leaves(equal))
         expected = consolidation.random_actions_reward(run, own, reward)
         np.testing.assert_array_equal(priced["absorbing_price"], expected)
         for intention in range(2):
@@ -545,13 +547,6 @@ def test_a_check_at_random_actions_price_records_both_prices(tiny_run, tmp_path,
         np.all(np.isfinite(price["random_actions"])) and price["random_actions"] != price["learned"]
     )
     assert "seed 1: a fall paid per step left" in capsys.readouterr().out
-
-
-def same_tree(a, b) -> bool:
-    import jax
-
-    leaves = zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True)
-    return all(np.array_equal(x, y) for x, y in leaves)
 
 
 @pytest.mark.slow  # three re-optimisations (the plain one runs always)

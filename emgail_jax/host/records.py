@@ -231,19 +231,15 @@ def _cell(value) -> str:
 
 
 def to_json_value(value: Any) -> Any:
-    """numpy scalars/arrays -> plain JSON values; NaN and ±inf -> null (strict JSON)."""
+    """numpy and JAX scalars/arrays -> plain JSON values; NaN and ±inf -> null (strict JSON)."""
     if isinstance(value, dict):
         return {k: to_json_value(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
         return [to_json_value(v) for v in value]
-    if isinstance(value, np.ndarray) or hasattr(value, "__array__"):  # a JAX array too
+    if hasattr(value, "__array__"):  # numpy's and JAX's arrays and scalars: Python's own
         return to_json_value(np.asarray(value).tolist())
-    if isinstance(value, (np.floating, float)):
-        return float(value) if math.isfinite(float(value)) else None
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.bool_):
-        return bool(value)
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
     return value
 
 

@@ -308,8 +308,8 @@ class SavedRun:
             raise ValueError(f"unknown absorbing price '{price}': learned or random")
         from emgail_jax.host import consolidation
 
-        paid = jnp.asarray(consolidation.random_actions_reward(run, parameters, reward))
-        return lambda intention: jnp.take(paid, intention)
+        priced = {"absorbing_price": consolidation.random_actions_reward(run, parameters, reward)}
+        return lambda intention: consolidation.priced_absorbing_reward(priced, intention)
 
     def reward_parameters(self, seed: int = 0) -> dict:
         """What :meth:`reward_function` reads of ``seed``: its discriminator's and posterior's
