@@ -15,9 +15,9 @@ for ``load_reward(RUN_DIR, refit=NAME)`` and reused by any later check of it), n
 seeing the true reward; the seeds' and intentions' policies are vmapped in one program
 (``--rl-seed R``: another draw of their initialisation and samples, to tell a reward that fails
 from a search that did; ``--draws N``: N draws, keeping per intention the agent that earns the
-most learned reward, as a user without the true reward would; each finished draw is kept
-beside the check's file until it is written, so a check stopped part-way goes on from there).
-Their deterministic episodes
+most learned reward, as a user without the true reward would; each finished draw, and the
+training of the one under way every few minutes, is kept beside the check's file until it is
+written, so a check stopped part-way goes on from there). Their deterministic episodes
 (as many per iteration as training evaluates, ``num_envs``) are scored under the true
 rewards; the ERD matches each true intention to the learned one the run itself matched it to
 (its jointly trained policies' matching at that iteration), one matching for every number
@@ -191,7 +191,7 @@ def argument_parser() -> argparse.ArgumentParser:
         metavar="N",
         help="train N draws (RL seeds R .. R + N - 1) and keep per intention the agent that "
         "earns the most learned reward; the true-reward baseline's the one that earns the "
-        "most true reward (default 1); a check stopped part-way reuses the draws it finished",
+        "most true reward (default 1); a check stopped part-way goes on where it stopped",
     )
     parser.add_argument(
         "--snapshot", type=int, default=None, metavar="ITER", help="the rewards of this snapshot"
@@ -634,12 +634,10 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
         run.problem = reward_check.with_expert_returns(run.problem, reference["returns"])
     rl_seeds = range(args.rl_seed, args.rl_seed + args.draws)
     path = args.out or os.path.join(args.run_dir, default_name(args))
-    finished = (
-        reward_check.FinishedDraws(path, check_identity(args, run)) if args.draws > 1 else None
-    )
+    finished = reward_check.FinishedDraws(path, check_identity(args, run))
     draws = []
     for rl_seed in rl_seeds:
-        draw = finished.read(rl_seed, not args.quiet) if finished else None
+        draw = finished.read(rl_seed, not args.quiet)
         if draw is None:
             draw = reward_check.reoptimize(
                 run,
@@ -650,9 +648,9 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
                 reward_function=chosen.function,
                 absorbing_function=chosen.absorbing,
                 rl_seed=rl_seed,
+                partial=finished.partial(rl_seed),
             )
-            if finished:
-                finished.write(rl_seed, draw)
+            finished.write(rl_seed, draw)
         draws.append(draw)
     result = draws[0] if args.draws == 1 else reward_check.chosen_by_learned_reward(draws)
     # What the fresh agents were paid: an AIRL run's policies trained on f - log pi, its
@@ -674,8 +672,7 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
             baselines[0] if args.draws == 1 else reward_check.best_baseline(baselines)
         )
     records.write_json(path, result)
-    if finished:
-        finished.remove()
+    finished.remove()
     print_result(run, records.to_json_value(result))
     print(f"wrote {path}")
     return 0

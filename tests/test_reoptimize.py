@@ -573,7 +573,9 @@ def test_a_check_of_several_draws_goes_on_from_its_last_finished_draw(
     class Stopped(Exception):
         pass
 
-    def draw(run, seeds, budget, rl_seed=0, **_):
+    def draw(run, seeds, budget, rl_seed=0, partial=None, **_):
+        assert partial.path.endswith(f".draws/rl-{rl_seed}.partial.npz")
+        partial.write(1, {"policy": np.zeros(2)}, np.zeros(1), np.zeros(1), 0.0)
         if rl_seed in stops:
             stops.remove(rl_seed)
             raise Stopped  # while training draw 2
@@ -586,7 +588,8 @@ def test_a_check_of_several_draws_goes_on_from_its_last_finished_draw(
     with pytest.raises(Stopped):
         reoptimize.main([*args, "--out", str(out)])
     kept = tmp_path / "check.draws"
-    assert sorted(p.name for p in kept.iterdir()) == ["rl-0.json", "rl-1.json"]
+    expected = ["rl-0.json", "rl-1.json", "rl-2.partial.npz"]  # a finished draw's save goes
+    assert sorted(p.name for p in kept.iterdir()) == expected
     assert not out.exists()
     trained.clear()
     assert reoptimize.main([*args, "--out", str(out)]) == 0

@@ -77,6 +77,50 @@ def test_an_ensemble_reward_is_the_mean_of_the_snapshots_rewards(tiny_run, saved
     assert last == [4]
 
 
+def test_a_stopped_training_goes_on_from_its_save_as_if_never_stopped(saved, tmp_path):
+    """Fresh agents stopped after a save and started again with it end bit-identical to agents
+    trained at once; a save of another check, chunking or a damaged file is not read."""
+    from emgail_jax.host.saved_run import stacked
+
+    budget = reward_check.Budget(iterations=20, gamma=0.99)
+    trainer = reward_check.learned_reward_trainer(saved, budget, saved.reward_function())
+    keys = reward_check.fresh_keys(saved, [1], rl_seed=0)
+    data = stacked([saved.reward_parameters(1)])
+
+    def train(partial=None):
+        return reward_check.train_fresh(trainer, keys, data, 20, "", False, partial)
+
+    whole = train()
+
+    class Stopped(Exception):
+        pass
+
+    class StoppedAfterItsFirstSave(reward_check.PartialTraining):
+        def write(self, *args):
+            super().write(*args)
+            raise Stopped
+
+    path = str(tmp_path / "rl-0.partial.npz")
+    with pytest.raises(Stopped):
+        train(StoppedAfterItsFirstSave(path, {"check": 1}, every_s=0.0))
+    partial = reward_check.PartialTraining(path, {"check": 1})
+    done, *_ = partial.read(whole.states, 10, 20)
+    assert done == 10  # the first of two chunks
+    resumed = train(partial)
+    np.testing.assert_array_equal(resumed.returns, whole.returns)
+    np.testing.assert_array_equal(resumed.earned, whole.earned)
+    for a, b in zip(jax.tree.leaves(resumed.states), jax.tree.leaves(whole.states), strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert resumed.returns.shape == (1, 20, 2, 2)
+    assert reward_check.PartialTraining(path, {"check": 2}).read(whole.states, 10, 20) is None
+    assert partial.read(whole.states, 4, 20) is None  # chunks of another length
+    with open(path, "r+b") as f:
+        f.truncate(100)
+    assert partial.read(whole.states, 10, 20) is None
+    partial.remove()
+    partial.remove()  # gone already: nothing to do
+
+
 def test_a_refit_is_saved_once_and_reused(tiny_run, tmp_path, capsys):
     import shutil
 

@@ -11,12 +11,14 @@ the mean over snapshots); the references of a variant of the env's dynamics.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import json
 import os
 import shutil
 import time
+import zipfile
 
 import numpy as np
 
@@ -85,9 +87,91 @@ class FreshAgents:
     train_s: float
 
 
-def train_fresh(trainer, keys, reward_data, iterations: int, label: str, progress: bool):
+# How often fresh agents' training is saved when it may be resumed: a check stopped part-way
+# (a session's end, Ctrl-C) loses at most about this much of it.
+PARTIAL_EVERY_S = 120.0
+
+
+@dataclasses.dataclass
+class PartialTraining:
+    """Fresh agents' training so far, saved to ``path`` (``.npz``, renamed into place once
+    written) at most every ``every_s`` seconds, so that a stopped check goes on from its last
+    save as if never stopped. A save of another check (``identity``) or another layout of the
+    agents' state is not read."""
+
+    path: str
+    identity: dict
+    every_s: float = PARTIAL_EVERY_S
+
+    def _identity_text(self) -> str:
+        from emgail_jax.host import records
+
+        return json.dumps(records.to_json_value(self.identity), sort_keys=True)
+
+    def read(self, states, chunk: int, iterations: int):
+        """``(done, states, returns [done, ...], earned [done, ...], train_s)`` saved for
+        ``states``' layout, or None when there is none to go on from."""
+        import jax
+
+        from emgail_jax.host.checkpoints import layout
+
+        try:
+            with np.load(self.path, allow_pickle=False) as saved:
+                kept = {name: saved[name] for name in saved.files}
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile):  # none, or cut short
+            return None
+        treedef = jax.tree.structure(states)
+        done = int(kept.get("done", -1))
+        fits = (
+            str(kept.get("identity")) == self._identity_text()
+            and str(kept.get("layout")) == layout(states)
+            and 0 < done <= iterations
+            and done % chunk == 0
+            and treedef.num_leaves == sum(name.startswith("leaf_") for name in kept)
+        )
+        if not fits:
+            return None
+        leaves = [kept[f"leaf_{i}"] for i in range(treedef.num_leaves)]
+        restored = jax.tree.unflatten(treedef, leaves)
+        return done, restored, kept["returns"], kept["earned"], float(kept["train_s"])
+
+    def write(self, done: int, states, returns, earned, train_s: float) -> None:
+        import jax
+
+        from emgail_jax.host.checkpoints import layout
+
+        leaves = {f"leaf_{i}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(states))}
+        os.makedirs(os.path.dirname(os.path.abspath(self.path)), exist_ok=True)
+        with open(self.path + ".tmp", "wb") as f:
+            np.savez(
+                f,
+                identity=np.array(self._identity_text()),
+                layout=np.array(layout(states)),
+                done=np.array(done),
+                returns=returns,
+                earned=earned,
+                train_s=np.array(train_s),
+                **leaves,
+            )
+        os.replace(self.path + ".tmp", self.path)
+
+    def remove(self) -> None:
+        with contextlib.suppress(FileNotFoundError):
+            os.remove(self.path)
+
+
+def train_fresh(
+    trainer,
+    keys,
+    reward_data,
+    iterations: int,
+    label: str,
+    progress: bool,
+    partial: PartialTraining | None = None,
+):
     """Trains ``trainer``'s policies from ``keys [S, K]`` (policy k of row s on intention k of
-    the reward ``reward_data[s]``) for ``iterations``, in chunks of 10."""
+    the reward ``reward_data[s]``) for ``iterations``, in chunks of 10; with ``partial``, from
+    where its save left off, saving as it goes."""
     import jax
     import jax.numpy as jnp
 
@@ -97,26 +181,37 @@ def train_fresh(trainer, keys, reward_data, iterations: int, label: str, progres
 
     k = keys.shape[1]
     states = jax.jit(jax.vmap(jax.vmap(trainer.init)))(keys)
-    plan = chunks(0, iterations, chunk_length(iterations, 10))
+    length = chunk_length(iterations, 10)
+    done, returns, earned, train_before = 0, [], [], 0.0
+    resumed = partial.read(states, length, iterations) if partial else None
+    if resumed is not None:
+        done, states, returns_so_far, earned_so_far, train_before = resumed
+        returns, earned = [returns_so_far], [earned_so_far]
+    plan = chunks(done, iterations, length)
     inputs = lambda first, length: np.zeros(length, bool)
     start = time.perf_counter()
     chunk = seeds_chunk(trainer, jnp.arange(k))
-    step = chunk.lower(states, inputs(*plan[0]), reward_data).compile()
+    step = chunk.lower(states, inputs(0, length), reward_data).compile()
     compile_s = time.perf_counter() - start
-    returns, earned = [], []
-    bar = ProgressBar(label, iterations, {"return": "-"}, enabled=progress)
+    bar = ProgressBar(label, iterations, {"return": "-"}, completed=done, enabled=progress)
+    start = saved_at = time.perf_counter()
 
     def after_chunk(first, length, states, metrics) -> bool:
+        nonlocal saved_at
         returns.append(np.asarray(metrics["eval/returns"]))  # [L, S, K, K env]
         earned.append(np.asarray(metrics["train/reward"]))  # [L, S, K]
         own = np.diagonal(returns[-1][-1], axis1=-2, axis2=-1).mean(0)
         bar.update(length, **{"return": " ".join(f"{r:.1f}" for r in own)})
+        now = time.perf_counter()
+        if partial and now - saved_at >= partial.every_s and first + length < iterations:
+            train_s = train_before + now - start
+            partial.write(first + length, states, *map(np.concatenate, (returns, earned)), train_s)
+            saved_at = now
         return True
 
-    start = time.perf_counter()
     states = run_chunks(lambda s, x: step(s, x, reward_data), states, plan, inputs, after_chunk)
     bar.close()
-    train_s = time.perf_counter() - start
+    train_s = train_before + time.perf_counter() - start
     to_seed_major = lambda parts: np.swapaxes(np.concatenate(parts), 0, 1)
     return FreshAgents(states, to_seed_major(returns), to_seed_major(earned), compile_s, train_s)
 
@@ -259,6 +354,7 @@ def reoptimize(
     reward_function=None,
     absorbing_function=None,
     rl_seed: int = 0,
+    partial: PartialTraining | None = None,
 ) -> dict:
     """Trains one policy per learned intention on each of ``seeds``' frozen rewards of ``run``
     (all seeds vmapped in one program) and scores them; ``rl_seed`` picks another draw of the
@@ -266,7 +362,8 @@ def reoptimize(
     the run's :meth:`~emgail_jax.host.saved_run.SavedRun.reward_parameters`, read by
     ``reward_function`` and ``absorbing_function`` (default the run's
     :meth:`~emgail_jax.host.saved_run.SavedRun.reward_function` and
-    :meth:`~emgail_jax.host.saved_run.SavedRun.absorbing_reward_function`)."""
+    :meth:`~emgail_jax.host.saved_run.SavedRun.absorbing_reward_function`); with ``partial``
+    the training goes on from its save and is saved as it goes."""
     import jax
 
     from emgail_jax.host.saved_run import stacked
@@ -276,7 +373,8 @@ def reoptimize(
     per_seed_parameters = parameters or [run.reward_parameters(seed) for seed in seeds]
     parameters = stacked(per_seed_parameters)
     keys = fresh_keys(run, seeds, rl_seed)
-    fresh = train_fresh(trainer, keys, parameters, budget.iterations, "re-optimising", progress)
+    label = "re-optimising"
+    fresh = train_fresh(trainer, keys, parameters, budget.iterations, label, progress, partial)
     iteration = run.snapshot or run.iteration
     per_seed = []
     for row, seed in enumerate(seeds):
@@ -425,13 +523,17 @@ def true_reward_baseline(
     else:
         trainer = _fresh_trainer(run, budget)
         keys = jax.random.split(drawn(jax.random.PRNGKey(1000), rl_seed), run.num_intentions)[None]
-        fresh = train_fresh(trainer, keys, None, budget.iterations, "true reward", progress)
+        # Its key names everything it depends on; saved part-way only where it is cached.
+        partial = None if path is None else PartialTraining(path + ".partial.npz", {"key": key})
+        label = "true reward"
+        fresh = train_fresh(trainer, keys, None, budget.iterations, label, progress, partial)
         returns = fresh.returns[0]
         states = jax.tree.map(lambda x: x[0], fresh.states)
         found = records.to_json_value(success(run.problem.env, trainer, states, identity))
         if path is not None:
             os.makedirs(cache, exist_ok=True)
             records.write_json(path, {"returns": returns, "success": found})
+            partial.remove()
     result = scored(returns, identity, run, None)
     return {**result, "success": found, "meets_bar": [q["meets_bar"] for q in found], "cache": path}
 
@@ -533,10 +635,10 @@ def ensemble_reward(reward_function):
 
 @dataclasses.dataclass(frozen=True)
 class FinishedDraws:
-    """The draws of a check of several (``--draws``) finished so far, kept beside its file
-    (``NAME.draws/rl-R.json``) until the check is written, so that a check stopped part-way
-    goes on from its last finished draw. A draw kept for other options or networks is done
-    again."""
+    """The draws of a check finished so far, kept beside its file (``NAME.draws/rl-R.json``)
+    until the check is written, and the draw in training saved as it goes
+    (``rl-R.partial.npz``, :class:`PartialTraining`), so that a check stopped part-way goes on
+    from where it stopped. A draw kept for other options or networks is done again."""
 
     check_path: str
     identity: dict
@@ -562,11 +664,17 @@ class FinishedDraws:
             print(f"RL draw {rl_seed}: finished before, reused")
         return kept["draw"]
 
+    def partial(self, rl_seed: int) -> PartialTraining:
+        """Where draw ``rl_seed``'s training is saved until it finishes."""
+        path = os.path.join(self.directory, f"rl-{rl_seed}.partial.npz")
+        return PartialTraining(path, {**self.identity, "rl_seed": rl_seed})
+
     def write(self, rl_seed: int, draw: dict) -> None:
         from emgail_jax.host import records
 
         os.makedirs(self.directory, exist_ok=True)
         records.write_json(self._path(rl_seed), {"check": self.identity, "draw": draw})
+        self.partial(rl_seed).remove()
 
     def remove(self) -> None:
         shutil.rmtree(self.directory, ignore_errors=True)
