@@ -72,7 +72,7 @@ import dataclasses
 import os
 import sys
 
-from emgail_jax.host import jax_setup, reward_check
+from emgail_jax.host import check_progress, jax_setup, reward_check
 from emgail_jax.host.schedule import FINAL_WINDOW  # the iterations averaged, as training's
 
 
@@ -634,7 +634,7 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
         run.problem = reward_check.with_expert_returns(run.problem, reference["returns"])
     rl_seeds = range(args.rl_seed, args.rl_seed + args.draws)
     path = args.out or os.path.join(args.run_dir, default_name(args))
-    finished = reward_check.FinishedDraws(path, check_identity(args, run))
+    finished = check_progress.FinishedDraws(path, check_identity(args, run))
     draws = []
     for rl_seed in rl_seeds:
         draw = finished.read(rl_seed, not args.quiet)
