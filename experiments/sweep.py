@@ -605,14 +605,31 @@ def estimate_seconds(
     timings: Timings,
     computing_baselines: tuple[RewardCheck, ...] = REWARD_CHECKS,
     checks: tuple[RewardCheck, ...] = REWARD_CHECKS,
+    draws_done: dict[RewardCheck, float] | None = None,
 ) -> float:
     """What ``cell`` still needs: its training (unless trained), then its reward ``checks``
-    (those still to do), those of ``computing_baselines`` with the true-reward baseline."""
+    (those still to do, less the ``draws_done`` of each check stopped part-way), those of
+    ``computing_baselines`` with the true-reward baseline."""
     seconds = 0.0 if status == Status.CHECK else training_seconds(cell, seeds, iterations, timings)
     for check in checks if cell.reoptimized else ():
         with_baseline = check in computing_baselines
-        seconds += check_seconds(cell, seeds, iterations, timings, with_baseline, check)
+        left = 1.0 - (draws_done or {}).get(check, 0.0) / check.draws
+        seconds += left * check_seconds(cell, seeds, iterations, timings, with_baseline, check)
     return seconds
+
+
+def checks_draws_done(cell: Cell, run_dir: str, iterations: int) -> dict[RewardCheck, float]:
+    """Per reward check of a trained cell, the draws a check stopped part-way has done."""
+    from emgail_jax.host.check_progress import draws_done
+
+    return {
+        check: draws_done(
+            os.path.join(run_dir, check.file),
+            check.draws,
+            check_iterations(cell.env, iterations, check),
+        )
+        for check in REWARD_CHECKS
+    }
 
 
 def measured_seconds(runs_dir: str) -> Timings:
@@ -1469,9 +1486,21 @@ def plan_sweep(args: argparse.Namespace) -> Plan:
     def computing(cell: Cell) -> tuple[RewardCheck, ...]:
         return tuple(check for check in REWARD_CHECKS if (cell, check) in computers)
 
+    def draws_done(cell: Cell) -> dict[RewardCheck, float]:
+        if statuses[cell] != Status.CHECK:  # retraining removes what a check had kept
+            return {}
+        return checks_draws_done(cell, os.path.join(runs_dir, cell.name), args.iterations)
+
     estimates = {
         c: estimate_seconds(
-            c, statuses[c], args.seeds, args.iterations, timings, computing(c), still_to_check(c)
+            c,
+            statuses[c],
+            args.seeds,
+            args.iterations,
+            timings,
+            computing_baselines=computing(c),
+            checks=still_to_check(c),
+            draws_done=draws_done(c),
         )
         for c in todo
     }

@@ -7,7 +7,7 @@ import jax
 import numpy as np
 import pytest
 
-from emgail_jax.host.check_progress import FinishedDraws, PartialTraining
+from emgail_jax.host.check_progress import FinishedDraws, PartialTraining, draws_done
 
 
 @jax.tree_util.register_dataclass
@@ -100,3 +100,15 @@ def test_a_draw_written_as_finished_drops_its_saved_training(tmp_path):
     assert partial.read(_states(), 10, 40) is not None
     finished.write(1, {"erd": [0.3]})
     assert sorted(p.name for p in (tmp_path / "check.draws").iterdir()) == ["rl-1.json"]
+
+
+def test_the_draws_done_count_the_training_under_way_by_its_iterations(tmp_path):
+    check = str(tmp_path / "reoptimize-refit.json")
+    assert draws_done(check, draws=3, iterations=40) == 0.0
+    finished = FinishedDraws(check, {"options": {}, "iteration": 4})
+    finished.write(0, {"erd": [0.1]})
+    finished.partial(1).write(10, _states(), np.zeros((10, 2, 2, 2)), np.zeros((10, 2, 2)), 1.0)
+    assert draws_done(check, draws=3, iterations=40) == 1.25
+    (tmp_path / "reoptimize-refit.draws" / "rl-2.partial.npz").write_bytes(b"cut short")
+    assert draws_done(check, draws=3, iterations=40) == 1.25
+    assert draws_done(check, draws=1, iterations=40) == 1.0  # draws beyond those asked not read

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from emgail_jax.host import checkpoints
+from emgail_jax.host.check_progress import FinishedDraws
 
 pytestmark = pytest.mark.heavy
 
@@ -475,6 +476,16 @@ def test_sweep_estimates_every_seeds_check_and_each_baseline_once(hopper_cells):
     )
     trained = 10.0 + 1.0 * 2 * 4 * 2
     assert sweep.estimate_seconds(infogail, Status.NEW, 2, 4, timings) == trained + check + refit
+    # A check stopped part-way costs what it has left: its finished draw and half the next.
+    run_dir = out / "runs" / infogail.name
+    finished = FinishedDraws(str(run_dir / sweep.REFIT_CHECK.file), {})
+    finished.write(0, {"erd": [0.5, 0.5]})
+    finished.partial(1).write(2, {"w": np.zeros(3)}, np.zeros((2, 1)), np.zeros((2, 1)), 1.0)
+    done = sweep.checks_draws_done(infogail, str(run_dir), 4)
+    assert done == {sweep.PAPER_CHECK: 0.0, sweep.REFIT_CHECK: 1.5}
+    assert sweep.estimate_seconds(
+        infogail, Status.CHECK, 2, 4, timings, draws_done=done
+    ) == pytest.approx(check + refit / 2)
     per_unit, compile_s = sweep.MEASURED_SECONDS["swimmer"]  # no swimmer cell finished
     check = 2 * compile_s + per_unit * 3 * 1500 * 2  # the swimmer's experts' budget
     estimate = sweep.estimate_seconds(swimmer, Status.CHECK, 2, 4, timings, both, paper_only)

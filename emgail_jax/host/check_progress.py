@@ -102,14 +102,14 @@ class FinishedDraws:
     def directory(self) -> str:
         return os.path.splitext(self.check_path)[0] + ".draws"
 
-    def _path(self, rl_seed: int) -> str:
+    def draw_path(self, rl_seed: int) -> str:
         return os.path.join(self.directory, f"rl-{rl_seed}.json")
 
     def read(self, rl_seed: int, progress: bool) -> dict | None:
         from emgail_jax.host import records
 
         try:
-            with open(self._path(rl_seed)) as f:
+            with open(self.draw_path(rl_seed)) as f:
                 kept = json.load(f)
         except (OSError, ValueError):
             return None
@@ -128,8 +128,26 @@ class FinishedDraws:
         from emgail_jax.host import records
 
         os.makedirs(self.directory, exist_ok=True)
-        records.write_json(self._path(rl_seed), {"check": self.identity, "draw": draw})
+        records.write_json(self.draw_path(rl_seed), {"check": self.identity, "draw": draw})
         self.partial(rl_seed).remove()
 
     def remove(self) -> None:
         shutil.rmtree(self.directory, ignore_errors=True)
+
+
+def draws_done(check_path: str, draws: int, iterations: int) -> float:
+    """How many of the check's ``draws`` (RL seeds 0 .. draws - 1) are done, the one in
+    training counted by the fraction of its ``iterations`` saved: for a time estimate, so it
+    does not ask whose options the kept draws were for."""
+    finished = FinishedDraws(check_path, {})
+    done = 0.0
+    for rl_seed in range(draws):
+        if os.path.exists(finished.draw_path(rl_seed)):
+            done += 1.0
+            continue
+        try:
+            with np.load(finished.partial(rl_seed).path, allow_pickle=False) as saved:
+                done += min(int(saved["done"]), iterations) / iterations
+        except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile):
+            pass
+    return done
