@@ -46,7 +46,7 @@ intention by intention (:func:`~emgail_jax.host.consolidation.random_actions_rew
 Beside the learned reward, the **true-reward baseline**: the same TRPO, settings and budget on
 the env's true rewards, the floor any learned reward is judged against (computed once per env,
 K and budget, then read from ``--cache``; no algorithm enters its key, so one baseline serves
-every algorithm's runs). The budget is the run's iterations and gamma unless
+every algorithm's runs). The budget is the run's iterations, gamma and GAE lambda unless
 :data:`~emgail_jax.host.reward_check.BUDGETS` or the flags say otherwise.
 
 Also the learned reward per step that the fresh policies earn and that the demonstrations the
@@ -77,9 +77,11 @@ from emgail_jax.host.schedule import FINAL_WINDOW  # the iterations averaged, as
 
 
 def budget_of(args: argparse.Namespace, run) -> reward_check.Budget:
-    """The env's budget with ``--iterations`` and ``--gamma`` in place of its own if given."""
-    budget = reward_check.default_budget(run)
-    return reward_check.Budget(args.iterations or budget.iterations, args.gamma or budget.gamma)
+    """The env's budget with ``--iterations``, ``--gamma`` and ``--gae-lambda`` in place of its
+    own where given."""
+    given = {"iterations": args.iterations, "gamma": args.gamma, "gae_lambda": args.gae_lambda}
+    given = {name: value for name, value in given.items() if value is not None}
+    return dataclasses.replace(reward_check.default_budget(run), **given)
 
 
 def print_result(run, result: dict) -> None:
@@ -90,7 +92,8 @@ def print_result(run, result: dict) -> None:
     budget = result["budget"]
     table = Table(
         title=f"fresh TRPO on the learned rewards of iteration {result['iteration']}, "
-        f"{budget['iterations']} iterations, gamma {budget['gamma']} (mean of the last "
+        f"{budget['iterations']} iterations, gamma {budget['gamma']}, lambda "
+        f"{budget.get('gae_lambda', '-')} (mean of the last "
         f"{FINAL_WINDOW})"
     )
     for column in ("reward", "norm. ERD", "per intention", "true returns (expert)", "bars met"):
@@ -198,6 +201,9 @@ def argument_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--iterations", type=int, default=None, help="default: the env's budget")
     parser.add_argument("--gamma", type=float, default=None, help="default: the env's budget")
+    parser.add_argument(
+        "--gae-lambda", type=float, default=None, help="GAE's lambda; default: the env's budget"
+    )
     parser.add_argument(
         "--no-baseline", dest="baseline", action="store_false", help="skip the true reward"
     )
@@ -441,6 +447,8 @@ def _check_options(args: argparse.Namespace) -> None:
         raise RunError("--iterations must be at least 1")
     if args.gamma is not None and not 0 < args.gamma <= 1:
         raise RunError("--gamma must be in (0, 1]")
+    if args.gae_lambda is not None and not 0 <= args.gae_lambda <= 1:
+        raise RunError("--gae-lambda must be in [0, 1]")
     if args.consolidate < 0:
         raise RunError("--consolidate must be 0 (none) or more steps")
     if args.consolidate_penalty < 0 or (args.consolidate_penalty and not args.consolidate):
@@ -687,7 +695,7 @@ def check_identity(args: argparse.Namespace, run) -> dict:
 
 
 def default_name(args) -> str:
-    """``reoptimize[-seed-S][-rl-R][-draws-N][-it-N][-gamma-G][-snapshot-ITER][-consolidated-STEPS
+    """``reoptimize[-seed-S][-rl-R][-draws-N][-it-N][-gamma-G][-lambda-L][-snapshot-ITER][-consolidated-STEPS
     [-penalty-W][-fresh][-noise-S][-batch-M]][-ensemble-N][-across-seeds][-FORM][-env-...].json``: a
     check of one seed, or at another budget, does not overwrite the check of every seed at the
     env's budget."""
@@ -702,6 +710,8 @@ def default_name(args) -> str:
         parts.append(f"it-{args.iterations}")
     if args.gamma is not None:
         parts.append(f"gamma-{args.gamma:g}")
+    if args.gae_lambda is not None:
+        parts.append(f"lambda-{args.gae_lambda:g}")
     parts += reward_parts(args)
     if args.env_set:
         parts.append("env-" + "-".join(args.env_set))

@@ -529,7 +529,7 @@ def check_iterations(env: str, iterations: int, check: RewardCheck = PAPER_CHECK
     (``--refit``'s recipe for the env included): the run's, unless the env's experts needed
     more or the options give another."""
     given = reoptimize_args(["RUN", *check.options], env).iterations
-    return given or (BUDGETS[env].iterations if env in BUDGETS else iterations)
+    return given or BUDGETS.get(env, {}).get("iterations", iterations)
 
 
 def baseline_cached(out: str, env: str, intentions: int, check_iterations: int) -> bool:

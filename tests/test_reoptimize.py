@@ -152,6 +152,7 @@ def test_a_snapshot_is_reoptimised_on_its_own_networks(tiny_run, reoptimized):
         (["--snapshot", "3"], "no snapshot of iteration 3"),
         (["--seed", "5"], "the run has seeds 0..1"),
         (["--gamma", "0"], "--gamma must be in (0, 1]"),
+        (["--gae-lambda", "1.5"], "--gae-lambda must be in [0, 1]"),
         (["--iterations", "0"], "--iterations must be at least 1"),
         (["--rl-seed", "-1"], "--rl-seed must be 0 or more"),
         (["--consolidate", "-1"], "--consolidate must be 0 (none) or more steps"),
@@ -306,6 +307,8 @@ def test_the_default_file_names_what_was_checked():
     assert reoptimize.default_name(args) == "reoptimize-rl-2-draws-3.json"
     args = reoptimize.parse_args(["RUN", "--iterations", "1000", "--gamma", "0.999"])
     assert reoptimize.default_name(args) == "reoptimize-it-1000-gamma-0.999.json"
+    args = reoptimize.parse_args(["RUN", "--gae-lambda", "0.995"])
+    assert reoptimize.default_name(args) == "reoptimize-lambda-0.995.json"
     args = reoptimize.parse_args(["RUN", "--across-seeds", "--rl-seed", "1"])
     assert reoptimize.default_name(args) == "reoptimize-rl-1-across-seeds.json"
     refit = ["--consolidate", "4000", "--consolidate-penalty", "10", "--consolidate-fresh"]

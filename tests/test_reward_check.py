@@ -32,7 +32,7 @@ def test_one_true_reward_baseline_serves_every_algorithm(saved):
     """The baseline's cache key holds the env, K, budget and TRPO settings, not the algorithm
     whose reward is checked: the sweep's EM-GAIL, Info/IntentionGAIL and GAIL cells of an env
     and K share one baseline."""
-    budget = reward_check.Budget(iterations=400, gamma=0.995)
+    budget = reward_check.Budget(iterations=400, gamma=0.995, gae_lambda=0.97)
     key = reward_check.baseline_key(saved, budget)
     assert key.startswith("driver-k2-400it-g0.995-")
     for algo in ("gail", "infogail"):
@@ -82,7 +82,7 @@ def test_a_stopped_training_goes_on_from_its_save_as_if_never_stopped(saved, tmp
     trained at once."""
     from emgail_jax.host.saved_run import stacked
 
-    budget = reward_check.Budget(iterations=20, gamma=0.99)
+    budget = reward_check.Budget(iterations=20, gamma=0.99, gae_lambda=0.97)
     trainer = reward_check.learned_reward_trainer(saved, budget, saved.reward_function())
     keys = reward_check.fresh_keys(saved, [1], rl_seed=0)
     data = stacked([saved.reward_parameters(1)])
@@ -148,7 +148,7 @@ def test_a_refit_against_fresh_agents_trains_them_and_records_each_round(tiny_ru
     copy = tmp_path / "run"
     shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("rewards"))
     run = SavedRun.open(str(copy))
-    budget = reward_check.Budget(iterations=2, gamma=0.99)
+    budget = reward_check.Budget(iterations=2, gamma=0.99, gae_lambda=0.97)
     plain = Refit(steps=5, fresh=True, batch=20)
     (before,), _ = reward_check.consolidated(run, [1], plain, "plain", budget, progress=False)
     against = dataclasses.replace(plain, agent_rounds=2)
@@ -163,7 +163,7 @@ def test_a_refit_against_fresh_agents_trains_them_and_records_each_round(tiny_ru
     description = consolidation.read_description(str(copy), "agents")
     assert description["agents"] == {"reward_form": "gail", "budget": dataclasses.asdict(budget)}
     with pytest.raises(RunError, match="refitted otherwise"):
-        other = reward_check.Budget(iterations=3, gamma=0.99)
+        other = reward_check.Budget(iterations=3, gamma=0.99, gae_lambda=0.97)
         reward_check.consolidated(run, [1], against, "agents", other, False)
 
 
@@ -172,6 +172,20 @@ def test_another_rl_seeds_baseline_is_kept_apart_from_the_sweeps(saved):
     first = reward_check.baseline_key(saved, budget)
     assert first.startswith(reward_check.baseline_prefix("driver", 2, budget.iterations))
     assert reward_check.baseline_key(saved, budget, rl_seed=1) == "rl1-" + first
+
+
+def test_the_budgets_lambda_is_the_runs_unless_given_and_names_its_baseline(saved, monkeypatch):
+    from emgail_jax import reoptimize
+    from emgail_jax.method import rl
+
+    budget = reward_check.default_budget(saved)
+    assert budget.gae_lambda == saved.config.method.b_step.gae_lambda
+    args = reoptimize.parse_args(["RUN", "--gae-lambda", "0.995"])
+    given = reoptimize.budget_of(args, saved)
+    assert given == dataclasses.replace(budget, gae_lambda=0.995)
+    assert reward_check.baseline_key(saved, given) != reward_check.baseline_key(saved, budget)
+    monkeypatch.setattr(rl, "make_rl_train", lambda config, *rest: config)
+    assert reward_check._fresh_trainer(saved, given).b_step.gae_lambda == 0.995
 
 
 def _draw(rl_seed, earned, erd_per_intention, matching=(1, 0)):

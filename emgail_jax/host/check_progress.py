@@ -31,10 +31,16 @@ class PartialTraining:
     identity: dict
     every_s: float = PARTIAL_EVERY_S
 
-    def _identity_text(self) -> str:
+    def _identity_value(self):
         from emgail_jax.host import records
 
-        return json.dumps(records.to_json_value(self.identity), sort_keys=True)
+        return records.to_json_value(self.identity)
+
+    def _is_mine(self, kept_identity) -> bool:
+        try:
+            return json.loads(str(kept_identity)) == self._identity_value()
+        except ValueError:
+            return False
 
     def read(self, states, chunk: int, iterations: int):
         """``(done, states, returns [done, ...], earned [done, ...], train_s)`` saved for
@@ -51,7 +57,7 @@ class PartialTraining:
         treedef = jax.tree.structure(states)
         done = int(kept.get("done", -1))
         fits = (
-            str(kept.get("identity")) == self._identity_text()
+            self._is_mine(kept.get("identity"))
             and str(kept.get("layout")) == layout(states)
             and 0 < done <= iterations
             and done % chunk == 0
@@ -73,7 +79,7 @@ class PartialTraining:
         with open(self.path + ".tmp", "wb") as f:
             np.savez(
                 f,
-                identity=np.array(self._identity_text()),
+                identity=np.array(json.dumps(self._identity_value())),
                 layout=np.array(layout(states)),
                 done=np.array(done),
                 returns=returns,

@@ -25,15 +25,16 @@ from emgail_jax.host.schedule import FINAL_WINDOW  # the iterations averaged, as
 
 @dataclasses.dataclass(frozen=True)
 class Budget:
-    """What the fresh policies get: TRPO iterations and the discount."""
+    """What the fresh policies get: TRPO iterations, the discount and GAE's lambda."""
 
     iterations: int
     gamma: float
+    gae_lambda: float
 
 
-# Envs whose experts needed more than an IRL run's budget (emgail_jax.experts.SPECS): the
-# swimmer's gait pays off over many steps.
-BUDGETS: dict[str, Budget] = {"swimmer": Budget(iterations=1500, gamma=0.9999)}
+# What envs whose experts needed more than an IRL run's budget get in place of the run's
+# (emgail_jax.experts.SPECS): the swimmer's gait pays off over many steps.
+BUDGETS: dict[str, dict] = {"swimmer": {"iterations": 1500, "gamma": 0.9999}}
 
 
 # The fields of a run's config that shape TRPO on a given reward (the baseline's cache key).
@@ -64,9 +65,9 @@ def drawn(key, rl_seed: int):
 
 
 def default_budget(run) -> Budget:
-    return BUDGETS.get(
-        run.spec.env, Budget(run.config.schedule.iterations, run.config.method.b_step.gamma)
-    )
+    b_step = run.config.method.b_step
+    own = Budget(run.config.schedule.iterations, b_step.gamma, b_step.gae_lambda)
+    return dataclasses.replace(own, **BUDGETS.get(run.spec.env, {}))
 
 
 def default_cache() -> str:
@@ -165,7 +166,9 @@ def _fresh_trainer(run, budget: Budget, reward_fn=None, absorbing_reward=None):
     from emgail_jax.method.rl import make_rl_train, true_reward
 
     # A fresh agent learns no discriminator: its rollouts need no AIRL successors.
-    config = run.config.with_values(gamma=budget.gamma, discriminator_form="gail").method
+    config = run.config.with_values(
+        gamma=budget.gamma, gae_lambda=budget.gae_lambda, discriminator_form="gail"
+    ).method
     env = run.problem.env
     episodes = config.rollout.num_envs
     return make_rl_train(config, env, reward_fn or true_reward, episodes, absorbing_reward)
@@ -405,13 +408,15 @@ def baseline_key(run, budget: Budget, rl_seed: int = 0) -> str:
     """What the true-reward baseline depends on: the env, its options and K, the budget, the
     TRPO settings and the RL seed, as a file name (another RL seed's does not begin with
     :func:`baseline_prefix`: the sweep's checks read RL seed 0's)."""
-    config = run.config.to_dict()
+    # Lambda enters as the TRPO setting it overrides, so a budget that keeps the run's names
+    # the baseline it named before lambda was part of the budget.
+    config = run.config.with_values(gae_lambda=budget.gae_lambda).to_dict()
     env = run.problem.env
     described = {
         "env": env.name,
         "options": env.options(),
         "intentions": env.num_intentions,
-        "budget": dataclasses.asdict(budget),
+        "budget": {"iterations": budget.iterations, "gamma": budget.gamma},
         "config": {name: config[name] for name in RL_FIELDS if name != "gamma"},
     }
     text = json.dumps(described, sort_keys=True, default=str)
