@@ -77,11 +77,15 @@ from emgail_jax.host.schedule import FINAL_WINDOW  # the iterations averaged, as
 
 
 def budget_of(args: argparse.Namespace, run) -> reward_check.Budget:
-    """The env's budget with ``--iterations``, ``--gamma`` and ``--gae-lambda`` in place of its
-    own where given."""
+    """The env's budget for ``run`` as ``args`` change it (:func:`given_budget`)."""
+    return given_budget(args, reward_check.default_budget(run))
+
+
+def given_budget(args: argparse.Namespace, budget: reward_check.Budget) -> reward_check.Budget:
+    """``budget`` with ``--iterations``, ``--gamma`` and ``--gae-lambda`` in place where given."""
     given = {"iterations": args.iterations, "gamma": args.gamma, "gae_lambda": args.gae_lambda}
     given = {name: value for name, value in given.items() if value is not None}
-    return dataclasses.replace(reward_check.default_budget(run), **given)
+    return dataclasses.replace(budget, **given)
 
 
 def print_result(run, result: dict) -> None:

@@ -47,8 +47,9 @@ from collections.abc import Callable, Iterator
 import numpy as np
 
 from emgail_jax.host.final_results import FinalResults
-from emgail_jax.host.reward_check import BUDGETS, baseline_prefix
+from emgail_jax.host.reward_check import BUDGETS, Budget, baseline_prefix, env_budget
 from emgail_jax.host.run_spec import RunError, read_summary
+from emgail_jax.reoptimize import given_budget
 from emgail_jax.reoptimize import parse_args as reoptimize_args
 
 ROBOTICS_INTENTIONS = {
@@ -510,13 +511,25 @@ def checked_seeds(check: dict) -> list[int]:
 
 def reward_check_done(run_dir: str, seeds: int, check: RewardCheck = PAPER_CHECK) -> bool:
     """The cell's ``check`` covers its ``seeds``, took their final networks (a run resumed to
-    more iterations is checked again) and has the true-reward baseline beside them."""
+    more iterations is checked again), trained at the env's budget as it is now, and has the
+    true-reward baseline beside them."""
     found, summary = reward_check(run_dir, check), _summary_or_none(run_dir)
     if found is None or summary is None:
         return False
     every_seed = set(range(seeds)) <= set(checked_seeds(found))
     final = found.get("iteration") == summary.get("iterations_done")
-    return every_seed and final and bool(found.get("baseline"))
+    config = summary.get("config", {})
+    # A check written before lambda was part of the budget trained at the run's.
+    recorded = {"gae_lambda": config.get("gae_lambda"), **(found.get("budget") or {})}
+    at_budget = recorded == dataclasses.asdict(check_budget(summary["env"], config, check))
+    return every_seed and final and at_budget and bool(found.get("baseline"))
+
+
+def check_budget(env: str, config: dict, check: RewardCheck = PAPER_CHECK) -> Budget:
+    """The fresh agents' budget in ``check`` of a run of ``env`` with ``config`` (its
+    summary's), as ``reoptimize`` resolves the check's options (``--refit``'s recipe too)."""
+    own = env_budget(env, config["iterations"], config["gamma"], config["gae_lambda"])
+    return given_budget(reoptimize_args(["RUN", *check.options], env), own)
 
 
 def checks_to_do(run_dir: str, seeds: int) -> list[RewardCheck]:

@@ -286,6 +286,7 @@ def finished_cell(out, cell, erd, check=None, refit=None):
         "env": cell.env, "intentions": k, "seeds": seeds, "status": "completed",
         "iterations_done": 4, "parameters": {"total": 1}, "final": final.to_summary(),
         "timings": {"compile_time_s": 10.0, "train_time_s": 4.0 * seeds * k, "iterations": 4},
+        "config": {"iterations": 4, "gamma": 0.995, "gae_lambda": 0.97},
     }  # fmt: skip
     run_dir = out / "runs" / cell.name
     run_dir.mkdir(parents=True)
@@ -375,6 +376,15 @@ def test_sweep_a_cell_is_checked_until_every_seed_and_the_baseline_are(hopper_ce
     assert not sweep.reward_check_done(str(out / "runs" / "hopper-2-emgail"), 2)
     gail = str(out / "runs" / "hopper-2-gail")
     assert sweep.checks_to_do(gail, 2) == [sweep.REFIT_CHECK]
+    # A check written before lambda was in the budget trained at the run's: done; one at a
+    # budget the env no longer has (its lambda changed since): to do again.
+    assert sweep.reward_check_done(gail, 2)
+    monkeypatch.setitem(sweep.BUDGETS, "hopper", {"gae_lambda": 0.995})
+    assert not sweep.reward_check_done(gail, 2)
+    check = json.loads((out / "runs" / "hopper-2-gail" / "reoptimize.json").read_text())
+    check["budget"]["gae_lambda"] = 0.995
+    (out / "runs" / "hopper-2-gail" / "reoptimize.json").write_text(json.dumps(check))
+    assert sweep.reward_check_done(gail, 2)
 
 
 def test_sweep_reward_check_command_is_every_seed_beside_the_cached_baseline(

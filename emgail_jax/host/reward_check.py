@@ -64,10 +64,14 @@ def drawn(key, rl_seed: int):
     return jax.random.fold_in(key, rl_seed) if rl_seed else key
 
 
+def env_budget(env: str, iterations: int, gamma: float, gae_lambda: float) -> Budget:
+    """A run's own TRPO iterations, gamma and lambda, with the env's :data:`BUDGETS` in place."""
+    return dataclasses.replace(Budget(iterations, gamma, gae_lambda), **BUDGETS.get(env, {}))
+
+
 def default_budget(run) -> Budget:
     b_step = run.config.method.b_step
-    own = Budget(run.config.schedule.iterations, b_step.gamma, b_step.gae_lambda)
-    return dataclasses.replace(own, **BUDGETS.get(run.spec.env, {}))
+    return env_budget(run.spec.env, run.config.schedule.iterations, b_step.gamma, b_step.gae_lambda)
 
 
 def default_cache() -> str:
