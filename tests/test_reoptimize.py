@@ -32,7 +32,7 @@ def saved(tiny_run):
 def test_every_seed_is_reoptimised_beside_the_true_reward(reoptimized, capsys):
     result, cache = reoptimized
     assert result["seeds"] == [0, 1] and len(result["erd"]) == 2
-    assert result["budget"] == {"iterations": 2, "gamma": 0.995}
+    assert result["budget"] == {"iterations": 2, "gamma": 0.995, "gae_lambda": 0.97}
     assert result["eval_episodes"] == 2  # the tiny run's num_envs, as training evaluates
     assert result["absorbing_state"] is False  # an episode's end is worth 0
     assert np.isclose(result["erd_mean"], np.mean(result["erd"]))
