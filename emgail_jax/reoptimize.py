@@ -82,8 +82,14 @@ def budget_of(args: argparse.Namespace, run) -> reward_check.Budget:
 
 
 def given_budget(args: argparse.Namespace, budget: reward_check.Budget) -> reward_check.Budget:
-    """``budget`` with ``--iterations``, ``--gamma`` and ``--gae-lambda`` in place where given."""
-    given = {"iterations": args.iterations, "gamma": args.gamma, "gae_lambda": args.gae_lambda}
+    """``budget`` with ``--iterations``, ``--gamma``, ``--gae-lambda`` and
+    ``--[no-]value-target-scaling`` in place where given."""
+    given = {
+        "iterations": args.iterations,
+        "gamma": args.gamma,
+        "gae_lambda": args.gae_lambda,
+        "value_target_scaling": args.value_target_scaling,
+    }
     given = {name: value for name, value in given.items() if value is not None}
     return dataclasses.replace(budget, **given)
 
@@ -97,8 +103,9 @@ def print_result(run, result: dict) -> None:
     table = Table(
         title=f"fresh TRPO on the learned rewards of iteration {result['iteration']}, "
         f"{budget['iterations']} iterations, gamma {budget['gamma']}, lambda "
-        f"{budget.get('gae_lambda', '-')} (mean of the last "
-        f"{FINAL_WINDOW})"
+        f"{budget.get('gae_lambda', '-')}"
+        f"{', value targets scaled' if budget.get('value_target_scaling') else ''}"
+        f" (mean of the last {FINAL_WINDOW})"
     )
     for column in ("reward", "norm. ERD", "per intention", "true returns (expert)", "bars met"):
         table.add_column(column)
@@ -207,6 +214,13 @@ def argument_parser() -> argparse.ArgumentParser:
     parser.add_argument("--gamma", type=float, default=None, help="default: the env's budget")
     parser.add_argument(
         "--gae-lambda", type=float, default=None, help="GAE's lambda; default: the env's budget"
+    )
+    parser.add_argument(
+        "--value-target-scaling",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="fit the fresh agents' value baselines to standardised targets; default: the "
+        "env's budget",
     )
     parser.add_argument(
         "--no-baseline", dest="baseline", action="store_false", help="skip the true reward"
@@ -695,11 +709,14 @@ def check_identity(args: argparse.Namespace, run) -> dict:
     reports) and the iteration of the networks checked."""
     unrelated = ("draws", "quiet", "out", "baseline", "cache")
     options = {k: v for k, v in sorted(vars(args).items()) if k not in unrelated}
+    # Left out when not given, as before the option existed, so that those checks resume.
+    if options["value_target_scaling"] is None:
+        del options["value_target_scaling"]
     return {"options": options, "iteration": run.snapshot or run.iteration}
 
 
 def default_name(args) -> str:
-    """``reoptimize[-seed-S][-rl-R][-draws-N][-it-N][-gamma-G][-lambda-L][-snapshot-ITER][-consolidated-STEPS
+    """``reoptimize[-seed-S][-rl-R][-draws-N][-it-N][-gamma-G][-lambda-L][-[no-]scaled-values][-snapshot-ITER][-consolidated-STEPS
     [-penalty-W][-fresh][-noise-S][-batch-M]][-ensemble-N][-across-seeds][-FORM][-env-...].json``: a
     check of one seed, or at another budget, does not overwrite the check of every seed at the
     env's budget."""
@@ -716,6 +733,8 @@ def default_name(args) -> str:
         parts.append(f"gamma-{args.gamma:g}")
     if args.gae_lambda is not None:
         parts.append(f"lambda-{args.gae_lambda:g}")
+    if args.value_target_scaling is not None:
+        parts.append("scaled-values" if args.value_target_scaling else "no-scaled-values")
     parts += reward_parts(args)
     if args.env_set:
         parts.append("env-" + "-".join(args.env_set))

@@ -519,8 +519,9 @@ def reward_check_done(run_dir: str, seeds: int, check: RewardCheck = PAPER_CHECK
     every_seed = set(range(seeds)) <= set(checked_seeds(found))
     final = found.get("iteration") == summary.get("iterations_done")
     config = summary.get("config", {})
-    # A check written before lambda was part of the budget trained at the run's.
-    recorded = {"gae_lambda": config.get("gae_lambda"), **(found.get("budget") or {})}
+    # A check written before lambda or scaling were part of the budget trained at the run's.
+    before = {"gae_lambda": config.get("gae_lambda"), "value_target_scaling": False}
+    recorded = {**before, **(found.get("budget") or {})}
     at_budget = recorded == dataclasses.asdict(check_budget(summary["env"], config, check))
     return every_seed and final and at_budget and bool(found.get("baseline"))
 
@@ -528,7 +529,8 @@ def reward_check_done(run_dir: str, seeds: int, check: RewardCheck = PAPER_CHECK
 def check_budget(env: str, config: dict, check: RewardCheck = PAPER_CHECK) -> Budget:
     """The fresh agents' budget in ``check`` of a run of ``env`` with ``config`` (its
     summary's), as ``reoptimize`` resolves the check's options (``--refit``'s recipe too)."""
-    own = env_budget(env, config["iterations"], config["gamma"], config["gae_lambda"])
+    scaling = config.get("value_target_scaling", False)
+    own = env_budget(env, config["iterations"], config["gamma"], config["gae_lambda"], scaling)
     return given_budget(reoptimize_args(["RUN", *check.options], env), own)
 
 

@@ -1,6 +1,8 @@
 """The B-step: GAE on the rollout, advantages standardised per intention, one TRPO step and a
 refit of the value baseline, wired together as written out here by hand."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -11,10 +13,9 @@ from emgail_jax.method.b_step import PolicySamples, make_b_step
 from emgail_jax.method.config import BStepConfig
 from emgail_jax.method.gae import generalized_advantages
 from emgail_jax.method.networks import GaussianPolicy, ValueNet, action_distribution
-from emgail_jax.method.optim import Learner
 from emgail_jax.method.rollout import intention_major, time_major
 from emgail_jax.method.trpo import trpo_step
-from emgail_jax.method.value import fit_value
+from emgail_jax.method.value import ValueLearner, fit_value
 
 T, K, B, D, A = 4, 2, 3, 3, 2
 
@@ -50,8 +51,8 @@ def test_b_step_is_gae_then_standardised_trpo_then_value_fit(problem, absorbing)
     end_values = jnp.full((T, K, B), -30.0) if absorbing else None
     optimizer = optax.adam(1e-3)
     b_step = jax.jit(make_b_step(policy_net.apply, value_net.apply, optimizer, config))
-    result = b_step(policy, Learner.create(value, optimizer), samples, reward, key, end_values)
-    expected_policy, expected_value = jax.jit(by_hand, static_argnums=(0, 1, 2))(
+    result = b_step(policy, ValueLearner.create(value, optimizer), samples, reward, key, end_values)
+    expected_policy, expected_value, _ = jax.jit(by_hand, static_argnums=(0, 1, 2))(
         policy_net, value_net, config, policy, value, samples, reward, key, end_values
     )
     for got, want in zip(
@@ -67,8 +68,10 @@ def test_b_step_is_gae_then_standardised_trpo_then_value_fit(problem, absorbing)
     assert {"policy/kl", "value/loss", "value/loss_before"} <= set(result.metrics)
 
 
-def by_hand(policy_net, value_net, config, policy, value, samples, reward, key, end_values=None):
-    """The B-step written out from its parts."""
+def by_hand(
+    policy_net, value_net, config, policy, value, samples, reward, key, end_values=None, scale=None
+):
+    """The B-step written out from its parts; ``scale(returns) -> targets`` the value's."""
     optimizer = optax.adam(1e-3)
     obs, action, condition, time = map(
         intention_major, (samples.obs, samples.action, samples.condition, samples.time)
@@ -95,14 +98,14 @@ def by_hand(policy_net, value_net, config, policy, value, samples, reward, key, 
     expected_value, _ = fit_value(
         predict,
         optimizer,
-        Learner.create(value, optimizer),
+        ValueLearner.create(value, optimizer),
         (obs, condition, time),
-        intention_major(returns),
+        intention_major(returns) if scale is None else scale(intention_major(returns)),
         key,
         epochs=config.value_epochs,
         minibatches=config.value_minibatches,
     )
-    return expected_policy, expected_value
+    return expected_policy, expected_value, returns
 
 
 def test_b_step_refuses_a_reward_of_another_shape(problem):
@@ -110,7 +113,7 @@ def test_b_step_refuses_a_reward_of_another_shape(problem):
     optimizer = optax.adam(1e-3)
     b_step = make_b_step(policy_net.apply, value_net.apply, optimizer, config)
     with pytest.raises(AssertionError):
-        b_step(policy, Learner.create(value, optimizer), samples, reward[:, :, :2], key)
+        b_step(policy, ValueLearner.create(value, optimizer), samples, reward[:, :, :2], key)
 
 
 @pytest.mark.slow  # op-by-op TRPO and value fit; test_skeleton runs it eagerly on a smaller net
@@ -118,10 +121,37 @@ def test_b_step_is_the_same_jitted_and_not(problem):
     samples, reward, policy_net, value_net, policy, value, config, key = problem
     optimizer = optax.adam(1e-3)
     b_step = make_b_step(policy_net.apply, value_net.apply, optimizer, config)
-    learner = Learner.create(value, optimizer)
+    learner = ValueLearner.create(value, optimizer)
     eager = b_step(policy, learner, samples, reward, key)
     jitted = jax.jit(b_step)(policy, learner, samples, reward, key)
     # CG on this nearly singular Fisher and Adam's division by small gradients magnify
     # roundoff: op by op and fused, the parameters agree to about one percent.
     for a, b in zip(jax.tree.leaves(eager), jax.tree.leaves(jitted), strict=True):
         np.testing.assert_allclose(a, b, rtol=2e-2, atol=1e-4)
+
+
+def test_scaled_value_targets_change_the_value_fit_alone(problem):
+    """A fresh scaled value (mean 0, variance 1) predicts what an unscaled one does, so the
+    policy moves as it would; the value is fitted to the returns standardised by their mean
+    and variance, which its statistics now hold."""
+    samples, reward, policy_net, value_net, policy, value, config, key = problem
+    optimizer = optax.adam(1e-3)
+    config = dataclasses.replace(config, value_target_scaling=True)
+    b_step = jax.jit(make_b_step(policy_net.apply, value_net.apply, optimizer, config))
+    start = ValueLearner.create(value, optimizer, target_scaling=True)
+    result = b_step(policy, start, samples, reward, key)
+    written_out = jax.jit(by_hand, static_argnums=(0, 1, 2), static_argnames="scale")
+    returns = written_out(policy_net, value_net, config, policy, value, samples, reward, key)[2]
+    mean, var = float(returns.mean()), float(returns.var())
+    standardise = lambda targets: (targets - mean) / np.sqrt(var + 1e-8)
+    expected_policy, expected_value, _ = written_out(
+        policy_net, value_net, config, policy, value, samples, reward, key, scale=standardise
+    )
+    np.testing.assert_allclose(result.value.targets.mean, [mean], rtol=1e-5)
+    np.testing.assert_allclose(result.value.targets.var, [var], rtol=1e-5)
+    assert float(result.value.targets.count) == T * K * B
+    expected = jax.tree.leaves((expected_policy, expected_value.params))
+    for got, want in zip(
+        jax.tree.leaves((result.policy, result.value.params)), expected, strict=True
+    ):
+        np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-6)

@@ -385,6 +385,14 @@ def test_sweep_a_cell_is_checked_until_every_seed_and_the_baseline_are(hopper_ce
     check["budget"]["gae_lambda"] = 0.995
     (out / "runs" / "hopper-2-gail" / "reoptimize.json").write_text(json.dumps(check))
     assert sweep.reward_check_done(gail, 2)
+    # Likewise scaling: a check recorded without it trained unscaled, as the run's config.
+    monkeypatch.setitem(
+        sweep.BUDGETS, "hopper", {"gae_lambda": 0.995, "value_target_scaling": True}
+    )
+    assert not sweep.reward_check_done(gail, 2)
+    check["budget"]["value_target_scaling"] = True
+    (out / "runs" / "hopper-2-gail" / "reoptimize.json").write_text(json.dumps(check))
+    assert sweep.reward_check_done(gail, 2)
 
 
 def test_sweep_reward_check_command_is_every_seed_beside_the_cached_baseline(

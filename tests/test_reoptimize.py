@@ -32,7 +32,12 @@ def saved(tiny_run):
 def test_every_seed_is_reoptimised_beside_the_true_reward(reoptimized, capsys):
     result, cache = reoptimized
     assert result["seeds"] == [0, 1] and len(result["erd"]) == 2
-    assert result["budget"] == {"iterations": 2, "gamma": 0.995, "gae_lambda": 0.97}
+    assert result["budget"] == {
+        "iterations": 2,
+        "gamma": 0.995,
+        "gae_lambda": 0.97,
+        "value_target_scaling": False,
+    }
     assert result["eval_episodes"] == 2  # the tiny run's num_envs, as training evaluates
     assert result["absorbing_state"] is False  # an episode's end is worth 0
     assert np.isclose(result["erd_mean"], np.mean(result["erd"]))
@@ -309,6 +314,10 @@ def test_the_default_file_names_what_was_checked():
     assert reoptimize.default_name(args) == "reoptimize-it-1000-gamma-0.999.json"
     args = reoptimize.parse_args(["RUN", "--gae-lambda", "0.995"])
     assert reoptimize.default_name(args) == "reoptimize-lambda-0.995.json"
+    args = reoptimize.parse_args(["RUN", "--value-target-scaling"])
+    assert reoptimize.default_name(args) == "reoptimize-scaled-values.json"
+    args = reoptimize.parse_args(["RUN", "--no-value-target-scaling"])
+    assert reoptimize.default_name(args) == "reoptimize-no-scaled-values.json"
     args = reoptimize.parse_args(["RUN", "--across-seeds", "--rl-seed", "1"])
     assert reoptimize.default_name(args) == "reoptimize-rl-1-across-seeds.json"
     refit = ["--consolidate", "4000", "--consolidate-penalty", "10", "--consolidate-fresh"]

@@ -2,6 +2,7 @@
 algorithm and cached, the demonstrations' reward, ensembles, a saved refit, the draws."""
 
 import dataclasses
+import types
 
 import jax
 import numpy as np
@@ -186,6 +187,38 @@ def test_the_budgets_lambda_is_the_runs_unless_given_and_names_its_baseline(save
     assert reward_check.baseline_key(saved, given) != reward_check.baseline_key(saved, budget)
     monkeypatch.setattr(rl, "make_rl_train", lambda config, *rest: config)
     assert reward_check._fresh_trainer(saved, given).b_step.gae_lambda == 0.995
+
+
+def test_value_target_scaling_is_the_runs_unless_given_and_names_its_baseline(saved, monkeypatch):
+    """Off (the run's), the baseline keeps the key it had before scaling was a setting: the
+    key of a config without it."""
+    from emgail_jax import reoptimize
+    from emgail_jax.method import rl
+
+    budget = reward_check.default_budget(saved)
+    assert budget.value_target_scaling is False
+    args = reoptimize.parse_args(["RUN", "--value-target-scaling"])
+    scaled = reoptimize.budget_of(args, saved)
+    assert scaled == dataclasses.replace(budget, value_target_scaling=True)
+    assert reward_check.baseline_key(saved, scaled) != reward_check.baseline_key(saved, budget)
+    fields = tuple(f for f in reward_check.RL_FIELDS if f != "value_target_scaling")
+    monkeypatch.setattr(reward_check, "RL_FIELDS", fields)
+    without_the_setting = reward_check.baseline_key(saved, budget)
+    monkeypatch.undo()
+    assert reward_check.baseline_key(saved, budget) == without_the_setting
+    monkeypatch.setattr(rl, "make_rl_train", lambda config, *rest: config)
+    assert reward_check._fresh_trainer(saved, scaled).b_step.value_target_scaling is True
+    assert reward_check._fresh_trainer(saved, budget).b_step.value_target_scaling is False
+
+
+def test_a_check_not_given_scaling_keeps_the_identity_it_had_before_the_option():
+    from emgail_jax import reoptimize
+
+    run = types.SimpleNamespace(snapshot=None, iteration=4)
+    identity = reoptimize.check_identity(reoptimize.parse_args(["RUN"]), run)
+    assert "value_target_scaling" not in identity["options"]
+    given = reoptimize.parse_args(["RUN", "--no-value-target-scaling"])
+    assert reoptimize.check_identity(given, run)["options"]["value_target_scaling"] is False
 
 
 def _draw(rl_seed, earned, erd_per_intention, matching=(1, 0)):

@@ -25,11 +25,13 @@ from emgail_jax.host.schedule import FINAL_WINDOW  # the iterations averaged, as
 
 @dataclasses.dataclass(frozen=True)
 class Budget:
-    """What the fresh policies get: TRPO iterations, the discount and GAE's lambda."""
+    """What the fresh policies get: TRPO iterations, the discount, GAE's lambda and whether
+    their value baselines fit scaled targets (:class:`~emgail_jax.method.value.ValueLearner`)."""
 
     iterations: int
     gamma: float
     gae_lambda: float
+    value_target_scaling: bool = False
 
 
 # What envs whose experts needed more than an IRL run's budget get in place of the run's
@@ -52,6 +54,7 @@ RL_FIELDS = (
     "value_learning_rate",
     "value_epochs",
     "value_minibatches",
+    "value_target_scaling",
 )
 
 
@@ -66,14 +69,24 @@ def drawn(key, rl_seed: int):
     return jax.random.fold_in(key, rl_seed) if rl_seed else key
 
 
-def env_budget(env: str, iterations: int, gamma: float, gae_lambda: float) -> Budget:
-    """A run's own TRPO iterations, gamma and lambda, with the env's :data:`BUDGETS` in place."""
-    return dataclasses.replace(Budget(iterations, gamma, gae_lambda), **BUDGETS.get(env, {}))
+def env_budget(
+    env: str, iterations: int, gamma: float, gae_lambda: float, value_target_scaling: bool = False
+) -> Budget:
+    """A run's own TRPO iterations, gamma, lambda and value target scaling, with the env's
+    :data:`BUDGETS` in place."""
+    own = Budget(iterations, gamma, gae_lambda, value_target_scaling)
+    return dataclasses.replace(own, **BUDGETS.get(env, {}))
 
 
 def default_budget(run) -> Budget:
     b_step = run.config.method.b_step
-    return env_budget(run.spec.env, run.config.schedule.iterations, b_step.gamma, b_step.gae_lambda)
+    return env_budget(
+        run.spec.env,
+        run.config.schedule.iterations,
+        b_step.gamma,
+        b_step.gae_lambda,
+        b_step.value_target_scaling,
+    )
 
 
 def default_cache() -> str:
@@ -173,7 +186,10 @@ def _fresh_trainer(run, budget: Budget, reward_fn=None, absorbing_reward=None):
 
     # A fresh agent learns no discriminator: its rollouts need no AIRL successors.
     config = run.config.with_values(
-        gamma=budget.gamma, gae_lambda=budget.gae_lambda, discriminator_form="gail"
+        gamma=budget.gamma,
+        gae_lambda=budget.gae_lambda,
+        value_target_scaling=budget.value_target_scaling,
+        discriminator_form="gail",
     ).method
     env = run.problem.env
     episodes = config.rollout.num_envs
@@ -414,16 +430,21 @@ def baseline_key(run, budget: Budget, rl_seed: int = 0) -> str:
     """What the true-reward baseline depends on: the env, its options and K, the budget, the
     TRPO settings and the RL seed, as a file name (another RL seed's does not begin with
     :func:`baseline_prefix`: the sweep's checks read RL seed 0's)."""
-    # Lambda enters as the TRPO setting it overrides, so a budget that keeps the run's names
-    # the baseline it named before lambda was part of the budget.
-    config = run.config.with_values(gae_lambda=budget.gae_lambda).to_dict()
+    # Lambda and scaling enter as the TRPO settings they override, so a budget that keeps the
+    # run's names the baseline it named before they were part of the budget; scaling off is
+    # left out of the key as it was before the setting existed.
+    config = run.config.with_values(
+        gae_lambda=budget.gae_lambda, value_target_scaling=budget.value_target_scaling
+    ).to_dict()
+    if not config["value_target_scaling"]:
+        del config["value_target_scaling"]
     env = run.problem.env
     described = {
         "env": env.name,
         "options": env.options(),
         "intentions": env.num_intentions,
         "budget": {"iterations": budget.iterations, "gamma": budget.gamma},
-        "config": {name: config[name] for name in RL_FIELDS if name != "gamma"},
+        "config": {name: config[name] for name in RL_FIELDS if name in config and name != "gamma"},
     }
     text = json.dumps(described, sort_keys=True, default=str)
     digest = hashlib.sha256(text.encode()).hexdigest()[:12]

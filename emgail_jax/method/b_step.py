@@ -20,10 +20,9 @@ from emgail_jax.method.batches import LearningBatch
 from emgail_jax.method.config import BStepConfig
 from emgail_jax.method.gae import generalized_advantages
 from emgail_jax.method.networks import action_distribution
-from emgail_jax.method.optim import Learner
 from emgail_jax.method.rollout import intention_major, time_major
 from emgail_jax.method.trpo import trpo_step
-from emgail_jax.method.value import fit_value
+from emgail_jax.method.value import ValueLearner, fit_value
 
 
 @struct.dataclass
@@ -67,7 +66,7 @@ class BStep:
     """What the B-step hands on."""
 
     policy: Any  # the policy's parameters (TRPO keeps no optimiser state)
-    value: Learner
+    value: ValueLearner
     metrics: dict
 
 
@@ -79,7 +78,8 @@ def make_b_step(
 ):
     """``b_step(policy, value, samples, reward, key, end_values=None) -> BStep``: one policy
     improvement of the policy parameters ``policy`` on ``reward [T, K, B]`` for ``samples`` (a
-    :class:`PolicySamples`), and a refit of the value baseline ``value`` (a :class:`Learner`).
+    :class:`PolicySamples`), and a refit of the value baseline ``value`` (a
+    :class:`~emgail_jax.method.value.ValueLearner`).
     ``end_values [T, K, B]``: V of the state an episode ends in (GAE's; None: 0).
 
     The networks see the samples grouped by intention (``[K, T * B]``, see
@@ -88,7 +88,7 @@ def make_b_step(
 
     def b_step(
         policy: Any,
-        value: Learner,
+        value: ValueLearner,
         samples: PolicySamples,
         reward: jax.Array,
         key: jax.Array,
@@ -100,16 +100,11 @@ def make_b_step(
         obs, action, condition, time = map(
             intention_major, (samples.obs, samples.action, samples.condition, samples.time)
         )
-        values = time_major(
-            value_apply(value.params, obs, condition, time, intention_major=True), t
+        predict = lambda *inputs: value.values(
+            value_apply(value.params, *inputs, intention_major=True)
         )
-        bootstrap = value_apply(
-            value.params,
-            samples.last_obs,
-            samples.last_condition,
-            samples.last_time,
-            intention_major=True,
-        )
+        values = time_major(predict(obs, condition, time), t)
+        bootstrap = predict(samples.last_obs, samples.last_condition, samples.last_time)
         advantages, returns = generalized_advantages(
             reward, values, samples.done, bootstrap, config.gamma, config.gae_lambda, end_values
         )
@@ -125,12 +120,13 @@ def make_b_step(
 
         policy, policy_metrics = trpo_step(distribution, policy, action, advantages, config.trpo)
         value_predict = lambda params, *inputs: value_apply(params, *inputs, intention_major=True)
+        value, targets = value.fitting_targets(intention_major(returns))
         value, value_metrics = fit_value(
             value_predict,
             value_optimizer,
             value,
             (obs, condition, time),
-            intention_major(returns),
+            targets,
             key,
             epochs=config.value_epochs,
             minibatches=config.value_minibatches,

@@ -256,6 +256,7 @@ SETTINGS: dict[str, Setting] = {
     "value_learning_rate": _at("method", "b_step", "value_learning_rate", domain=POSITIVE),
     "value_epochs": _at("method", "b_step", "value_epochs", domain=COUNT),
     "value_minibatches": _at("method", "b_step", "value_minibatches", domain=COUNT),
+    "value_target_scaling": _at("method", "b_step", "value_target_scaling", domain=BOOLEAN),
     "discriminator_learning_rate": _at("method", "m_step", "learning_rate", domain=POSITIVE),
     "discriminator_steps": _at("method", "m_step", "steps", domain=COUNT),
     "discriminator_gradient_penalty": _at(
@@ -427,6 +428,9 @@ class BStepConfig(_Layer):
     value_learning_rate: float = 1e-3
     value_epochs: int = 20
     value_minibatches: int = 4
+    # V fitted to its targets standardised by their running mean and variance (off: the raw
+    # returns, as the paper's code has it).
+    value_target_scaling: bool = False
 
     def __post_init__(self):
         super().__post_init__()

@@ -36,8 +36,8 @@ from emgail_jax.method.batches import LearningBatch
 from emgail_jax.method.config import MethodConfig
 from emgail_jax.method.gae import absorbing_value
 from emgail_jax.method.networks import GaussianPolicy, ValueNet, policy_action
-from emgail_jax.method.optim import Learner
 from emgail_jax.method.rollout import Policy, Transitions, rollout, steps_left, time_major
+from emgail_jax.method.value import ValueLearner
 
 # intentions [...] (int) -> the policy's and the value's intention input [..., C] (C may be 0)
 Condition = Callable[[Any], jax.Array]
@@ -86,13 +86,14 @@ class PolicyStages:
             self.policy.apply, self.value.apply, self.value_optimizer, self.config.b_step
         )
 
-    def init(self, key_policy: jax.Array, key_value: jax.Array) -> tuple[Any, Learner]:
-        """Fresh policy parameters and a fresh value :class:`Learner`."""
+    def init(self, key_policy: jax.Array, key_value: jax.Array) -> tuple[Any, ValueLearner]:
+        """Fresh policy parameters and a fresh value :class:`ValueLearner`."""
         obs = jnp.zeros((1, self.observation_size))
         condition = self.condition(intention_rows((1,)))
         value = self.value.init(key_value, obs, condition, jnp.zeros(1))
         policy = self.policy.init(key_policy, obs, condition)
-        return policy, Learner.create(value, self.value_optimizer)
+        scaling = self.config.b_step.value_target_scaling
+        return policy, ValueLearner.create(value, self.value_optimizer, scaling)
 
     def acting(self, params, normalizer: obs_norm.RunningStats, explore) -> Policy:
         """``policy(obs [K, ...], key) -> action``: row k acts as intention k (an unconditioned
