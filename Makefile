@@ -9,7 +9,7 @@ OUT ?= runs/driver-emgail
 SEEDS ?= 4
 ITERATIONS ?= 400
 
-.PHONY: run test test-slow lint format bench bench-envs check-envs separability sweep experts clean
+.PHONY: run test test-slow lint format bench bench-envs bench-check check-envs separability sweep experts clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -43,6 +43,10 @@ bench: $(STAMP)
 # Env-steps/s of every env, batched, against native MuJoCo on both cores, as ratios.
 bench-envs: $(STAMP)
 	$(PY) experiments/bench_env_throughput.py
+
+# The reward check's fresh TRPO scored every 10th iteration (as shipped) against every one.
+bench-check: $(STAMP)
+	$(PY) experiments/bench_reward_check.py
 
 # The MJX envs' fast solver settings against native MuJoCo's defaults: open-loop gaits, then
 # the shipped experts' closed-loop behaviour.

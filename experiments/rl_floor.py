@@ -62,7 +62,7 @@ def main(argv=None) -> int:
 
     keys = jax.random.split(jax.random.PRNGKey(args.seed), env.num_intentions)
     states = jax.jit(jax.vmap(trainer.init))(keys)
-    run_chunks(step, states, plan, lambda first, n: np.zeros(n, bool), report)
+    run_chunks(step, states, plan, lambda first, n: np.ones(n, bool), report)  # evaluate each
     return 0
 
 

@@ -5,6 +5,7 @@ import csv
 import importlib.util
 import json
 import pathlib
+import re
 import socket
 import sys
 
@@ -38,6 +39,25 @@ def test_bench_measures_the_driver(capsys):
                  "compile (2 seeds", "warm cache", "init alone",
                  "peak resident memory"):  # fmt: skip
         assert line in out, line
+
+
+@pytest.mark.slow  # two TRPO programs compiled: about 60 s
+def test_the_reward_check_benchmark_times_both_ways_on_the_driver(capsys):
+    """Both ways are timed and their ratio printed; 12 iterations score 10 and 12 in one."""
+    bench = _load("bench_reward_check")
+    assert bench.main(["--env", "driver", "--rows", "2", "--iterations", "12"]) == 0
+    out = capsys.readouterr().out
+    scored = [int(n) for n in re.findall(r"(\d+) iterations scored", out)]
+    timed = [float(seconds) for seconds in re.findall(r"([\d.]+) s per row-iteration", out)]
+    assert scored == [10, 12] and len(timed) == 2 and min(timed) > 0
+    assert float(out.split("ratio every iteration / as shipped:")[1]) > 0
+
+
+def test_the_reward_check_benchmark_refuses_no_iterations(capsys):
+    with pytest.raises(SystemExit) as stopped:
+        _load("bench_reward_check").main(["--iterations", "0"])
+    assert stopped.value.code == 2
+    assert "give positive numbers" in capsys.readouterr().err
 
 
 def test_driver_separability_writes_its_table(tmp_path, capsys):

@@ -115,6 +115,28 @@ def test_a_stopped_training_goes_on_from_its_save_as_if_never_stopped(saved, tmp
     assert resumed.returns.shape == (1, 20, 2, 2)
 
 
+def test_fresh_agents_scored_on_the_schedule_train_as_if_scored_every_iteration(saved):
+    """Evaluation episodes every 10th iteration and each of the last 10 only: the agents, the
+    reward they earn and the returns where scored are those of agents scored every iteration;
+    the other iterations' returns are NaN."""
+    from emgail_jax.host.saved_run import stacked
+
+    budget = reward_check.Budget(iterations=30, gamma=0.99, gae_lambda=0.97)
+    trainer = reward_check.learned_reward_trainer(saved, budget, saved.reward_function())
+    keys = reward_check.fresh_keys(saved, [0, 1], rl_seed=0)
+    data = stacked([saved.reward_parameters(seed) for seed in (0, 1)])
+    train = lambda **every: reward_check.train_fresh(trainer, keys, data, 30, "", False, **every)
+    scheduled, every = train(), train(curve_every=1)
+    for a, b in zip(jax.tree.leaves(scheduled.states), jax.tree.leaves(every.states), strict=True):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(scheduled.earned, every.earned)
+    scored = np.zeros(30, bool)
+    scored[[9, *range(19, 30)]] = True  # iterations 10 and 20 to 30
+    np.testing.assert_array_equal(scheduled.returns[:, scored], every.returns[:, scored])
+    assert np.isnan(scheduled.returns[:, ~scored]).all()
+    assert np.isfinite(every.returns).all()
+
+
 def test_a_refit_is_saved_once_and_reused(tiny_run, tmp_path, capsys):
     import shutil
 

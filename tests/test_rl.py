@@ -24,7 +24,7 @@ def test_one_seed_chunk_trains_every_intention_on_its_own_reward(trainer):
     chunk = intention_chunk(trainer, jnp.arange(k))
     seen = []
     record = lambda first, length, states, metrics: seen.append((first, metrics)) or True
-    states = run_chunks(chunk, states, chunks(0, 4, 2), lambda f, n: np.zeros(n, bool), record)
+    states = run_chunks(chunk, states, chunks(0, 4, 2), lambda f, n: np.ones(n, bool), record)
     assert [first for first, _ in seen] == [0, 2]
     assert seen[0][1]["eval/returns"].shape == (2, k, k)  # [chunk, learned, true]
     # Each policy is scored on its own intention's reward.
@@ -46,13 +46,40 @@ def test_seeds_chunk_trains_each_row_on_its_own_reward_parameters():
     keys = jax.random.split(jax.random.PRNGKey(0), k)
     one = jax.jit(jax.vmap(plain.init))(keys)
     both = jax.tree.map(lambda x: np.stack([x, x]), one)
-    inputs = np.zeros(3, bool)
+    inputs = np.ones(3, bool)
     _, metrics = seeds_chunk(trainer, jnp.arange(k))(both, inputs, jnp.array([1.0, -1.0]))
     _, expected = intention_chunk(plain, jnp.arange(k))(one, inputs)
     np.testing.assert_array_equal(metrics["eval/returns"][:, 0], expected["eval/returns"])
     # The first rollout is the same policy's: only the reward differs.
     np.testing.assert_allclose(metrics["train/reward"][0, 1], -expected["train/reward"][0], 1e-6)
     assert not np.array_equal(metrics["eval/returns"][-1, 1], expected["eval/returns"][-1])
+
+
+def test_an_iteration_not_evaluating_trains_the_same_and_leaves_its_returns_nan(trainer):
+    """Skipping the evaluation episodes changes nothing but the returns: the keys, the policies
+    and the reward earned are those of a chunk that evaluates every iteration."""
+    chunk = intention_chunk(trainer, jnp.arange(2))
+    states = jax.jit(jax.vmap(trainer.init))(jax.random.split(jax.random.PRNGKey(0), 2))
+    every, some = np.ones(3, bool), np.array([True, False, True])
+    end_every, seen_every = chunk(states, every)
+    end_some, seen_some = chunk(states, some)
+    for a, b in zip(jax.tree.leaves(end_every), jax.tree.leaves(end_some), strict=True):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(seen_some["train/reward"], seen_every["train/reward"])
+    returns = np.asarray(seen_some["eval/returns"])  # [3, K, K env]
+    np.testing.assert_array_equal(returns[some], np.asarray(seen_every["eval/returns"])[some])
+    assert np.isnan(returns[1]).all() and np.isfinite(returns[some]).all()
+    assert np.isnan(seen_some["eval/own_return"][1]).all()
+
+
+@pytest.mark.parametrize("jitted", [False, True])
+def test_one_update_scores_the_new_policy_only_when_evaluating(trainer, jitted):
+    update = jax.jit(trainer.update) if jitted else trainer.update
+    state = trainer.init(jax.random.PRNGKey(0))
+    _, scored = update(state, jnp.int32(0), None, True)
+    _, skipped = update(state, jnp.int32(0), None, False)
+    assert np.isfinite(scored["eval/returns"]).all() and np.isnan(skipped["eval/returns"]).all()
+    np.testing.assert_array_equal(scored["train/reward"], skipped["train/reward"])
 
 
 @pytest.mark.parametrize("jitted", [False, True])

@@ -20,7 +20,11 @@ import time
 import numpy as np
 
 from emgail_jax.host.check_progress import PartialTraining
-from emgail_jax.host.schedule import FINAL_WINDOW  # the iterations averaged, as training's
+from emgail_jax.host.schedule import FINAL_WINDOW, evaluation_plan
+
+# The fresh agents are scored on evaluation episodes every CURVE_EVERY-th iteration and each of
+# the last FINAL_WINDOW (their final numbers), as training scores its policies.
+CURVE_EVERY = 10
 
 
 @dataclasses.dataclass(frozen=True)
@@ -113,10 +117,12 @@ def train_fresh(
     label: str,
     progress: bool,
     partial: PartialTraining | None = None,
+    curve_every: int = CURVE_EVERY,
 ):
     """Trains ``trainer``'s policies from ``keys [S, K]`` (policy k of row s on intention k of
     the reward ``reward_data[s]``) for ``iterations``, in chunks of 10; with ``partial``, from
-    where its save left off, saving as it goes."""
+    where its save left off, saving as it goes. Scores them every ``curve_every``-th iteration
+    and each of the last :data:`FINAL_WINDOW`; the returns of the others are NaN."""
     import jax
     import jax.numpy as jnp
 
@@ -133,10 +139,10 @@ def train_fresh(
         done, states, returns_so_far, earned_so_far, train_before = resumed
         returns, earned = [returns_so_far], [earned_so_far]
     plan = chunks(done, iterations, length)
-    inputs = lambda first, length: np.zeros(length, bool)
+    evaluating = lambda first, length: evaluation_plan(first, length, iterations, curve_every)
     start = time.perf_counter()
     chunk = seeds_chunk(trainer, jnp.arange(k))
-    step = chunk.lower(states, inputs(0, length), reward_data).compile()
+    step = chunk.lower(states, evaluating(0, length), reward_data).compile()
     compile_s = time.perf_counter() - start
     bar = ProgressBar(label, iterations, {"return": "-"}, completed=done, enabled=progress)
     start = saved_at = time.perf_counter()
@@ -145,8 +151,12 @@ def train_fresh(
         nonlocal saved_at
         returns.append(np.asarray(metrics["eval/returns"]))  # [L, S, K, K env]
         earned.append(np.asarray(metrics["train/reward"]))  # [L, S, K]
-        own = np.diagonal(returns[-1][-1], axis1=-2, axis2=-1).mean(0)
-        bar.update(length, **{"return": " ".join(f"{r:.1f}" for r in own)})
+        evaluated = np.flatnonzero(evaluating(first, length))
+        texts = {}
+        if len(evaluated):  # the chunk's last scored iteration, mean over the rows
+            own = np.diagonal(returns[-1][evaluated[-1]], axis1=-2, axis2=-1).mean(0)
+            texts["return"] = " ".join(f"{r:.1f}" for r in own)
+        bar.update(length, **texts)
         now = time.perf_counter()
         if partial and now - saved_at >= partial.every_s and first + length < iterations:
             train_s = train_before + now - start
@@ -154,7 +164,8 @@ def train_fresh(
             saved_at = now
         return True
 
-    states = run_chunks(lambda s, x: step(s, x, reward_data), states, plan, inputs, after_chunk)
+    run = lambda s, flags: step(s, flags, reward_data)
+    states = run_chunks(run, states, plan, evaluating, after_chunk)
     bar.close()
     train_s = train_before + time.perf_counter() - start
     to_seed_major = lambda parts: np.swapaxes(np.concatenate(parts), 0, 1)
@@ -475,7 +486,7 @@ def true_reward_baseline(
     if path is not None and os.path.exists(path):
         with open(path) as f:
             stored = json.load(f)
-        returns = np.asarray(stored["returns"])
+        returns = np.asarray(stored["returns"], np.float64)  # null where not scored
         found = stored["success"]
     else:
         trainer = _fresh_trainer(run, budget)

@@ -74,10 +74,12 @@ def make_rl_train(
     eval_episodes: int = 5,
     absorbing_reward: AbsorbingRewardFn | None = None,
 ):
-    """Builds ``init(key) -> RLState``, ``update(state, intention, reward_data=None) -> (state,
-    metrics)`` and ``policy(state, deterministic) -> (obs, key) -> action``: the trainer
-    skeleton (:mod:`~emgail_jax.method.skeleton`) with ``reward_fn`` as its reward stage; every
-    update scores the new policy on ``eval_episodes`` deterministic episodes. With
+    """Builds ``init(key) -> RLState``, ``update(state, intention, reward_data=None,
+    evaluating=True) -> (state, metrics)`` and ``policy(state, deterministic) -> (obs, key) ->
+    action``: the trainer skeleton (:mod:`~emgail_jax.method.skeleton`) with ``reward_fn`` as its
+    reward stage; an update ``evaluating`` scores the new policy on ``eval_episodes``
+    deterministic episodes (NaN returns otherwise; the keys and the training are the same
+    either way). With
     ``absorbing_reward`` (a learned reward of a run with absorbing states), a termination is
     worth that reward for every step left to the time limit, as in the run's B-step."""
     config = config.resolved(env)
@@ -102,11 +104,11 @@ def make_rl_train(
             iteration=jnp.zeros((), jnp.int32),
         )
 
-    def collect(state: RLState, key, intention, reward_data):
+    def collect(state: RLState, key, intention, reward_data, evaluating):
         behaviour = stages.acting(state.policy, state.normalizer, explore=True)
         return (*stages.collect(train_env, behaviour, state.env_state, key), {})
 
-    def reward(state: RLState, batch, normalizer, intention, reward_data) -> Rewarded:
+    def reward(state: RLState, batch, normalizer, intention, reward_data, evaluating) -> Rewarded:
         rewards = reward_fn(batch.obs, batch.action, batch.true_reward, intention, reward_data)
         absorbed = None
         if absorbing_reward is not None:
@@ -116,16 +118,23 @@ def make_rl_train(
 
     # Fresh episodes of the improved policy, not the IRL loop's evaluation phases: the experts
     # and the baselines' cached numbers were made with these keys.
-    def evaluate(state: RLState, key, intention, reward_data) -> dict:
-        greedy = stages.acting(state.policy, state.normalizer, explore=False)
-        returns = episode_returns(eval_env, greedy, key, 1, eval_episodes)[0]
-        # [K] under every true intention
+    def evaluate(state: RLState, key, intention, reward_data, evaluating) -> dict:
+        def scored():  # [K] under every true intention
+            greedy = stages.acting(state.policy, state.normalizer, explore=False)
+            return episode_returns(eval_env, greedy, key, 1, eval_episodes)[0]
+
+        shape = jax.eval_shape(scored)
+        returns = jax.lax.cond(
+            evaluating, scored, lambda: jnp.full(shape.shape, jnp.nan, shape.dtype)
+        )
         return {"eval/returns": returns, "eval/own_return": jnp.take(returns, intention)}
 
     iteration = make_update(stages, collect, reward, evaluate)
 
-    def update(state: RLState, intention: jax.Array, reward_data=None) -> tuple[RLState, dict]:
-        return iteration(state, intention, reward_data)
+    def update(
+        state: RLState, intention: jax.Array, reward_data=None, evaluating=True
+    ) -> tuple[RLState, dict]:
+        return iteration(state, intention, reward_data, jnp.asarray(evaluating))
 
     def policy(state: RLState, deterministic: bool = True):
         """The trained policy as ``(obs [..., D], key) -> action``."""
@@ -141,26 +150,29 @@ class RLTrainer(NamedTuple):
 
 
 def intention_chunk(trainer: RLTrainer, intentions: jax.Array) -> Callable:
-    """One seed's ``chunk(states [I], inputs [L]) -> (states, metrics [L, I, ...])``, jitted:
-    ``L`` iterations of one policy per entry of ``intentions [I]`` (vmapped), for callers that
-    hold one seed's states themselves (experiments/rl_floor.py)."""
+    """One seed's ``chunk(states [I], evaluating [L]) -> (states, metrics [L, I, ...])``,
+    jitted: ``L`` iterations of one policy per entry of ``intentions [I]`` (vmapped), iteration
+    ``l`` scored on evaluation episodes where ``evaluating[l]``, for callers that hold one
+    seed's states themselves (experiments/rl_floor.py)."""
 
-    def chunk(states, inputs):
-        step = lambda s, _: jax.vmap(trainer.update)(s, intentions)
-        return jax.lax.scan(step, states, inputs)
+    def chunk(states, evaluating):
+        update = jax.vmap(trainer.update, (0, 0, None, None))
+        return jax.lax.scan(lambda s, e: update(s, intentions, None, e), states, evaluating)
 
     return jax.jit(chunk)
 
 
 def seeds_chunk(trainer: RLTrainer, intentions: jax.Array) -> Callable:
-    """``chunk(states [S, I], inputs [L], reward_data [S, ...]) -> (states, metrics [L, S, I,
-    ...])``, jitted: :func:`intention_chunk` for ``S`` rewards at once, reward ``s`` (its
+    """``chunk(states [S, I], evaluating [L], reward_data [S, ...]) -> (states, metrics [L, S,
+    I, ...])``, jitted: :func:`intention_chunk` for ``S`` rewards at once, reward ``s`` (its
     parameters ``reward_data[s]``, shared by its ``I`` policies) training the row ``s`` of
     policies (re-optimising every seed of a run, :mod:`emgail_jax.reoptimize`)."""
 
-    def chunk(states, inputs, reward_data):
-        one_reward = lambda s, data: jax.vmap(trainer.update, (0, 0, None))(s, intentions, data)
-        step = lambda s, _: jax.vmap(one_reward)(s, reward_data)
-        return jax.lax.scan(step, states, inputs)
+    def chunk(states, evaluating, reward_data):
+        one_reward = lambda s, data, e: jax.vmap(trainer.update, (0, 0, None, None))(
+            s, intentions, data, e
+        )
+        step = lambda s, e: jax.vmap(one_reward, (0, 0, None))(s, reward_data, e)
+        return jax.lax.scan(step, states, evaluating)
 
     return jax.jit(chunk)
