@@ -415,6 +415,16 @@ def test_sweep_a_cell_is_checked_until_every_seed_and_the_baseline_are(hopper_ce
     assert sweep.reward_check_done(gail, 2)
 
 
+def test_sweep_halfcheetahs_refit_check_scales_the_value_targets_and_no_other_check_does():
+    sweep = _load("sweep")
+    config = {"iterations": 400, "gamma": 0.995, "gae_lambda": 0.97}
+    budget = lambda env, check: sweep.check_budget(env, config, check)
+    refit = budget("halfcheetah", sweep.REFIT_CHECK)
+    assert refit.value_target_scaling and refit.iterations == 1000
+    assert not budget("halfcheetah", sweep.PAPER_CHECK).value_target_scaling
+    assert not budget("hopper", sweep.REFIT_CHECK).value_target_scaling
+
+
 def test_sweep_reward_check_command_is_every_seed_beside_the_cached_baseline(
     hopper_cells, monkeypatch
 ):

@@ -396,6 +396,12 @@ def test_refit_adds_the_envs_own_recipe_and_any_option_given_replaces_its_part()
     shorter = reoptimize.parse_args(["RUN", "--refit", "--iterations", "400"], env="halfcheetah")
     assert shorter.iterations == 400 and shorter.consolidate_ranking == 30
     assert reoptimize.parse_args(["RUN"], env="halfcheetah").iterations is None
+    # Halfcheetah's recipe scales the value targets, unless told not to; no other env's does.
+    assert cheetah.value_target_scaling is True
+    raw = ["RUN", "--refit", "--no-value-target-scaling"]
+    assert reoptimize.parse_args(raw, env="halfcheetah").value_target_scaling is False
+    assert reoptimize.parse_args(["RUN", "--refit"], env="hopper").value_target_scaling is None
+    assert reoptimize.parse_args(["RUN"], env="halfcheetah").value_target_scaling is None
     # Each part of the env's recipe can be replaced or turned off alone.
     options = ["--consolidate-ranking", "0", "--no-consolidate-absorbing", "--reward-form", "log-d"]
     plain = reoptimize.parse_args(["RUN", "--refit", *options], env="hopper")
@@ -415,7 +421,7 @@ def test_refit_adds_the_envs_own_recipe_and_any_option_given_replaces_its_part()
         "--absorbing-reward random"
     )
     assert reoptimize.refit_extras("halfcheetah") == (
-        "--consolidate-ranking 30 --reward-form logit --iterations 1000"
+        "--consolidate-ranking 30 --reward-form logit --iterations 1000 --value-target-scaling"
     )
     assert reoptimize.refit_extras("reacher") == ""
 
