@@ -298,6 +298,26 @@ def test_one_draw_chosen_is_that_draw():
     np.testing.assert_array_equal(curve(chosen), curve(draw))
 
 
+def test_a_draw_read_back_from_its_file_is_chosen_as_the_draw_in_memory():
+    """Iterations not scored are NaN in memory and null in the draw's file; a check that goes on
+    from its files chooses as one that never stopped."""
+    import json
+
+    from emgail_jax.host import records
+
+    draws = [_draw(0, [0.3, 0.1], [0.2, 0.4]), _draw(1, [0.1, 0.3], [0.3, 0.1])]
+    for draw in draws:  # two iterations not scored before the final window's ten
+        seed = draw["per_seed"][0]
+        scored = np.tile(seed["erd_curve_per_intention"][-1], (10, 1))
+        seed["erd_curve_per_intention"] = np.vstack([np.full((2, 2), np.nan), scored])
+    read_back = [json.loads(records.json_text(records.to_json_value(d))) for d in draws]
+    assert read_back[0]["per_seed"][0]["erd_curve_per_intention"][0] == [None, None]
+    chosen, again = map(reward_check.chosen_by_learned_reward, (draws, read_back))
+    assert again["erd"] == chosen["erd"] and np.isfinite(chosen["erd"]).all()
+    curve = lambda result: result["per_seed"][0]["erd_curve"]
+    np.testing.assert_array_equal(np.asarray(curve(again), float), curve(chosen))
+
+
 def test_the_best_baseline_keeps_the_highest_true_return_per_intention():
     draws = [_draw(r, [0, 0], erd)["per_seed"][0] for r, erd in ((0, [0.1, 0.6]), (1, [0.4, 0.2]))]
     baselines = [{**d, "cache": f"draw{r}.json"} for r, d in enumerate(draws)]

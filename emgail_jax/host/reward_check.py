@@ -382,7 +382,10 @@ def picked(draws: list[dict], pick) -> dict:
     """One :func:`scored` result (with its ``success``) whose true intention i is the agent of
     draw ``pick[i]`` of ``draws``, scores of agents trained alike under one matching."""
     pick = [int(d) for d in pick]
-    column = lambda name: [np.asarray(draws[d][name])[..., i] for i, d in enumerate(pick)]
+    # float64: a draw read back from its file has null where its agents were not scored.
+    column = lambda name: [
+        np.asarray(draws[d][name], np.float64)[..., i] for i, d in enumerate(pick)
+    ]
     result = {"matching": draws[0]["matching"], "returns": np.array(column("returns"))}
     known = draws[0]["erd"] is not None  # as scored: one draw picks itself alike
     result.update(erd_summary(np.stack(column("erd_curve_per_intention"), -1) if known else None))
