@@ -123,10 +123,8 @@ def make_rl_train(
             greedy = stages.acting(state.policy, state.normalizer, explore=False)
             return episode_returns(eval_env, greedy, key, 1, eval_episodes)[0]
 
-        shape = jax.eval_shape(scored)
-        returns = jax.lax.cond(
-            evaluating, scored, lambda: jnp.full(shape.shape, jnp.nan, shape.dtype)
-        )
+        not_scored = lambda: jnp.full(env.num_intentions, jnp.nan, jnp.float32)
+        returns = jax.lax.cond(evaluating, scored, not_scored)
         return {"eval/returns": returns, "eval/own_return": jnp.take(returns, intention)}
 
     iteration = make_update(stages, collect, reward, evaluate)
