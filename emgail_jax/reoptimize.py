@@ -4,6 +4,7 @@
         [--ensemble N | --across-seeds | --consolidate STEPS [--consolidate-*]]
         [--reward-form FORM] [--absorbing-reward learned|random] [--iterations N] [--gamma G]
         [--no-baseline] [--cache DIR] [--env-set KEY=FACTOR ...] [--out PATH]
+        [--merge CHECK ...]
 
 For every run seed (or ``--seed S`` alone) and every learned intention, a new policy is trained
 from scratch with TRPO on the frozen pseudo-reward R_i(s, a) of that seed (the run's final
@@ -17,7 +18,9 @@ seeing the true reward; the seeds' and intentions' policies are vmapped in one p
 from a search that did; ``--draws N``: N draws, keeping per intention the agent that earns the
 most learned reward, as a user without the true reward would; each finished draw, and the
 training of the one under way every few minutes, is kept beside the check's file until it is
-written, so a check stopped part-way goes on from there). Their deterministic episodes
+written, so a check stopped part-way goes on from there; ``--merge`` joins checks of one
+seed each, run with ``--seed S`` on other cores or machines, into the check of them all,
+training no agent on the learned reward). Their deterministic episodes
 (as many per iteration as training evaluates, ``num_envs``) are scored under the true
 rewards; the ERD matches each true intention to the learned one the run itself matched it to
 (its jointly trained policies' matching at that iteration), one matching for every number
@@ -367,6 +370,15 @@ def argument_parser() -> argparse.ArgumentParser:
         help="with --env-set: ERD's 0 is per intention the best of N true-reward draws in the "
         "variant (default 3)",
     )
+    parser.add_argument(
+        "--merge",
+        nargs="+",
+        default=[],
+        metavar="CHECK",
+        help="train no agent on the learned reward: join these checks, each of one seed "
+        "(--seed S) with the options given here, into the check of their seeds, as if trained "
+        "together (one seed per core or machine, then merged); the baseline as without it",
+    )
     parser.add_argument("--out", default=None, help="default: RUN_DIR/reoptimize[-...].json")
     parser.add_argument("--quiet", action="store_true")
     return parser
@@ -518,6 +530,8 @@ def _check_options(args: argparse.Namespace) -> None:
         raise RunError(
             "--env-set scores against the variant's true-reward baseline: drop --no-baseline"
         )
+    if args.merge and args.seed is not None:
+        raise RunError("--merge joins checks of one seed each: drop --seed")
 
 
 @dataclasses.dataclass
@@ -532,19 +546,18 @@ class Chosen:
     details: dict = dataclasses.field(default_factory=dict)
 
 
-def _opened(args: argparse.Namespace):
-    """``(args, run, seeds, Chosen)`` of the command line: ``args`` with the reward form
-    resolved for the run's env (:func:`refit_reward_form`), the saved run with that form, and
-    its consolidated or ensemble rewards if asked."""
+def _run_opened(args: argparse.Namespace):
+    """``(args, run)`` of the command line: ``args`` with the reward form resolved for the
+    run's env (:func:`refit_reward_form`), the saved run with that form, in the variant if
+    asked."""
     import envs
     from emgail_jax.host.run_spec import RunError
-    from emgail_jax.host.saved_run import SavedRun, across_seeds_reward
+    from emgail_jax.host.saved_run import SavedRun
 
     _check_options(args)
     run = SavedRun.open(args.run_dir, snapshot=args.snapshot)
     if args.env_set:
         run.problem = reward_check.variant_problem(run, args.env_set)
-    seeds = list(range(run.spec.seeds)) if args.seed is None else [run.seed_index(args.seed)]
     if run.config.method.m_step.form.airl and (args.reward_form or args.consolidate):
         # Its reward is g_i(s), no reading of a GAIL discriminator's logit, nor refitted as one.
         raise RunError(
@@ -554,6 +567,17 @@ def _opened(args: argparse.Namespace):
     args = argparse.Namespace(**{**vars(args), "reward_form": form})
     if args.reward_form is not None:
         run = run.with_reward_form(args.reward_form)
+    return args, run
+
+
+def _opened(args: argparse.Namespace):
+    """``(args, run, seeds, Chosen)`` of the command line (:func:`_run_opened`), with its
+    consolidated or ensemble rewards if asked."""
+    from emgail_jax.host.run_spec import RunError
+    from emgail_jax.host.saved_run import across_seeds_reward
+
+    args, run = _run_opened(args)
+    seeds = list(range(run.spec.seeds)) if args.seed is None else [run.seed_index(args.seed)]
     chosen = Chosen(
         details={
             "consolidation": None,
@@ -597,6 +621,81 @@ def _opened(args: argparse.Namespace):
     return args, run, seeds, chosen
 
 
+# Details of the reward checked with one entry per seed; the others are alike for every seed.
+PER_SEED_DETAILS = ("consolidation", "across_seeds", "absorbing_price")
+
+
+def _merge_opened(args: argparse.Namespace):
+    """``(args, run, seeds, Chosen, draws)`` of ``--merge``: its checks' draws joined over
+    their seeds (:func:`~emgail_jax.host.reward_check.joined_seeds`), each check verified to
+    be one seed's of this run with these options (its recorded ``check``,
+    :func:`check_identity`)."""
+    from emgail_jax.host import records
+    from emgail_jax.host.run_spec import RunError
+
+    args, run = _run_opened(args)
+    expected = records.to_json_value(check_identity(args, run))
+    rl_seeds = list(range(args.rl_seed, args.rl_seed + args.draws))
+    parts = {}
+    for path in args.merge:
+        part = _read_check(path)
+        recorded = part.get("check")
+        if not isinstance(recorded, dict) or recorded["options"].get("seed") is None:
+            raise RunError(f"'{path}' is no check of one seed: write each with --seed S")
+        seed = recorded["options"]["seed"]
+        other = {**recorded, "options": {**recorded["options"], "seed": None}}
+        if other != expected:
+            differ = sorted(_differing(other["options"], expected["options"]))
+            if other["iteration"] != expected["iteration"]:
+                differ.append("the networks' iteration")
+            raise RunError(
+                f"'{path}' was checked otherwise ({', '.join(differ)}): give the options "
+                "its --seed checks were run with"
+            )
+        if part.get("rl_seeds", [part.get("rl_seed")]) != rl_seeds:
+            raise RunError(f"'{path}' trained other draws: give the --draws and --rl-seed it had")
+        if seed in parts:
+            raise RunError(f"seed {seed} is checked twice: give each seed's check once")
+        parts[seed] = part
+    ordered = [parts[seed] for seed in sorted(parts)]
+    try:
+        draws = [
+            reward_check.joined_seeds([part.get("draws", [part])[d] for part in ordered])
+            for d in range(args.draws)
+        ]
+    except ValueError as error:
+        raise RunError(f"--merge: {error}") from None
+    details = {name: ordered[0].get(name) for name in ("ensemble", "saved_reward")}
+    for name in PER_SEED_DETAILS:
+        entries = [part.get(name) for part in ordered]
+        details[name] = None if None in entries else [e for entry in entries for e in entry]
+    if details["saved_reward"] is None:
+        del details["saved_reward"]
+    seeds = [run.seed_index(seed) for seed in sorted(parts)]
+    return args, run, seeds, Chosen(details=details), draws
+
+
+def _read_check(path: str) -> dict:
+    import json
+
+    from emgail_jax.host.run_spec import RunError
+
+    try:
+        with open(path) as f:
+            found = json.load(f)
+    except (OSError, ValueError) as error:
+        raise RunError(f"--merge: cannot read '{path}' ({error})") from None
+    if not isinstance(found, dict):
+        raise RunError(f"--merge: '{path}' is not a reoptimize check")
+    return found
+
+
+def _differing(given: dict, expected: dict) -> list[str]:
+    """The options, spelled as flags, in which two checks' recorded options differ."""
+    names = sorted(set(given) | set(expected))
+    return ["--" + n.replace("_", "-") for n in names if given.get(n) != expected.get(n)]
+
+
 def priced_at_random_actions(run, seeds: list[int], chosen: Chosen) -> None:
     """``chosen`` with its absorbing state paid, seed by seed, what uniformly random actions
     earn per step under its reward (``--absorbing-reward random``)."""
@@ -638,15 +737,19 @@ def main(argv=None) -> int:
         try:
             held.enter_context(run_lock.reading(given.run_dir))  # no live run writes it
             env = read_summary(given.run_dir).get("env")
-            opened = _opened(with_refit_recipe(given, env))
+            args = with_refit_recipe(given, env)
+            opened = _merge_opened(args) if args.merge else (*_opened(args), None)
         except (RunError, CheckpointError, envs.EnvError, DemonstrationError) as error:
             print(f"error: {error}", file=sys.stderr)
             return 2
         return _reoptimized(*opened)
 
 
-def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen) -> int:
-    """The rest of :func:`main`: the fresh agents trained, scored and written."""
+def _reoptimized(
+    args: argparse.Namespace, run, seeds: list[int], chosen: Chosen, merged: list | None
+) -> int:
+    """The rest of :func:`main`: the fresh agents trained (or ``merged``'s draws taken),
+    scored and written."""
     from emgail_jax.host import records
 
     budget = budget_of(args, run)
@@ -668,8 +771,8 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
     rl_seeds = range(args.rl_seed, args.rl_seed + args.draws)
     path = args.out or os.path.join(args.run_dir, default_name(args))
     finished = check_progress.FinishedDraws(path, check_identity(args, run))
-    draws = []
-    for rl_seed in rl_seeds:
+    draws = merged or []
+    for rl_seed in rl_seeds if merged is None else ():
         draw = finished.read(rl_seed, not args.quiet)
         if draw is None:
             draw = reward_check.reoptimize(
@@ -694,6 +797,7 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
     if variant is not None:
         variant["joint_policies"] = reward_check.joint_policies(run, seeds, result["iteration"])
     result["variant"] = variant
+    result["check"] = check_identity(args, run)  # what --merge matches its parts by
     result["baseline"] = None
     if args.baseline:
         # The baseline's own draws: how far the search varies on the true reward.
@@ -714,7 +818,7 @@ def _reoptimized(args: argparse.Namespace, run, seeds: list[int], chosen: Chosen
 def check_identity(args: argparse.Namespace, run) -> dict:
     """What a check's draws depend on: its options (not how many draws, nor where and how it
     reports) and the iteration of the networks checked."""
-    unrelated = ("draws", "quiet", "out", "baseline", "cache")
+    unrelated = ("draws", "quiet", "out", "baseline", "cache", "merge")
     options = {k: v for k, v in sorted(vars(args).items()) if k not in unrelated}
     # Left out when not given, as before the option existed, so that those checks resume.
     if options["value_target_scaling"] is None:

@@ -92,6 +92,44 @@ def test_the_baseline_is_read_from_the_cache_the_second_time(tiny_run, reoptimiz
     assert again["erd"] == first["erd"]  # the same keys: the same fresh policies
 
 
+def test_checks_of_one_seed_each_merge_into_the_check_of_every_seed(
+    tiny_run, reoptimized, tmp_path, capsys
+):
+    """One seed per process (on other cores or machines), then --merge: the check of both
+    seeds, as the check trained together gives it, with the cached baseline beside it."""
+    whole, cache = reoptimized
+    options = ["--iterations", "2", "--draws", "2", "--quiet"]
+    parts = [str(tmp_path / f"seed-{seed}.json") for seed in (1, 0)]
+    for seed, part in zip((1, 0), parts, strict=True):
+        args = [str(tiny_run), *options, "--seed", str(seed), "--no-baseline", "--out", part]
+        assert reoptimize.main(args) == 0
+    out = tmp_path / "merged.json"
+    merge = [str(tiny_run), *options, "--cache", str(cache), "--out", str(out), "--merge"]
+    assert reoptimize.main([*merge, *parts]) == 0
+    merged = json.loads(out.read_text())
+    assert merged["seeds"] == [0, 1] and merged["rl_seeds"] == [0, 1]
+    first = merged["draws"][0]  # draw 0 is the plain check of both seeds
+    assert first["seeds"] == [0, 1]
+    np.testing.assert_allclose(first["erd"], whole["erd"], rtol=1e-4)
+    from emgail_jax.host.records import to_json_value
+
+    again = to_json_value(reward_check.chosen_by_learned_reward(merged["draws"]))
+    assert {name: merged[name] for name in again} == again
+    assert merged["baseline"]["cache"] and merged["check"]["options"]["seed"] is None
+    # The same seed twice, a part checked with other options, or of every seed, is refused.
+    refused = [
+        ([*merge, parts[0], parts[0]], "seed 1 is checked twice"),
+        ([*merge[:-1], "--iterations", "3", "--merge", *parts], "otherwise (--iterations)"),
+        ([*merge[:-1], "--draws", "1", "--merge", *parts], "give the --draws and --rl-seed"),
+        ([*merge, str(out)], "is no check of one seed"),
+    ]
+    capsys.readouterr()
+    for args, message in refused:
+        assert reoptimize.main(args) == 2
+        err = capsys.readouterr().err
+        assert message in err and err.count("\n") == 1
+
+
 @pytest.mark.slow  # a tiny GAIL run and its re-optimisation: two compiles
 def test_gails_one_reward_is_reoptimised_like_emgails(tmp_path):
     """GAIL's run is checked on its one reward: every learned intention earns the same on the
@@ -194,6 +232,8 @@ def test_a_snapshot_is_reoptimised_on_its_own_networks(tiny_run, reoptimized):
         (["--env-set", "gravity=2", "--no-baseline"], "drop --no-baseline"),
         (["--reference-draws", "0"], "--reference-draws must be at least 1"),
         (["--draws", "0"], "--draws must be at least 1"),
+        (["--merge", "a.json", "--seed", "0"], "--merge joins checks of one seed each: drop"),
+        (["--merge", "missing.json"], "--merge: cannot read 'missing.json'"),
         (["--absorbing-reward", "random"], "--absorbing-reward prices an absorbing state, and"),
         (
             ["--absorbing-reward", "random", "--ensemble", "2"],

@@ -243,12 +243,12 @@ def test_a_check_not_given_scaling_keeps_the_identity_it_had_before_the_option()
     assert reoptimize.check_identity(given, run)["options"]["value_target_scaling"] is False
 
 
-def _draw(rl_seed, earned, erd_per_intention, matching=(1, 0)):
+def _draw(rl_seed, earned, erd_per_intention, matching=(1, 0), run_seed=0):
     """One seed's check as :func:`reward_check.reoptimize` writes it: 3 iterations, 2 true and
     learned intentions, true intention i acted by learned ``matching[i]``."""
     per_intention = np.tile(np.asarray(erd_per_intention, float), (3, 1))  # [iterations, K true]
     seed = {
-        "run_seed": 0,
+        "run_seed": run_seed,
         "matching": list(matching),
         "returns": 100 * (1 - per_intention[-1]),
         "erd": float(per_intention.mean(-1)[-reward_check.FINAL_WINDOW :].mean()),
@@ -264,7 +264,7 @@ def _draw(rl_seed, earned, erd_per_intention, matching=(1, 0)):
         q["meets_bar"] = bool(rl_seed)
     return {
         **shared,
-        "seeds": [0],
+        "seeds": [run_seed],
         "rl_seed": rl_seed,
         **reward_check.over_seeds([seed]),
         "compile_time_s": 1.0,
@@ -325,3 +325,22 @@ def test_the_best_baseline_keeps_the_highest_true_return_per_intention():
     assert best["draw"] == [0, 1] and best["meets_bar"] == [False, True]
     np.testing.assert_allclose(best["erd_per_intention"], [0.1, 0.2])
     assert best["cache"] == ["draw0.json", "draw1.json"]
+
+
+def test_checks_of_one_seed_each_join_into_the_check_of_both():
+    """Joining seed by seed, then choosing per seed among the draws, is choosing in each
+    seed's own check: the seeds' draws do not interact."""
+    seed_0 = [_draw(0, [0.5, -1.0], [0.9, 0.2]), _draw(1, [0.1, 0.2], [0.3, 0.8])]
+    seed_1 = [_draw(r, [0.2, 0.1], [0.1 + r, 0.4], (0, 1), run_seed=1) for r in (0, 1)]
+    joined = [reward_check.joined_seeds(list(parts)) for parts in zip(seed_0, seed_1, strict=True)]
+    assert joined[0]["seeds"] == [0, 1] and joined[1]["rl_seed"] == 1
+    assert joined[0]["erd"] == [*seed_0[0]["erd"], *seed_1[0]["erd"]]
+    assert joined[0]["train_time_s"] == 4.0
+    chosen = reward_check.chosen_by_learned_reward(joined)
+    alone = [reward_check.chosen_by_learned_reward(draws) for draws in (seed_0, seed_1)]
+    from emgail_jax.host.records import to_json_value
+
+    assert to_json_value(chosen["per_seed"]) == to_json_value([a["per_seed"][0] for a in alone])
+    assert np.isclose(chosen["erd_mean"], np.mean([a["erd"][0] for a in alone]))
+    with pytest.raises(ValueError, match="differ in rl_seed"):
+        reward_check.joined_seeds([seed_0[0], seed_1[1]])

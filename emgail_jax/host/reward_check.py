@@ -378,6 +378,36 @@ def over_seeds(per_seed: list[dict]) -> dict:
     }
 
 
+# What every seed of one draw of a check shares (:func:`reoptimize`'s result).
+DRAW_SHARED = (
+    "iteration",
+    "snapshot",
+    "budget",
+    "absorbing_state",
+    "eval_episodes",
+    "expert_returns",
+    "random_returns",
+    "rl_seed",
+)
+
+
+def joined_seeds(parts: list[dict]) -> dict:
+    """One draw of a check over the run seeds of ``parts`` (:func:`reoptimize` results of the
+    same draw on other seeds, in the order given), as if their seeds had trained together:
+    each seed's agents depend on its own keys alone (:func:`fresh_keys`)."""
+    for name in DRAW_SHARED:
+        if any(part[name] != parts[0][name] for part in parts):
+            raise ValueError(f"the checks joined differ in {name}")
+    per_seed = [row for part in parts for row in part["per_seed"]]
+    return {
+        **{name: parts[0][name] for name in DRAW_SHARED},
+        "seeds": [row["run_seed"] for row in per_seed],
+        **over_seeds(per_seed),
+        "compile_time_s": sum(part["compile_time_s"] for part in parts),
+        "train_time_s": sum(part["train_time_s"] for part in parts),
+    }
+
+
 def picked(draws: list[dict], pick) -> dict:
     """One :func:`scored` result (with its ``success``) whose true intention i is the agent of
     draw ``pick[i]`` of ``draws``, scores of agents trained alike under one matching."""
@@ -413,8 +443,7 @@ def chosen_by_learned_reward(draws: list[dict]) -> dict:
         per_seed.append(
             {"run_seed": rows[0]["run_seed"], **chosen, "draws_erd": [r["erd"] for r in rows]}
         )
-    shared = ("iteration", "snapshot", "budget", "absorbing_state", "eval_episodes")
-    shared += ("expert_returns", "random_returns", "seeds")
+    shared = (*DRAW_SHARED[:-1], "seeds")
     return {
         **{name: draws[0][name] for name in shared},
         "rl_seeds": [d["rl_seed"] for d in draws],
