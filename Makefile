@@ -44,9 +44,11 @@ bench: $(STAMP)
 bench-envs: $(STAMP)
 	$(PY) experiments/bench_env_throughput.py
 
-# The reward check's fresh TRPO scored every 10th iteration (as shipped) against every one.
+# The reward check's fresh TRPO scored every 10th iteration (as shipped) against every one;
+# then its seeds in one process against a process per seed at once, as the sweep runs them.
 bench-check: $(STAMP)
 	$(PY) experiments/bench_reward_check.py
+	$(PY) experiments/bench_check_processes.py
 
 # The MJX envs' fast solver settings against native MuJoCo's defaults: open-loop gaits, then
 # the shipped experts' closed-loop behaviour.

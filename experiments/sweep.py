@@ -36,6 +36,7 @@ import functools
 import json
 import math
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -356,6 +357,57 @@ def run_command(command: list[str], log_path: str) -> int:
             signal.signal(signal.SIGTERM, previous)
 
 
+CHILD_POLL_S = 0.5  # between looks at the checks' child processes
+
+
+def run_commands(commands: list[list[str]], log_path: str, processes: int) -> int:
+    """Runs ``commands`` as child processes, at most ``processes`` at once, each pinned to its
+    own core of those this process may use, their output to ``log_path``; returns the first
+    non-zero exit, once the children running have stopped (SIGTERM: each saves its progress).
+    Ctrl-C or SIGTERM stops them all, then the sweep."""
+    cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+    waiting, running, failed = list(commands), {}, 0
+
+    def forward(signum, frame):
+        for child in running:
+            child.send_signal(signum)
+        raise KeyboardInterrupt
+
+    def start(command: list[str], slot: int) -> subprocess.Popen:
+        log.write(f"\n$ {' '.join(command)}\n")
+        log.flush()
+        child = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
+        if cores:  # pinned before its interpreter starts threads, which then inherit the core
+            with contextlib.suppress(OSError):  # gone already
+                os.sched_setaffinity(child.pid, {cores[slot % len(cores)]})
+        return child
+
+    with open(log_path, "a") as log:
+        previous = signal.signal(signal.SIGTERM, forward)
+        try:
+            while waiting or running:
+                free = sorted(set(range(processes)) - set(running.values()))
+                while waiting and free and not failed:
+                    slot = free.pop(0)
+                    running[start(waiting.pop(0), slot)] = slot
+                time.sleep(CHILD_POLL_S)
+                for child in [c for c in running if c.poll() is not None]:
+                    del running[child]
+                    if child.returncode and not failed:
+                        failed = child.returncode
+                        for other in running:  # they save their progress and stop
+                            other.terminate()
+                if failed and not running:
+                    break
+            return failed
+        except KeyboardInterrupt:
+            for child in running:
+                child.wait()
+            raise
+        finally:
+            signal.signal(signal.SIGTERM, previous)
+
+
 def run_in_process(args: list[str], log_path: str) -> int:
     """``python -m emgail_jax.run ARGS`` in this process, its output to ``log_path``. Ctrl-C or
     SIGTERM lets the run checkpoint its chunk, then stops the sweep."""
@@ -378,10 +430,16 @@ def run_in_process(args: list[str], log_path: str) -> int:
 
 
 def train_cell(
-    cell: Cell, out: str, seeds: int, iterations: int, settings: tuple[str, ...] = ()
+    cell: Cell,
+    out: str,
+    seeds: int,
+    iterations: int,
+    settings: tuple[str, ...] = (),
+    check_processes: int = 1,
 ) -> None:
     """Trains, resumes or skips ``cell``, then runs its reward checks (every seed, beside the
-    true-reward baseline) if the sweep checks it and has not yet."""
+    true-reward baseline) if the sweep checks it and has not yet, its seeds spread over
+    ``check_processes`` processes (:func:`run_reward_check`)."""
     run_dir = os.path.join(out, "runs", cell.name)
     log_path = cell.log_path(out)
     os.makedirs(os.path.dirname(log_path), exist_ok=True)
@@ -407,7 +465,7 @@ def train_cell(
         if code != 0:
             raise SweepError(f"cell {cell.name} failed (exit {code}): see {log_path}")
     for check in checks_to_do(run_dir, seeds) if cell.reoptimized else ():
-        code = run_command(reward_check_command(run_dir, out, check), log_path)
+        code = run_reward_check(run_dir, out, check, log_path, check_processes)
         if code != 0:
             raise SweepError(f"re-optimising {cell.name} failed (exit {code}): see {log_path}")
 
@@ -482,21 +540,61 @@ CHECKED_SNAPSHOT_EVERY = 10
 REFIT_SECONDS_PER_SEED = 200.0
 
 
-def reward_check_command(run_dir: str, out: str, check: RewardCheck = PAPER_CHECK) -> list[str]:
+def reward_check_command(
+    run_dir: str, out: str, check: RewardCheck = PAPER_CHECK, path: str | None = None
+) -> list[str]:
     """The ``check`` of the cell in ``run_dir``: every seed re-optimised, beside the
-    true-reward baseline, cached where every cell of the env and K finds it."""
+    true-reward baseline, cached where every cell of the env and K finds it; written to
+    ``path`` (default the check's file)."""
     cache = os.path.join(out, BASELINES_DIR)
     command = [sys.executable, "-m", "emgail_jax.reoptimize", run_dir, *check.options]
     command += ["--cache", cache, "--quiet"]
-    if check != PAPER_CHECK:
-        command += ["--out", os.path.join(run_dir, check.file)]
+    if path is not None or check != PAPER_CHECK:
+        command += ["--out", path or os.path.join(run_dir, check.file)]
     return command
+
+
+def check_part_path(run_dir: str, check: RewardCheck, seed: int) -> str:
+    """Where run seed ``seed``'s part of a ``check`` spread over processes is written."""
+    stem = os.path.splitext(check.file)[0]
+    return os.path.join(run_dir, f"{stem}.parts", f"seed-{seed}.json")
+
+
+def run_reward_check(
+    run_dir: str, out: str, check: RewardCheck, log_path: str, processes: int = 1
+) -> int:
+    """Runs ``check`` on the cell in ``run_dir``; returns its exit code. With ``processes`` > 1
+    each seed is checked in a process of its own, one per core (the last seed's computes the
+    baseline), then ``reoptimize --merge`` writes the check of every seed; a part of the
+    networks checked already is kept, and the parts go once merged."""
+    summary = _summary_or_none(run_dir)
+    numbers = [summary.get("first_seed", 0) + s for s in range(summary["seeds"])] if summary else []
+    command = reward_check_command(run_dir, out, check)
+    if processes < 2 or len(numbers) < 2:
+        return run_command(command, log_path)
+    budget = dataclasses.asdict(check_budget(summary["env"], summary["config"], check))
+    parts, to_do = [check_part_path(run_dir, check, n) for n in numbers], []
+    for seed, part in zip(numbers, parts, strict=True):
+        found = _json_or_none(part) or {}
+        if (found.get("iteration"), found.get("budget")) != (summary["iterations_done"], budget):
+            one_seed = ["--seed", str(seed), *([] if seed == numbers[-1] else ["--no-baseline"])]
+            to_do.append([*reward_check_command(run_dir, out, check, part), *one_seed])
+    code = run_commands(to_do, log_path, processes)
+    if code == 0:
+        code = run_command([*command, "--merge", *parts], log_path)
+    if code == 0:
+        shutil.rmtree(os.path.dirname(parts[0]))
+    return code
 
 
 def reward_check(run_dir: str, check: RewardCheck = PAPER_CHECK) -> dict | None:
     """The cell's ``check`` file, or None where it is missing or unreadable."""
+    return _json_or_none(os.path.join(run_dir, check.file))
+
+
+def _json_or_none(path: str) -> dict | None:
     try:
-        with open(os.path.join(run_dir, check.file)) as f:
+        with open(path) as f:
             found = json.load(f)
     except (OSError, ValueError):
         return None
@@ -601,15 +699,21 @@ def check_seconds(
     timings: Timings,
     with_baseline: bool,
     check: RewardCheck = PAPER_CHECK,
+    processes: int = 1,
 ) -> float:
     """A reward check's: per draw, fresh TRPO on every seed's K learned rewards in one
     program, and ``with_baseline`` K more policies on the true rewards in another; and the
-    refit of every seed's reward first if the check refits."""
+    refit of every seed's reward first if the check refits. Over several ``processes`` (at
+    most one per seed), what the busiest does: its share of the seeds, each its own program,
+    and the baseline (:func:`run_reward_check`)."""
     per_unit, compile_s = timings.of_checks(cell.env)
-    rows = seeds + int(with_baseline)
+    lanes = max(1, min(processes, seeds))
+    programs = 1 if lanes == 1 else math.ceil(seeds / lanes)
+    rows = math.ceil(seeds / lanes) + int(with_baseline)
     work = rows * check_iterations(cell.env, iterations, check) * cell.intentions
-    refit = REFIT_SECONDS_PER_SEED * seeds if "--refit" in check.options else 0.0
-    return refit + check.draws * (compile_s * (1 + int(with_baseline)) + per_unit * work)
+    refit = REFIT_SECONDS_PER_SEED * math.ceil(seeds / lanes) if "--refit" in check.options else 0.0
+    compiles = programs + int(with_baseline)
+    return refit + check.draws * (compile_s * compiles + per_unit * work)
 
 
 def estimate_seconds(
@@ -621,15 +725,18 @@ def estimate_seconds(
     computing_baselines: tuple[RewardCheck, ...] = REWARD_CHECKS,
     checks: tuple[RewardCheck, ...] = REWARD_CHECKS,
     draws_done: dict[RewardCheck, float] | None = None,
+    check_processes: int = 1,
 ) -> float:
     """What ``cell`` still needs: its training (unless trained), then its reward ``checks``
     (those still to do, less the ``draws_done`` of each check stopped part-way), those of
-    ``computing_baselines`` with the true-reward baseline."""
+    ``computing_baselines`` with the true-reward baseline, over ``check_processes``."""
     seconds = 0.0 if status == Status.CHECK else training_seconds(cell, seeds, iterations, timings)
     for check in checks if cell.reoptimized else ():
         with_baseline = check in computing_baselines
         left = 1.0 - (draws_done or {}).get(check, 0.0) / check.draws
-        seconds += left * check_seconds(cell, seeds, iterations, timings, with_baseline, check)
+        seconds += left * check_seconds(
+            cell, seeds, iterations, timings, with_baseline, check, check_processes
+        )
     return seconds
 
 
@@ -696,9 +803,12 @@ class CellJob:
     seeds: int
     iterations: int
     settings: tuple[str, ...] = ()
+    # A reward check's seeds spread over this many processes (None: on Ray, the cell's CPUs).
+    check_processes: int | None = 1
 
     def __call__(self, cell: Cell) -> None:
-        train_cell(cell, self.out, self.seeds, self.iterations, self.settings)
+        processes = self.check_processes or 1
+        train_cell(cell, self.out, self.seeds, self.iterations, self.settings, processes)
 
 
 # An engine trains ``cells`` with ``job`` and yields each cell as it finishes; a cell that fails
@@ -761,7 +871,7 @@ def ray_engine(
         task = ray.remote(
             num_cpus=cpus, num_gpus=gpus, max_retries=RAY_MAX_RETRIES, retry_exceptions=False
         )(train_cell_task)
-        yield functools.partial(_train_on_ray, ray, task)
+        yield functools.partial(_train_on_ray, ray, task, cpus)
     finally:
         signal.signal(signal.SIGTERM, previous)
         ray.shutdown()
@@ -785,8 +895,10 @@ def _check_reachable(address: str, timeout_s: float = 10.0) -> None:
         ) from None
 
 
-def _train_on_ray(ray, task, cells: list[Cell], job: CellJob) -> Iterator[Cell]:
+def _train_on_ray(ray, task, cpus: int, cells: list[Cell], job: CellJob) -> Iterator[Cell]:
     job = dataclasses.replace(job, out=os.path.abspath(job.out))  # workers have other cwds
+    if job.check_processes is None:  # a check's seeds over the cores the cell reserves
+        job = dataclasses.replace(job, check_processes=cpus)
     code = code_fingerprint()
     pending = {task.options(name=cell.name).remote(job, cell, code): cell for cell in cells}
     failures = []
@@ -1456,10 +1568,26 @@ def parse_args(argv=None) -> argparse.Namespace:
         help="the Ray cluster of --engine ray (default RAY_ADDRESS, else a Ray started here)",
     )
     parser.add_argument("--cpus-per-cell", type=int, default=None, help="default: one per seed")
+    parser.add_argument(
+        "--check-processes",
+        type=int,
+        default=None,
+        metavar="N",
+        help="a reward check's seeds in N processes at once, each on its own core, then merged "
+        "(default: a cell's cores, at most one per seed; 1: every seed in one process)",
+    )
     parser.add_argument("--gpus-per-cell", type=int, default=None, help="default: 1 if any")
     parser.add_argument("--list", action="store_true", help="list the cells and stop")
     parser.add_argument("--report-only", action="store_true", help="tables and figures only")
     return parser.parse_args(argv)
+
+
+def local_check_processes(args: argparse.Namespace) -> int:
+    """A reward check's processes here: ``--check-processes``, else one per core this process
+    may use, at most one per seed."""
+    usable = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
+    cores = len(usable) if usable else os.cpu_count() or 1
+    return args.check_processes or min(args.seeds, cores)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -1479,8 +1607,11 @@ def plan_sweep(args: argparse.Namespace) -> Plan:
     """The options checked, the cells chosen, their run directories read; raises SweepError."""
     if args.seeds < 1 or args.iterations < 1:
         raise SweepError("--seeds and --iterations must be at least 1")
-    if (args.cpus_per_cell or 1) < 1 or (args.gpus_per_cell or 0) < 0:
+    below = lambda given, least: given is not None and given < least  # None: not given
+    if below(args.cpus_per_cell, 1) or below(args.gpus_per_cell, 0):
         raise SweepError("--cpus-per-cell must be at least 1, --gpus-per-cell at least 0")
+    if below(args.check_processes, 1):
+        raise SweepError("--check-processes must be at least 1")
     if args.engine == "ray":
         import_ray()
     cells = select(all_cells(), args.only)
@@ -1516,6 +1647,7 @@ def plan_sweep(args: argparse.Namespace) -> Plan:
             computing_baselines=computing(c),
             checks=still_to_check(c),
             draws_done=draws_done(c),
+            check_processes=local_check_processes(args),
         )
         for c in todo
     }
@@ -1558,8 +1690,9 @@ def run_cells(console, plan: Plan, args: argparse.Namespace) -> int | None:
         TextColumn("{task.completed}/{task.total} cells"),
         TimeElapsedColumn(),
     )
-    job = CellJob(args.out, args.seeds, args.iterations, tuple(args.set))
     on_ray = args.engine == "ray"
+    processes = None if on_ray and not args.check_processes else local_check_processes(args)
+    job = CellJob(args.out, args.seeds, args.iterations, tuple(args.set), processes)
     engine_context = contextlib.ExitStack()
     try:  # the Ray engine starts or joins Ray here and checks what a cell can reserve
         engine = engine_context.enter_context(

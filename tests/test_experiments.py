@@ -4,6 +4,7 @@ of the package, so nothing else would notice when one of them no longer runs."""
 import csv
 import importlib.util
 import json
+import os
 import pathlib
 import re
 import socket
@@ -51,6 +52,23 @@ def test_the_reward_check_benchmark_times_both_ways_on_the_driver(capsys):
     timed = [float(seconds) for seconds in re.findall(r"([\d.]+) s per row-iteration", out)]
     assert scored == [10, 12] and len(timed) == 2 and min(timed) > 0
     assert float(out.split("ratio every iteration / as shipped:")[1]) > 0
+
+
+@pytest.mark.slow  # four processes compile a TRPO program: about 60 s
+def test_the_check_processes_benchmark_times_both_ways_on_the_driver(capsys):
+    bench = _load("bench_check_processes")
+    assert bench.main(["--env", "driver", "--rows", "2", "--iterations", "10"]) == 0
+    out = capsys.readouterr().out
+    rates = [float(rate) for rate in re.findall(r"([\d.]+) row-iterations per s", out)]
+    assert len(rates) == 2 and min(rates) > 0
+    assert float(out.split("ratio 2 processes / one process:")[1]) > 0
+
+
+def test_the_check_processes_benchmark_refuses_one_row(capsys):
+    with pytest.raises(SystemExit) as stopped:
+        _load("bench_check_processes").main(["--rows", "1"])
+    assert stopped.value.code == 2
+    assert "needs 2 or more rows" in capsys.readouterr().err
 
 
 def test_the_reward_check_benchmark_refuses_no_iterations(capsys):
@@ -463,6 +481,82 @@ def test_sweep_reward_check_command_is_every_seed_beside_the_cached_baseline(
     assert ran == []  # its check is complete
 
 
+def test_sweep_a_check_over_two_processes_is_one_per_seed_then_merged(hopper_cells, monkeypatch):
+    """With two check processes each seed is checked in its own (the last seed's with the
+    baseline), then merged into the check's file, and the parts go; a part already made of
+    these networks at this budget is kept, and the merge runs again on it."""
+    from emgail_jax import reoptimize
+
+    sweep, _, out = hopper_cells
+    keep_checkpoints(monkeypatch)
+    parallel, ran = [], []
+
+    def run_commands(commands, log, processes):
+        for command in commands:  # each writes its part
+            part = command[command.index("--out") + 1]
+            os.makedirs(os.path.dirname(part), exist_ok=True)
+            seed = int(command[command.index("--seed") + 1])
+            budget = {"iterations": 4, "gamma": 0.995, "gae_lambda": 0.97}
+            budget["value_target_scaling"] = False
+            with open(part, "w") as f:
+                json.dump({"iteration": 4, "budget": budget, "seeds": [seed]}, f)
+        parallel.append((commands, processes))
+        return 0
+
+    monkeypatch.setattr(sweep, "run_commands", run_commands)
+    monkeypatch.setattr(sweep, "run_command", lambda command, log: ran.append(command) or 0)
+    sweep.train_cell(sweep.Cell("hopper", 2, "gail"), str(out), 2, 4, check_processes=2)
+    run_dir = out / "runs" / "hopper-2-gail"
+    ((parts, processes),) = parallel  # its paper's check is done: the refit's alone
+    assert processes == 2 and len(parts) == 2
+    args = [reoptimize.parse_args(command[3:], env="hopper") for command in parts]
+    assert [(a.seed, a.baseline, a.refit, a.draws) for a in args] == [
+        (0, False, True, 3),
+        (1, True, True, 3),
+    ]
+    parts_dir = run_dir / "reoptimize-refit.parts"
+    assert [a.out for a in args] == [str(parts_dir / f"seed-{s}.json") for s in (0, 1)]
+    (merge,) = ran
+    merged = reoptimize.parse_args(merge[3:], env="hopper")
+    assert merged.merge == [a.out for a in args] and merged.seed is None
+    assert merged.out == str(run_dir / "reoptimize-refit.json") and merged.baseline
+    assert not parts_dir.exists()  # merged: the parts go
+    # A merge that fails keeps the parts; the next sweep reuses them and merges again.
+    parallel.clear()
+    monkeypatch.setattr(sweep, "run_command", lambda command, log: 2)
+    code = sweep.run_reward_check(str(run_dir), str(out), sweep.REFIT_CHECK, "log", 2)
+    assert code == 2 and sorted(p.name for p in parts_dir.iterdir()) == [
+        "seed-0.json",
+        "seed-1.json",
+    ]
+    assert sweep.run_reward_check(str(run_dir), str(out), sweep.REFIT_CHECK, "log", 2) == 2
+    assert parallel[-1][0] == []  # both parts kept
+
+
+def test_sweep_check_processes_run_at_once_each_on_a_core_and_a_failure_stops_them(tmp_path):
+    """Two children that each wait for the other finish only if they run at once; with more
+    cores than one each is pinned to its own. A child that fails stops the one still running
+    (it would wait for a minute) and its exit code is returned."""
+    sweep = _load("sweep")
+    wait_for = (
+        "import os, sys, time; d = sys.argv[1]; open(os.path.join(d, sys.argv[2]), 'w').close()\n"
+        "print('cores', sorted(os.sched_getaffinity(0)), flush=True)\n"
+        "for _ in range(600):\n"
+        "    if os.path.exists(os.path.join(d, sys.argv[3])): sys.exit(0)\n"
+        "    time.sleep(0.05)\n"
+        "sys.exit(3)"
+    )
+    commands = [[sys.executable, "-c", wait_for, str(tmp_path), a, b] for a, b in ("ab", "ba")]
+    log = tmp_path / "log"
+    assert sweep.run_commands(commands, str(log), 2) == 0
+    pinned = [line for line in log.read_text().splitlines() if line.startswith("cores")]
+    if len(os.sched_getaffinity(0)) > 1:
+        assert len(pinned) == 2 and len(set(pinned)) == 2 and all("," not in p for p in pinned)
+    fails = [[sys.executable, "-c", "import sys; sys.exit(5)"]]
+    long = [[sys.executable, "-c", "import time; time.sleep(60)"]]
+    assert sweep.run_commands([*long, *fails, *long], str(log), 2) == 5
+
+
 def test_sweep_a_cell_without_its_networks_is_trained_again_then_checked(hopper_cells, monkeypatch):
     """A trained cell whose check is to do but whose checkpoints are not kept (results/ keeps
     none) cannot be checked as it is: it is trained again over its directory, then checked
@@ -524,6 +618,11 @@ def test_sweep_estimates_every_seeds_check_and_each_baseline_once(hopper_cells):
     )
     trained = 10.0 + 1.0 * 2 * 4 * 2
     assert sweep.estimate_seconds(infogail, Status.NEW, 2, 4, timings) == trained + check + refit
+    # Over two processes a seed each, the baseline's beside the last: a seed and the baseline.
+    check_2 = 2 * 5.0 + 2 * 4 * 2
+    refit_2 = sweep.REFIT_SECONDS_PER_SEED + 3 * check_2
+    over_two = sweep.estimate_seconds(infogail, Status.CHECK, 2, 4, timings, check_processes=2)
+    assert over_two == check_2 + refit_2
     # A check stopped part-way costs what it has left: its finished draw and half the next.
     run_dir = out / "runs" / infogail.name
     finished = FinishedDraws(str(run_dir / sweep.REFIT_CHECK.file), {})
@@ -673,6 +772,21 @@ def test_sweep_engine_ray_is_refused_without_ray_or_a_cluster(tmp_path, monkeypa
     error = capsys.readouterr().err.strip().splitlines()[-1]
     assert error.startswith(f"error: no Ray cluster answers at {address} (")
     assert not (tmp_path / "out").exists()
+
+
+def test_sweep_check_processes_below_one_are_refused(tmp_path, capsys):
+    sweep = _load("sweep")
+    out = tmp_path / "out"
+    args = ["--only", "driver-r20-gail", "--check-processes", "0", "--out", str(out)]
+    assert sweep.main(args) == 2
+    assert capsys.readouterr().err == "error: --check-processes must be at least 1\n"
+    cpus = ["--only", "driver-r20-gail", "--cpus-per-cell", "0", "--out", str(out)]
+    assert sweep.main(cpus) == 2
+    assert "--cpus-per-cell must be at least 1" in capsys.readouterr().err
+    assert not out.exists()
+    given = sweep.parse_args(["--seeds", "4", "--check-processes", "3"])
+    assert sweep.local_check_processes(given) == 3
+    assert sweep.local_check_processes(sweep.parse_args(["--seeds", "1"])) == 1
 
 
 def test_sweep_separability_of_the_driver_falls_with_the_radius(tmp_path):

@@ -60,6 +60,7 @@ def test_prepare_output_replaces_a_run_only_when_told(tmp_path):
     (out / "reoptimize-refit.json").write_text("{}")
     (out / "rewards" / "refit").mkdir(parents=True)
     (out / "reoptimize-refit.draws").mkdir()
+    (out / "reoptimize-refit.parts").mkdir()
     with pytest.raises(RunError, match="already holds a run"):
         prepare_output(str(out), overwrite=False)
     assert (out / "reoptimize.json").exists() and (out / "rewards" / "refit").exists()

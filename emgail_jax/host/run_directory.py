@@ -17,8 +17,9 @@ from emgail_jax.host.run_spec import RunError, read_summary
 
 OUTPUTS = ("summary.json", "metrics.csv", "tensorboard", "checkpoints", "snapshots")
 # What `reoptimize` derives from a run's networks in its directory: its checks, their finished
-# draws and the rewards it refitted. They go with the run they were made from.
-DERIVED = ("rewards", "reoptimize*.json", "reoptimize*.draws")
+# draws and parts (a check spread over processes) and the rewards it refitted. They go with the
+# run they were made from.
+DERIVED = ("rewards", "reoptimize*.json", "reoptimize*.draws", "reoptimize*.parts")
 
 
 def default_output(env: str, algo: str, root: str = "runs") -> str:
