@@ -640,7 +640,8 @@ def _merge_opened(args: argparse.Namespace):
     for path in args.merge:
         part = _read_check(path)
         recorded = part.get("check")
-        if not isinstance(recorded, dict) or recorded["options"].get("seed") is None:
+        options = recorded.get("options") if isinstance(recorded, dict) else None
+        if not isinstance(options, dict) or options.get("seed") is None:
             raise RunError(f"'{path}' is no check of one seed: write each with --seed S")
         seed = recorded["options"]["seed"]
         other = {**recorded, "options": {**recorded["options"], "seed": None}}

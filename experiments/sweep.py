@@ -363,8 +363,8 @@ CHILD_POLL_S = 0.5  # between looks at the checks' child processes
 def run_commands(commands: list[list[str]], log_path: str, processes: int) -> int:
     """Runs ``commands`` as child processes, at most ``processes`` at once, each pinned to its
     own core of those this process may use, their output to ``log_path``; returns the first
-    non-zero exit, once the children running have stopped (SIGTERM: each saves its progress).
-    Ctrl-C or SIGTERM stops them all, then the sweep."""
+    non-zero exit, once the others have stopped (SIGTERM: a check keeps its last save, at most
+    two minutes old). Ctrl-C or SIGTERM stops them all, then the sweep."""
     cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
     waiting, running, failed = list(commands), {}, 0
 
@@ -395,7 +395,7 @@ def run_commands(commands: list[list[str]], log_path: str, processes: int) -> in
                     del running[child]
                     if child.returncode and not failed:
                         failed = child.returncode
-                        for other in running:  # they save their progress and stop
+                        for other in running:
                             other.terminate()
                 if failed and not running:
                     break
