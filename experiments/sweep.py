@@ -1,7 +1,7 @@
 """The paper's experiments in one command: Tables 2-3 and Figures 4-6, cell by cell, resumable.
 
     python experiments/sweep.py [--seeds 4] [--iterations 400] [--only PATTERN] [--out results]
-        [--engine ray [--ray-address HOST:PORT]]
+        [--engine ray [--ray-address HOST:PORT]] [--check-processes N]
     make sweep SEEDS=4 [ONLY=PATTERN] [ITERATIONS=400] [OUT=results] [ENGINE=ray [RAY_ADDRESS=..]]
 
 Every cell is a normal run directory, ``OUT/runs/<cell>`` (``ENV-K-ALGO``, ``-onehot`` for
@@ -19,7 +19,9 @@ reward checks (``python -m emgail_jax.reoptimize``, every seed, beside the true-
 which ``OUT/true-reward-baselines`` keeps for every cell of an env and K): the paper's, on the
 run's own reward (``reoptimize.json``), and the refit's, on the reward ``reoptimize --refit``
 learns after the run, the best of 3 draws kept by the learned reward (``reoptimize-refit.json``);
-these cells train with a snapshot every 10 iterations, which the refit learns from.
+these cells train with a snapshot every 10 iterations, which the refit learns from. A check's
+seeds run at once, a process per seed on a core of its own, then ``reoptimize --merge`` joins
+them (``--check-processes N``; 1: every seed in one process).
 ``--engine ray`` runs every cell as a Ray task, several at once, on a Ray started here or on the
 cluster at ``--ray-address`` (README, "The sweep on Ray").
 """
