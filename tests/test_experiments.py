@@ -71,6 +71,37 @@ def test_the_check_processes_benchmark_refuses_one_row(capsys):
     assert "needs 2 or more rows" in capsys.readouterr().err
 
 
+def test_draw_choice_gives_each_rules_erd_from_the_checks_file(tmp_path, capsys):
+    """Learned intention 0's draw 1 out-earns the demonstrations far and misses its expert: the
+    check's rule keeps it, the nearest rule and the true ERD keep draw 0."""
+    draw_choice = _load("draw_choice")
+
+    def draw(earned, erd):  # one seed, 2 intentions, a constant curve of 12 scored iterations
+        earned = {"fresh_policies": earned, "demonstrations": [1.0, 1.0]}
+        row = {"run_seed": 0, "matching": [0, 1], "returns": [1.0, 1.0], "erd": float(np.mean(erd)),
+               "erd_per_intention": erd, "erd_curve_per_intention": [erd] * 12,
+               "learned_reward_per_step": earned}  # fmt: skip
+        return {"per_seed": [row]}
+
+    check = tmp_path / "check.json"
+    check.write_text(
+        json.dumps({"draws": [draw([1.0, 0.9], [0.1, 0.2]), draw([1.8, 1.0], [0.9, 0.1])]})
+    )
+    assert draw_choice.rule_erds(json.loads(check.read_text())) == {
+        0: {
+            "most": pytest.approx(0.5),
+            "nearest": pytest.approx(0.1),
+            "by true ERD": pytest.approx(0.1),
+        }
+    }
+    assert draw_choice.main([str(check)]) == 0
+    assert capsys.readouterr().out.splitlines()[-1].split() == ["mean", "0.500", "0.100", "0.100"]
+    one = tmp_path / "one.json"
+    one.write_text(json.dumps({"draws": [draw([1.0, 0.9], [0.1, 0.2])]}))
+    assert draw_choice.main([str(one)]) == 2
+    assert "no check of several draws" in capsys.readouterr().err
+
+
 def test_the_reward_check_benchmark_refuses_no_iterations(capsys):
     with pytest.raises(SystemExit) as stopped:
         _load("bench_reward_check").main(["--iterations", "0"])

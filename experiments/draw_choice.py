@@ -1,0 +1,73 @@
+"""Which draw of a reward check of several draws each rule keeps, and the ERD it gives, from the
+check's file alone (nothing trained):
+
+    python experiments/draw_choice.py RUN/reoptimize-refit.json [CHECK.json ...]
+
+- most: the check's own rule, per learned intention the agent that earns the most learned
+  reward per step (``reward_check.chosen_by_learned_reward``);
+- nearest: the agent whose learned reward per step is nearest what the demonstrations earn, as
+  one that out-earns them far may have found what the reward overpays;
+- by true ERD: per true intention the draw of the lowest ERD, which no user without the true
+  reward can choose: what the draws held.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import numpy as np
+
+
+def kept(rows: list[dict], rule: str) -> list[int]:
+    """Per true intention, the draw ``rule`` keeps among one seed's ``rows`` (one per draw)."""
+    matching = np.asarray(rows[0]["matching"])
+    if rule == "by true ERD":
+        return list(np.array([r["erd_per_intention"] for r in rows], float).argmin(0))
+    earned = np.array([r["learned_reward_per_step"]["fresh_policies"] for r in rows], float)
+    if rule == "most":
+        return list(earned.argmax(0)[matching])
+    demonstrations = np.asarray(rows[0]["learned_reward_per_step"]["demonstrations"], float)
+    return list(np.abs(earned - demonstrations).argmin(0)[matching])
+
+
+RULES = ("most", "nearest", "by true ERD")
+
+
+def rule_erds(check: dict) -> dict[int, dict[str, float]]:
+    """Per run seed of ``check`` (a file of several draws), each rule's ERD."""
+    from emgail_jax.host.reward_check import picked
+
+    found = {}
+    for rows in zip(*(d["per_seed"] for d in check["draws"]), strict=True):
+        found[rows[0]["run_seed"]] = {rule: picked(rows, kept(rows, rule))["erd"] for rule in RULES}
+    return found
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("checks", nargs="+", metavar="CHECK")
+    args = parser.parse_args(argv)
+    for path in args.checks:
+        try:
+            with open(path) as f:
+                check = json.load(f)
+        except (OSError, ValueError) as error:
+            print(f"error: cannot read '{path}' ({error})", file=sys.stderr)
+            return 2
+        if not isinstance(check, dict) or len(check.get("draws") or ()) < 2:
+            print(f"error: '{path}' is no check of several draws (--draws N)", file=sys.stderr)
+            return 2
+        found = rule_erds(check)
+        print(path)
+        print("  seed  " + "  ".join(f"{rule:>11s}" for rule in RULES))
+        for seed, erds in found.items():
+            print(f"  {seed:4d}  " + "  ".join(f"{erds[rule]:11.3f}" for rule in RULES))
+        means = [np.mean([erds[rule] for erds in found.values()]) for rule in RULES]
+        print("  mean  " + "  ".join(f"{mean:11.3f}" for mean in means))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
