@@ -556,6 +556,12 @@ def reward_check_command(
     return command
 
 
+def seed_numbers(run_dir: str) -> list[int]:
+    """The run seeds of the cell in ``run_dir``, as ``reoptimize --seed`` numbers them."""
+    summary = _summary_or_none(run_dir)
+    return [summary.get("first_seed", 0) + s for s in range(summary["seeds"])] if summary else []
+
+
 def check_part_path(run_dir: str, check: RewardCheck, seed: int) -> str:
     """Where run seed ``seed``'s part of a ``check`` spread over processes is written."""
     stem = os.path.splitext(check.file)[0]
@@ -570,7 +576,7 @@ def run_reward_check(
     baseline), then ``reoptimize --merge`` writes the check of every seed; a part of the
     networks checked already is kept, and the parts go once merged."""
     summary = _summary_or_none(run_dir)
-    numbers = [summary.get("first_seed", 0) + s for s in range(summary["seeds"])] if summary else []
+    numbers = seed_numbers(run_dir)
     command = reward_check_command(run_dir, out, check)
     if processes < 2 or len(numbers) < 2:
         return run_command(command, log_path)
@@ -743,17 +749,23 @@ def estimate_seconds(
 
 
 def checks_draws_done(cell: Cell, run_dir: str, iterations: int) -> dict[RewardCheck, float]:
-    """Per reward check of a trained cell, the draws a check stopped part-way has done."""
+    """Per reward check of a trained cell, the draws a check stopped part-way has done; of one
+    spread over processes, the mean of its seeds' parts (a part written: every draw)."""
     from emgail_jax.host.check_progress import draws_done
 
-    return {
-        check: draws_done(
-            os.path.join(run_dir, check.file),
-            check.draws,
-            check_iterations(cell.env, iterations, check),
-        )
-        for check in REWARD_CHECKS
-    }
+    done = {}
+    for check in REWARD_CHECKS:
+        check_its = check_iterations(cell.env, iterations, check)
+        parts = [check_part_path(run_dir, check, n) for n in seed_numbers(run_dir)]
+        if parts and os.path.isdir(os.path.dirname(parts[0])):
+            per_part = [
+                check.draws if os.path.exists(part) else draws_done(part, check.draws, check_its)
+                for part in parts
+            ]
+            done[check] = float(np.mean(per_part))
+        else:
+            done[check] = draws_done(os.path.join(run_dir, check.file), check.draws, check_its)
+    return done
 
 
 def measured_seconds(runs_dir: str) -> Timings:

@@ -7,6 +7,7 @@ import json
 import os
 import pathlib
 import re
+import shutil
 import socket
 import sys
 
@@ -661,6 +662,13 @@ def test_sweep_estimates_every_seeds_check_and_each_baseline_once(hopper_cells):
     finished.partial(1).write(2, {"w": np.zeros(3)}, np.zeros((2, 1)), np.zeros((2, 1)), 1.0)
     done = sweep.checks_draws_done(infogail, str(run_dir), 4)
     assert done == {sweep.PAPER_CHECK: 0.0, sweep.REFIT_CHECK: 1.5}
+    # Spread over processes, its seeds' parts: seed 0's written (3 draws), seed 1's one draw.
+    parts = [sweep.check_part_path(str(run_dir), sweep.REFIT_CHECK, seed) for seed in (0, 1)]
+    os.makedirs(os.path.dirname(parts[0]))
+    pathlib.Path(parts[0]).write_text("{}")
+    FinishedDraws(parts[1], {}).write(0, {"erd": [0.5]})
+    assert sweep.checks_draws_done(infogail, str(run_dir), 4)[sweep.REFIT_CHECK] == 2.0
+    shutil.rmtree(os.path.dirname(parts[0]))  # gone: the whole check's draws count again
     assert sweep.estimate_seconds(
         infogail, Status.CHECK, 2, 4, timings, draws_done=done
     ) == pytest.approx(check + refit / 2)
