@@ -340,23 +340,7 @@ def run_command(command: list[str], log_path: str) -> int:
     """Runs one child process, its output to ``log_path``. Ctrl-C (SIGINT, which the child
     receives too) or SIGTERM (forwarded to it) lets the child checkpoint its chunk first, then
     stops the sweep."""
-
-    def forward(signum, frame):
-        child.send_signal(signum)
-        raise KeyboardInterrupt
-
-    with open(log_path, "a") as log:
-        log.write(f"\n$ {' '.join(command)}\n")
-        log.flush()
-        child = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
-        previous = signal.signal(signal.SIGTERM, forward)
-        try:
-            return child.wait()
-        except KeyboardInterrupt:
-            child.wait()
-            raise
-        finally:
-            signal.signal(signal.SIGTERM, previous)
+    return run_commands([command], log_path, processes=1)
 
 
 CHILD_POLL_S = 0.5  # between looks at the checks' child processes
@@ -364,10 +348,12 @@ CHILD_POLL_S = 0.5  # between looks at the checks' child processes
 
 def run_commands(commands: list[list[str]], log_path: str, processes: int) -> int:
     """Runs ``commands`` as child processes, at most ``processes`` at once, each pinned to its
-    own core of those this process may use, their output to ``log_path``; returns the first
+    own core of those this process may use when there are several (one alone keeps them all:
+    a training shards its seeds over them), their output to ``log_path``; returns the first
     non-zero exit, once the others have stopped (SIGTERM: a check keeps its last save, at most
     two minutes old). Ctrl-C or SIGTERM stops them all, then the sweep."""
-    cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+    pinning = processes > 1 and hasattr(os, "sched_getaffinity")
+    cores = sorted(os.sched_getaffinity(0)) if pinning else []
     waiting, running, failed = list(commands), {}, 0
 
     def forward(signum, frame):
@@ -556,9 +542,9 @@ def reward_check_command(
     return command
 
 
-def seed_numbers(run_dir: str) -> list[int]:
-    """The run seeds of the cell in ``run_dir``, as ``reoptimize --seed`` numbers them."""
-    summary = _summary_or_none(run_dir)
+def seed_numbers(summary: dict | None) -> list[int]:
+    """The run seeds of a cell's ``summary`` (none without one), as ``reoptimize --seed``
+    numbers them."""
     return [summary.get("first_seed", 0) + s for s in range(summary["seeds"])] if summary else []
 
 
@@ -576,7 +562,7 @@ def run_reward_check(
     baseline), then ``reoptimize --merge`` writes the check of every seed; a part of the
     networks checked already is kept, and the parts go once merged."""
     summary = _summary_or_none(run_dir)
-    numbers = seed_numbers(run_dir)
+    numbers = seed_numbers(summary)
     command = reward_check_command(run_dir, out, check)
     if processes < 2 or len(numbers) < 2:
         return run_command(command, log_path)
@@ -753,10 +739,10 @@ def checks_draws_done(cell: Cell, run_dir: str, iterations: int) -> dict[RewardC
     spread over processes, the mean of its seeds' parts (a part written: every draw)."""
     from emgail_jax.host.check_progress import draws_done
 
-    done = {}
+    done, numbers = {}, seed_numbers(_summary_or_none(run_dir))
     for check in REWARD_CHECKS:
         check_its = check_iterations(cell.env, iterations, check)
-        parts = [check_part_path(run_dir, check, n) for n in seed_numbers(run_dir)]
+        parts = [check_part_path(run_dir, check, n) for n in numbers]
         if parts and os.path.isdir(os.path.dirname(parts[0])):
             per_part = [
                 check.draws if os.path.exists(part) else draws_done(part, check.draws, check_its)
