@@ -1,6 +1,7 @@
 """Shared test setup: two host devices (so seed sharding is exercised), JAX's persistent
 compilation cache and a fast compile, all before JAX creates its backend."""
 
+import json
 import os
 import pathlib
 import warnings
@@ -141,3 +142,80 @@ class MinariUser:
 @pytest.fixture(scope="session")
 def minari_user():
     return MinariUser
+
+
+# ---- the sweep's cells on disk (tests/test_sweep*.py) ------------------------------------------
+
+# A finished cell's reward check as reoptimize writes it now (every seed, the baseline), and as
+# it wrote it when the check took seed 0 alone.
+_CHECK_OF_EVERY_SEED = {
+    "iteration": 4,
+    "budget": {"iterations": 4, "gamma": 0.995},
+    "seeds": [0, 1],
+    "erd": [0.5, 0.7],
+    "erd_mean": 0.6,
+    "erd_std": 0.1,
+    "baseline": {"erd": 0.03, "cache": "hopper-k2-4it-g0.995-0123456789ab.json"},
+    "compile_time_s": 5.0,
+    "train_time_s": 16.0,
+}
+_CHECK_OF_SEED_0 = {"run_seed": 0, "iterations": 4, "erd": 0.49, "compile_time_s": 3.0,
+                   "train_time_s": 6.0}  # fmt: skip
+_REFIT_OF_EVERY_SEED = {**_CHECK_OF_EVERY_SEED, "erd": [0.1, 0.2], "baseline": {"erd": 0.02}}
+
+
+def _finished_cell(out, cell, erd, check=None, refit=None):
+    """``out/runs/<cell>`` as a finished 4-iteration run leaves it: its ``summary.json`` (ERD
+    ``erd`` per seed, 1 s per seed-iteration-intention, 10 s to compile), ``check`` as
+    ``reoptimize.json`` and ``refit`` as ``reoptimize-refit.json``."""
+    from emgail_jax.host.final_results import FinalResults
+
+    k, seeds = cell.intentions, len(erd)
+    final = FinalResults(
+        erd=erd, erd_per_intention=[[e] * k for e in erd], cluster_accuracy=None,
+        expert_returns=[1.0] * k, returns=[[0.0] * k] * seeds, random_returns=[0.0] * k,
+        compile_time_s=10.0, train_time_s=4.0 * seeds * k, iteration_time_s=1.0, env_steps=1,
+    )  # fmt: skip
+    summary = {
+        "env": cell.env, "intentions": k, "seeds": seeds, "status": "completed",
+        "iterations_done": 4, "parameters": {"total": 1}, "final": final.to_summary(),
+        "timings": {"compile_time_s": 10.0, "train_time_s": 4.0 * seeds * k, "iterations": 4},
+        "config": {"iterations": 4, "gamma": 0.995, "gae_lambda": 0.97},
+    }  # fmt: skip
+    run_dir = out / "runs" / cell.name
+    run_dir.mkdir(parents=True)
+    (run_dir / "summary.json").write_text(json.dumps(summary))
+    if check is not None:
+        (run_dir / "reoptimize.json").write_text(json.dumps(check))
+    if refit is not None:
+        (run_dir / "reoptimize-refit.json").write_text(json.dumps(refit))
+    return run_dir
+
+
+@pytest.fixture
+def hopper_cells(tmp_path):
+    """The sweep's finished hopper cells, their reward checks of either form or none: the
+    sweep's results of them and its OUT."""
+    import sweep_cells
+    import sweep_report
+
+    Cell = sweep_cells.Cell
+    out = tmp_path / "results"
+    _finished_cell(out, Cell("hopper", 1, "gail"), [0.01, 0.01])
+    _finished_cell(
+        out, Cell("hopper", 2, "emgail"), [0.01, 0.01], _CHECK_OF_EVERY_SEED, _REFIT_OF_EVERY_SEED
+    )
+    _finished_cell(out, Cell("hopper", 2, "infogail"), [0.02, 0.04])  # its checks are to do
+    gail_check = {**_CHECK_OF_EVERY_SEED, "erd": [0.9, 1.1], "erd_mean": 1.0}
+    _finished_cell(out, Cell("hopper", 2, "gail"), [0.5, 0.6], gail_check)  # its refit's to do
+    _finished_cell(out, Cell("hopper", 3, "emgail"), [0.03, 0.05], _CHECK_OF_SEED_0)
+    _finished_cell(out, Cell("hopper", 3, "gail"), [0.4, 0.4])
+    return sweep_report.collect(str(out), sweep_cells.all_cells(), 2, 4), out
+
+
+@pytest.fixture
+def kept_checkpoints(monkeypatch):
+    """The finished cells' run directories as if they kept their final checkpoints."""
+    from emgail_jax.host import checkpoints
+
+    monkeypatch.setattr(checkpoints, "latest_iteration", lambda run_dir: 4)

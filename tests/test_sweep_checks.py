@@ -1,0 +1,65 @@
+"""The sweep's reward checks (experiments/sweep_checks.py): which a cell still needs, and at
+which budget."""
+
+import json
+
+import sweep
+import sweep_cells
+import sweep_checks
+
+
+def test_sweep_a_cell_is_checked_until_every_seed_and_the_baseline_are(
+    hopper_cells, kept_checkpoints, monkeypatch
+):
+    """A trained cell whose checks are missing, or the paper's took seed 0 alone, or the refit's
+    is missing, has its checks to do (and only those); one the sweep does not check, or whose
+    checks are complete, is done."""
+    _, out = hopper_cells
+    status = {
+        name: sweep.sweep_status(cell, str(out / "runs" / name), 2, 4)
+        for name, cell in (
+            (c.name, c) for c in sweep_cells.select(sweep_cells.all_cells(), "hopper")
+        )
+        if (out / "runs" / name).exists()
+    }
+    assert status == {
+        "hopper-1-gail": "done",
+        "hopper-2-emgail": "done",
+        "hopper-2-infogail": "reward check",
+        "hopper-2-gail": "reward check",
+        "hopper-3-emgail": "reward check",
+        "hopper-3-gail": "done",
+    }
+    resumed = json.loads((out / "runs" / "hopper-2-emgail" / "summary.json").read_text())
+    (out / "runs" / "hopper-2-emgail" / "summary.json").write_text(
+        json.dumps({**resumed, "iterations_done": 6})
+    )  # trained further than its check: checked again
+    assert not sweep_checks.reward_check_done(str(out / "runs" / "hopper-2-emgail"), 2)
+    gail = str(out / "runs" / "hopper-2-gail")
+    assert sweep_checks.checks_to_do(gail, 2) == [sweep_checks.REFIT_CHECK]
+    # A check written before lambda was in the budget trained at the run's: done; one at a
+    # budget the env no longer has (its lambda changed since): to do again.
+    assert sweep_checks.reward_check_done(gail, 2)
+    monkeypatch.setitem(sweep_checks.BUDGETS, "hopper", {"gae_lambda": 0.995})
+    assert not sweep_checks.reward_check_done(gail, 2)
+    check = json.loads((out / "runs" / "hopper-2-gail" / "reoptimize.json").read_text())
+    check["budget"]["gae_lambda"] = 0.995
+    (out / "runs" / "hopper-2-gail" / "reoptimize.json").write_text(json.dumps(check))
+    assert sweep_checks.reward_check_done(gail, 2)
+    # Likewise scaling: a check recorded without it trained unscaled, as the run's config.
+    monkeypatch.setitem(
+        sweep_checks.BUDGETS, "hopper", {"gae_lambda": 0.995, "value_target_scaling": True}
+    )
+    assert not sweep_checks.reward_check_done(gail, 2)
+    check["budget"]["value_target_scaling"] = True
+    (out / "runs" / "hopper-2-gail" / "reoptimize.json").write_text(json.dumps(check))
+    assert sweep_checks.reward_check_done(gail, 2)
+
+
+def test_sweep_halfcheetahs_refit_check_scales_the_value_targets_and_no_other_check_does():
+    config = {"iterations": 400, "gamma": 0.995, "gae_lambda": 0.97}
+    budget = lambda env, check: sweep_checks.check_budget(env, config, check)
+    refit = budget("halfcheetah", sweep_checks.REFIT_CHECK)
+    assert refit.value_target_scaling and refit.iterations == 1000
+    assert not budget("halfcheetah", sweep_checks.PAPER_CHECK).value_target_scaling
+    assert not budget("hopper", sweep_checks.REFIT_CHECK).value_target_scaling
