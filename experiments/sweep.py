@@ -418,7 +418,6 @@ RAY_EXTRA = "pip install -e '.[ray]'"
 # Retries of a cell whose worker or node was lost (a failing cell is not retried: its error
 # would recur); each retry resumes the cell from its last checkpoint.
 RAY_MAX_RETRIES = 3
-
 RAY_WAIT_S = 5.0  # between looks at the cells, so that Ctrl-C is seen at once
 
 

@@ -25,7 +25,6 @@ CHOOSING_K = {"driver": (2, 3, 4), "swimmer": (2,), "hopper": (3,), "reacher": (
 
 # Separability 0.06 to 0.93 (README, "The driver and its separability").
 DRIVER_RADII = (4.0, 5.0, 6.0, 7.0, 8.0, 10.0, 15.0, 20.0)
-
 ALGOS = ("emgail", "infogail", "gail")
 
 
@@ -43,7 +42,6 @@ VARIANT_OPTIONS = {
     Variant.ONEHOT: ("--intention-input", "onehot"),
     Variant.PAIR: ("--responsibilities", "pair"),
 }
-
 FIGURES = ("fig4a", "fig4b", "fig5a", "fig5b", "fig6", "table2", "table3", "choosing-k")
 
 

@@ -33,13 +33,10 @@ class RewardCheck:
 # the recipe measured best per env, each intention's best of 3 draws kept by the learned reward
 # (docs/rewards-that-reoptimise.md, experiments 53 and 66).
 PAPER_CHECK = RewardCheck("reoptimize.json")
-
 REFIT_DRAWS = 3
-
 REFIT_CHECK = RewardCheck(
     "reoptimize-refit.json", ("--refit", "--draws", str(REFIT_DRAWS)), REFIT_DRAWS
 )
-
 REWARD_CHECKS = (PAPER_CHECK, REFIT_CHECK)
 
 # The refit learns from the run's snapshots: one every 10 iterations (the default 50 gave

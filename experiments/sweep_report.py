@@ -60,7 +60,6 @@ PAPER_TABLE3 = {
     "emgail": {"hopper-2": 99.2, "hopper-3": 98.1, "halfcheetah-2": 99.8, "halfcheetah-3": 96.5,
                "swimmer-2": 97.3, "reacher-2": 99.2, "reacher-3": 97.1, "reacher-4": 96.8},
 }  # fmt: skip
-
 PAPER_TABLE2 = {  # env: {algo: (parameters, seconds per iteration)}
     "swimmer": {"gail": ("14.6K", 8.5), "infogail": ("19.9K", 10.2), "emgail": ("20.0K", 10.3)},
     "hopper": {"gail": ("15.3K", 12.4), "infogail": ("21.1K", 15.3), "emgail": ("21.2K", 15.6)},
@@ -395,7 +394,6 @@ def _write_text(path: str, lines: list[str]) -> None:
 
 
 COLORS = {"emgail": "tab:red", "infogail": "tab:blue", "gail": "tab:green"}
-
 ERD_TOP = 1.05  # the top of the ERD axis: 1 is random actions
 
 
