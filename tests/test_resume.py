@@ -101,21 +101,43 @@ def test_resume_without_a_run_or_checkpoint(straight_and_resumed, tmp_path, caps
     assert "no checkpoint" in _one_line_error(capsys)
 
 
-def test_corrupt_checkpoint_is_reported(straight_and_resumed, tmp_path, capsys):
+def _with_a_damaged_checkpoint(run_dir, tmp_path):
+    """A copy of ``run_dir`` whose newest checkpoint's array data are cut to nothing."""
     import shutil
 
-    straight, _ = straight_and_resumed
     broken = tmp_path / "broken"
-    shutil.copytree(straight, broken)
+    shutil.copytree(run_dir, broken)
     step = broken / "checkpoints" / "8" / "state"
     for root, _, files in os.walk(step):
         for name in files:
             if name not in ("_METADATA", "commit_success.txt"):
                 open(os.path.join(root, name), "wb").close()  # truncate the array data
+    return broken
+
+
+# Orbax's reads under way when one fails would each print a traceback around the one-line error.
+@pytest.mark.filterwarnings("error::pytest.PytestUnraisableExceptionWarning")
+def test_corrupt_checkpoint_is_reported(straight_and_resumed, tmp_path, capsys):
+    straight, _ = straight_and_resumed
+    broken = _with_a_damaged_checkpoint(straight, tmp_path)
     summary_before = (broken / "summary.json").read_text()
     assert run.main(["--resume", str(broken), "--iterations", "10", "--quiet"]) == 2
     assert "cannot be read" in _one_line_error(capsys)
     assert (broken / "summary.json").read_text() == summary_before
+
+
+def test_corrupt_checkpoint_is_one_line_on_stderr_to_the_processs_end(
+    straight_and_resumed, tmp_path
+):
+    """What orbax's other reads report as they finish or are collected, up to the process's exit
+    (where the test above cannot look), stays off stderr: the one error line is all of it."""
+    straight, _ = straight_and_resumed
+    broken = _with_a_damaged_checkpoint(straight, tmp_path)
+    command = [sys.executable, "-m", "emgail_jax.run", "--resume", str(broken), "--quiet"]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "cannot be read" in lines[0], done.stderr
 
 
 def test_sigterm_leaves_a_valid_checkpoint_and_an_interrupted_summary(tmp_path):

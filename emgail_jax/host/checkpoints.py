@@ -22,8 +22,10 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import logging
 import os
 import shutil
+import sys
 import threading
 import types
 
@@ -185,6 +187,37 @@ def latest_iteration(run_dir: str) -> int | None:
         return manager.latest_step()
 
 
+def _is_closed_loop_callback(unraisable) -> bool:
+    error = unraisable.exc_value
+    return isinstance(error, RuntimeError) and str(error) == "Event loop is closed"
+
+
+class _UnawaitedReads(logging.Filter):
+    """asyncio's report of each read orbax left unawaited, made when the read is collected
+    (often as the process exits)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not record.getMessage().startswith("Task exception was never retrieved")
+
+
+def _drop_damaged_read_leftovers() -> None:
+    """When one read of a damaged checkpoint fails, orbax closes its event loop while its other
+    reads still finish on tensorstore's threads, posting to that loop or left unawaited: each
+    prints a traceback around the one-line error, before it or as the process exits. From the
+    first restore on those alone are dropped; any other error still reaches stderr."""
+    previous = sys.unraisablehook
+    if getattr(previous, "drops_closed_loop_callbacks", False):
+        return
+
+    def hook(unraisable):
+        if not _is_closed_loop_callback(unraisable):
+            previous(unraisable)
+
+    hook.drops_closed_loop_callbacks = True
+    sys.unraisablehook = hook
+    logging.getLogger("asyncio").addFilter(_UnawaitedReads())
+
+
 def restore(run_dir: str, target_state, iteration: int | None = None):
     """Restores ``(state, history, iteration)``, the state as host arrays; ``target_state``
     (arrays or shape-dtype structs) gives its structure.
@@ -202,6 +235,7 @@ def restore(run_dir: str, target_state, iteration: int | None = None):
         f"(written by another version?); read it with the version that wrote it, or "
         f"train afresh in a new directory"
     )
+    _drop_damaged_read_leftovers()
     try:
         with _manager(run_dir) as manager:
             meta = manager.restore(iteration, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))
