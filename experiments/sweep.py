@@ -62,6 +62,7 @@ from sweep_cells import (
 from sweep_checks import (
     CHECKED_SNAPSHOT_EVERY,
     PAPER_CHECK,
+    REFIT_CHECK,
     REWARD_CHECKS,
     RewardCheck,
     baseline_computers,
@@ -248,10 +249,6 @@ def repair_cell(name: str, run_dir: str, run_args: list[str], log_path: str) -> 
     return Status.NEW if done is None else Status.RESUME
 
 
-# Seconds per seed of a refit (4000 steps), for the estimate until a refit check has finished.
-REFIT_SECONDS_PER_SEED = 200.0
-
-
 def run_reward_check(
     run_dir: str, out: str, check: RewardCheck, log_path: str, processes: int = 1
 ) -> int:
@@ -277,13 +274,20 @@ def run_reward_check(
     return code
 
 
+# Seconds per seed of a refit (4000 steps), for the estimate until a refit of the env has
+# recorded its own.
+REFIT_SECONDS_PER_SEED = 200.0
+
+
 @dataclasses.dataclass(frozen=True)
 class Timings:
     """Per env, seconds per seed-iteration-intention and seconds to compile, of training and
-    of the reward checks' fresh TRPO, from the finished cells' own timings."""
+    of the reward checks' fresh TRPO, and seconds per seed of a refit, from the finished cells'
+    own timings."""
 
     training: dict[str, tuple[float, float]]
     checks: dict[str, tuple[float, float]]
+    refits: dict[str, float] = dataclasses.field(default_factory=dict)
 
     def of_training(self, env: str) -> tuple[float, float]:
         return self.training.get(env, MEASURED_SECONDS[env])
@@ -292,6 +296,9 @@ class Timings:
         # Until a check of the env has finished: about training's, since the check runs every
         # seed on one device and skips only the discriminator and posterior.
         return self.checks.get(env, self.of_training(env))
+
+    def of_refit(self, env: str) -> float:
+        return self.refits.get(env, REFIT_SECONDS_PER_SEED)
 
 
 def training_seconds(cell: Cell, seeds: int, iterations: int, timings: Timings) -> float:
@@ -318,7 +325,8 @@ def check_seconds(
     programs = 1 if lanes == 1 else math.ceil(seeds / lanes)
     rows = math.ceil(seeds / lanes) + int(with_baseline)
     work = rows * check_iterations(cell.env, iterations, check) * cell.intentions
-    refit = REFIT_SECONDS_PER_SEED * math.ceil(seeds / lanes) if "--refit" in check.options else 0.0
+    refits = math.ceil(seeds / lanes) if "--refit" in check.options else 0
+    refit = timings.of_refit(cell.env) * refits
     compiles = programs + int(with_baseline)
     return refit + check.draws * (compile_s * compiles + per_unit * work)
 
@@ -349,8 +357,10 @@ def estimate_seconds(
 
 def measured_seconds(runs_dir: str) -> Timings:
     """Per env, from finished cells' own timings and their reward checks': seconds per
-    seed-iteration-intention (the median over cells) and seconds to compile."""
+    seed-iteration-intention (the median over cells) and seconds to compile; seconds per seed of
+    a refit (the median over the seeds of the refit checks that recorded theirs)."""
     found = {"training": {}, "checks": {}}
+    refits = {}
     for name in sorted(os.listdir(runs_dir)) if os.path.isdir(runs_dir) else ():
         run_dir = os.path.join(runs_dir, name)
         summary = summary_or_none(run_dir)
@@ -363,8 +373,12 @@ def measured_seconds(runs_dir: str) -> Timings:
         for kind, timing in timings.items():
             if timing is not None:
                 found[kind].setdefault(summary["env"], []).append(timing)
+        refits.setdefault(summary["env"], []).extend(
+            _refit_seconds(reward_check(run_dir, REFIT_CHECK))
+        )
     median = lambda per_env: {env: tuple(np.median(t, 0).tolist()) for env, t in per_env.items()}
-    return Timings(median(found["training"]), median(found["checks"]))
+    refit_medians = {env: float(np.median(seconds)) for env, seconds in refits.items() if seconds}
+    return Timings(median(found["training"]), median(found["checks"]), refit_medians)
 
 
 def _training_timing(summary: dict) -> tuple[float, float] | None:
@@ -383,6 +397,13 @@ def _check_timing(check: dict | None, intentions: int) -> tuple[float, float] | 
     iterations = (check.get("budget") or {}).get("iterations", check.get("iterations"))
     work = len(checked_seeds(check)) * (iterations or 0) * intentions
     return (check["train_time_s"] / work, check["compile_time_s"]) if work else None
+
+
+def _refit_seconds(check: dict | None) -> list[float]:
+    """Each seed's refit seconds in a refit check (none in checks written before they were
+    recorded)."""
+    seeds = (check or {}).get("consolidation") or ()
+    return [seed["seconds"] for seed in seeds if isinstance(seed, dict) and "seconds" in seed]
 
 
 @dataclasses.dataclass(frozen=True)

@@ -161,7 +161,12 @@ _CHECK_OF_EVERY_SEED = {
 }
 _CHECK_OF_SEED_0 = {"run_seed": 0, "iterations": 4, "erd": 0.49, "compile_time_s": 3.0,
                    "train_time_s": 6.0}  # fmt: skip
-_REFIT_OF_EVERY_SEED = {**_CHECK_OF_EVERY_SEED, "erd": [0.1, 0.2], "baseline": {"erd": 0.02}}
+_REFIT_OF_EVERY_SEED = {
+    **_CHECK_OF_EVERY_SEED,
+    "erd": [0.1, 0.2],
+    "baseline": {"erd": 0.02},
+    "consolidation": [{"run_seed": 0, "seconds": 30.0}, {"run_seed": 1, "seconds": 50.0}],
+}
 
 
 def _finished_cell(out, cell, erd, check=None, refit=None):

@@ -297,6 +297,7 @@ def test_a_consolidated_reward_in_the_logit_form(tiny_run, reoptimized):
     assert result["reward_form"] == "logit" and first["reward_form"] == "gail"
     assert [c["run_seed"] for c in result["consolidation"]] == [0, 1]
     assert all(c["steps"] == 5 for c in result["consolidation"])
+    assert all(c["seconds"] > 0 for c in result["consolidation"])  # the sweep's estimate
     earned = result["per_seed"][0]["learned_reward_per_step"]["demonstrations"]
     assert earned != first["per_seed"][0]["learned_reward_per_step"]["demonstrations"]
     assert result["saved_reward"] == "consolidated-5"  # whatever form reads it

@@ -181,24 +181,26 @@ def test_sweep_estimates_every_seeds_check_and_each_baseline_once(hopper_cells):
     # The medians of the checks' 16 s over 2 seeds x 4 iterations x 2 intentions (twice) and,
     # seed 0 alone, 6 s over 4 x 3; and of their compiles, 5, 5 and 3 s.
     assert timings.checks == {"hopper": (1.0, 5.0)}
+    # The median of the refit check's seeds' 30 and 50 s; an env without one, the default.
+    assert timings.refits == {"hopper": 40.0}
+    refit_s = timings.of_refit("hopper")
+    assert timings.of_refit("halfcheetah") == sweep.REFIT_SECONDS_PER_SEED
     infogail, swimmer = Cell("hopper", 2, "infogail"), Cell("swimmer", 2, "emgail")
     # (2 seeds + the baseline) x 4 iterations x 2 intentions at 1 s, and two compiles; the
     # refit's check 3 draws of the same after 2 seeds' refits.
     check = 2 * 5.0 + 3 * 4 * 2
-    refit = 2 * sweep.REFIT_SECONDS_PER_SEED + 3 * check
+    refit = 2 * refit_s + 3 * check
     paper_only = (sweep_checks.PAPER_CHECK,)
     both = sweep_checks.REWARD_CHECKS
     assert sweep.estimate_seconds(infogail, Status.CHECK, 2, 4, timings, both, paper_only) == check
     assert sweep.estimate_seconds(infogail, Status.CHECK, 2, 4, timings) == check + refit
     without_baseline = sweep.estimate_seconds(infogail, Status.CHECK, 2, 4, timings, ())
-    assert without_baseline == 5.0 + 2 * 4 * 2 + 2 * sweep.REFIT_SECONDS_PER_SEED + 3 * (
-        5.0 + 2 * 4 * 2
-    )
+    assert without_baseline == 5.0 + 2 * 4 * 2 + 2 * refit_s + 3 * (5.0 + 2 * 4 * 2)
     trained = 10.0 + 1.0 * 2 * 4 * 2
     assert sweep.estimate_seconds(infogail, Status.NEW, 2, 4, timings) == trained + check + refit
     # Over two processes a seed each, the baseline's beside the last: a seed and the baseline.
     check_2 = 2 * 5.0 + 2 * 4 * 2
-    refit_2 = sweep.REFIT_SECONDS_PER_SEED + 3 * check_2
+    refit_2 = refit_s + 3 * check_2
     over_two = sweep.estimate_seconds(infogail, Status.CHECK, 2, 4, timings, check_processes=2)
     assert over_two == check_2 + refit_2
     # A check stopped part-way costs what it has left: its finished draw and half the next.

@@ -670,6 +670,7 @@ def consolidated(
             if progress:
                 print(f"seed {number}: the refitted reward '{name}' saved before, reused")
         else:
+            started = time.monotonic()
             key = jax.random.PRNGKey(number + 2000)
             samples = consolidation.snapshot_policy_samples(run, seed, key)
             found, losses = consolidation.consolidated_parameters(
@@ -679,6 +680,8 @@ def consolidated(
                 found, losses = refitted_against_agents(
                     run, seed, refit, key, budget, found, samples, progress
                 )
+            # What this seed's refit cost, compiles included: the sweep's estimate reads it.
+            losses = {**losses, "seconds": time.monotonic() - started}
             consolidation.save_refitted(
                 run.run_dir, name, number, found["discriminator"], description, losses
             )
