@@ -66,7 +66,7 @@ class DemoSet:
 
 
 def method_name(algo: str, variant: Variant) -> str:
-    """``emgail``, ``emgail-onehot``: a key of ALGO_LABELS and of PAPER_TABLE3."""
+    """``emgail``, ``emgail-onehot``: a key of the report's ALGO_LABELS and PAPER_TABLE3."""
     return algo + (f"-{variant}" if variant else "")
 
 
