@@ -9,6 +9,10 @@ check's file alone (nothing trained):
   one that out-earns them far may have found what the reward overpays;
 - by true ERD: per true intention the draw of the lowest ERD, which no user without the true
   reward can choose: what the draws held.
+
+Beside them, the true-reward baseline's ERD as the check keeps it (per intention the most true
+return) and the lowest its draws give: per intention where the check recorded each draw's ERD
+per intention, else its best whole draw.
 """
 
 from __future__ import annotations
@@ -66,6 +70,15 @@ def main(argv=None) -> int:
             print(f"  {seed:4d}  " + "  ".join(f"{erds[rule]:11.3f}" for rule in RULES))
         means = [np.mean([erds[rule] for erds in found.values()]) for rule in RULES]
         print("  mean  " + "  ".join(f"{mean:11.3f}" for mean in means))
+        baseline = check.get("baseline") or {}
+        if "erd" in baseline:
+            line = f"  true-reward baseline: {baseline['erd']:.3f} (most true return)"
+            per_draw = baseline.get("draws_erd_per_intention")
+            if per_draw:  # per intention its draw of the lowest ERD
+                line += f", {np.min(np.asarray(per_draw, float), 0).mean():.3f} (lowest ERD)"
+            elif baseline.get("draws_erd"):  # checks written before: whole draws alone
+                line += f", {min(baseline['draws_erd']):.3f} (its draw of the lowest ERD)"
+            print(line)
     return 0
 
 

@@ -91,6 +91,17 @@ def test_draw_choice_gives_each_rules_erd_from_the_checks_file(tmp_path, capsys)
     }
     assert draw_choice.main([str(check)]) == 0
     assert capsys.readouterr().out.splitlines()[-1].split() == ["mean", "0.500", "0.100", "0.100"]
+    # The baseline kept by true return (0.4), and the lowest ERD of its draws per intention.
+    baseline = {"erd": 0.4, "draws_erd": [0.4, 0.25],
+                "draws_erd_per_intention": [[0.6, 0.2], [0.1, 0.4]]}  # fmt: skip
+    check.write_text(json.dumps({**json.loads(check.read_text()), "baseline": baseline}))
+    assert draw_choice.main([str(check)]) == 0
+    last = capsys.readouterr().out.splitlines()[-1]
+    assert last == "  true-reward baseline: 0.400 (most true return), 0.150 (lowest ERD)"
+    del baseline["draws_erd_per_intention"]  # a check written before: whole draws
+    check.write_text(json.dumps({**json.loads(check.read_text()), "baseline": baseline}))
+    assert draw_choice.main([str(check)]) == 0
+    assert capsys.readouterr().out.splitlines()[-1].endswith("0.250 (its draw of the lowest ERD)")
     one = tmp_path / "one.json"
     one.write_text(json.dumps({"draws": [draw([1.0, 0.9], [0.1, 0.2])]}))
     assert draw_choice.main([str(one)]) == 2

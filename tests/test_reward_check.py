@@ -324,6 +324,7 @@ def test_the_best_baseline_keeps_the_highest_true_return_per_intention():
     best = reward_check.best_baseline(baselines)
     assert best["draw"] == [0, 1] and best["meets_bar"] == [False, True]
     np.testing.assert_allclose(best["erd_per_intention"], [0.1, 0.2])
+    np.testing.assert_allclose(best["draws_erd_per_intention"], [[0.1, 0.6], [0.4, 0.2]])
     assert best["cache"] == ["draw0.json", "draw1.json"]
 
 

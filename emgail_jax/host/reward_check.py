@@ -458,13 +458,16 @@ def chosen_by_learned_reward(draws: list[dict]) -> dict:
 def best_baseline(baselines: list[dict]) -> dict:
     """Several true-reward baselines' draws (:func:`true_reward_baseline`) as one: per true
     intention the agent with the highest true return, each agent kept by the reward it trained
-    on as :func:`chosen_by_learned_reward` keeps the learned reward's."""
+    on as :func:`chosen_by_learned_reward` keeps the learned reward's. Each draw's ERD per
+    intention is kept beside it: an agent that outruns its expert has the most true return and
+    a worse ERD than a draw nearer the expert, which a reader may prefer as the floor."""
     best = np.array([b["returns"] for b in baselines]).argmax(0)  # [K true]
     result = picked(baselines, best)
     return {
         **result,
         "meets_bar": [q["meets_bar"] for q in result["success"]],
         "draws_erd": [b["erd"] for b in baselines],
+        "draws_erd_per_intention": [b["erd_per_intention"] for b in baselines],
         "cache": [b["cache"] for b in baselines],
     }
 
