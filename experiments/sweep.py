@@ -254,8 +254,8 @@ def run_reward_check(
 ) -> int:
     """Runs ``check`` on the cell in ``run_dir``; returns its exit code. With ``processes`` > 1
     each seed is checked in a process of its own, one per core (the last seed's computes the
-    baseline), then ``reoptimize --merge`` writes the check of every seed; a part of the
-    networks checked already is kept, and the parts go once merged."""
+    baseline, and starts first), then ``reoptimize --merge`` writes the check of every seed; a
+    part of the networks checked already is kept, and the parts go once merged."""
     summary = summary_or_none(run_dir)
     numbers = seed_numbers(summary)
     command = reward_check_command(run_dir, out, check)
@@ -266,6 +266,8 @@ def run_reward_check(
         if not part_is_current(part, summary, check):
             one_seed = ["--seed", str(seed), *([] if seed == numbers[-1] else ["--no-baseline"])]
             to_do.append([*reward_check_command(run_dir, out, check, part), *one_seed])
+    # The part with the baseline, the longest, first: the others fill the other cores meanwhile.
+    to_do.sort(key=lambda command: "--no-baseline" in command)
     code = run_commands(to_do, log_path, processes)
     if code == 0:
         code = run_command([*command, "--merge", *parts], log_path)

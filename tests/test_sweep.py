@@ -61,8 +61,9 @@ def test_sweep_a_check_over_two_processes_is_one_per_seed_then_merged(
     hopper_cells, kept_checkpoints, monkeypatch
 ):
     """With two check processes each seed is checked in its own (the last seed's with the
-    baseline), then merged into the check's file, and the parts go; a part already made of
-    these networks at this budget is kept, and the merge runs again on it."""
+    baseline, started first as the longest), then merged in the seeds' order into the check's
+    file, and the parts go; a part already made of these networks at this budget is kept, and
+    the merge runs again on it."""
     from emgail_jax import reoptimize
 
     _, out = hopper_cells
@@ -88,14 +89,15 @@ def test_sweep_a_check_over_two_processes_is_one_per_seed_then_merged(
     assert processes == 2 and len(parts) == 2
     args = [reoptimize.parse_args(command[3:], env="hopper") for command in parts]
     assert [(a.seed, a.baseline, a.refit, a.draws) for a in args] == [
-        (0, False, True, 3),
         (1, True, True, 3),
+        (0, False, True, 3),
     ]
     parts_dir = run_dir / "reoptimize-refit.parts"
-    assert [a.out for a in args] == [str(parts_dir / f"seed-{s}.json") for s in (0, 1)]
+    in_order = [str(parts_dir / f"seed-{s}.json") for s in (0, 1)]
+    assert [a.out for a in args] == in_order[::-1]
     (merge,) = ran
     merged = reoptimize.parse_args(merge[3:], env="hopper")
-    assert merged.merge == [a.out for a in args] and merged.seed is None
+    assert merged.merge == in_order and merged.seed is None
     assert merged.out == str(run_dir / "reoptimize-refit.json") and merged.baseline
     assert not parts_dir.exists()  # merged: the parts go
     # A merge that fails keeps the parts; the next sweep reuses them and merges again.
