@@ -2,6 +2,7 @@
 which budget."""
 
 import json
+import pathlib
 
 import sweep
 import sweep_cells
@@ -63,3 +64,28 @@ def test_sweep_halfcheetahs_refit_check_scales_the_value_targets_and_no_other_ch
     assert refit.value_target_scaling and refit.iterations == 1000
     assert not budget("halfcheetah", sweep_checks.PAPER_CHECK).value_target_scaling
     assert not budget("hopper", sweep_checks.REFIT_CHECK).value_target_scaling
+
+
+def test_a_part_is_reused_only_if_it_checked_these_networks_at_this_budget(hopper_cells):
+    """A seed's part of a check spread over processes is current when it checked the run's final
+    iteration at the budget the check has now; a missing, unreadable, older or other-budget
+    part is checked again."""
+    _, out = hopper_cells
+    run_dir = out / "runs" / "hopper-2-gail"
+    summary = json.loads((run_dir / "summary.json").read_text())
+    check = sweep_checks.REFIT_CHECK
+    part = sweep_checks.check_part_path(str(run_dir), check, 1)
+    assert part == str(run_dir / "reoptimize-refit.parts" / "seed-1.json")
+    assert not sweep_checks.part_is_current(part, summary, check)  # none yet
+    budget = {"iterations": 4, "gamma": 0.995, "gae_lambda": 0.97, "value_target_scaling": False}
+    (run_dir / "reoptimize-refit.parts").mkdir()
+    written = {"iteration": 4, "budget": budget}
+    for found, current in (
+        (written, True),
+        ({**written, "iteration": 2}, False),  # the networks before a resumed run's last ones
+        ({**written, "budget": {**budget, "gae_lambda": 0.995}}, False),
+    ):
+        pathlib.Path(part).write_text(json.dumps(found))
+        assert sweep_checks.part_is_current(part, summary, check) == current, found
+    pathlib.Path(part).write_text("{cut short")
+    assert not sweep_checks.part_is_current(part, summary, check)
