@@ -187,11 +187,6 @@ def latest_iteration(run_dir: str) -> int | None:
         return manager.latest_step()
 
 
-def _is_closed_loop_callback(unraisable) -> bool:
-    error = unraisable.exc_value
-    return isinstance(error, RuntimeError) and str(error) == "Event loop is closed"
-
-
 class _UnawaitedReads(logging.Filter):
     """asyncio's report of each read orbax left unawaited, made when the read is collected
     (often as the process exits)."""
@@ -210,7 +205,8 @@ def _drop_damaged_read_leftovers() -> None:
         return
 
     def hook(unraisable):
-        if not _is_closed_loop_callback(unraisable):
+        error = unraisable.exc_value
+        if not (isinstance(error, RuntimeError) and str(error) == "Event loop is closed"):
             previous(unraisable)
 
     hook.drops_closed_loop_callbacks = True
