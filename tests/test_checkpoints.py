@@ -116,5 +116,6 @@ def test_a_damaged_checkpoints_leftover_reads_alone_are_dropped(monkeypatch, cap
     assert len(asyncio_log.filters) == 1
     with caplog.at_level(logging.ERROR, logger="asyncio"):
         asyncio_log.error("Task exception was never retrieved\nfuture: <Task finished>")
+        asyncio_log.error("Future exception was never retrieved\nfuture: <Future finished>")
         asyncio_log.error("Unclosed client session")
     assert [r.getMessage() for r in caplog.records] == ["Unclosed client session"]

@@ -188,11 +188,13 @@ def latest_iteration(run_dir: str) -> int | None:
 
 
 class _UnawaitedReads(logging.Filter):
-    """asyncio's report of each read orbax left unawaited, made when the read is collected
-    (often as the process exits)."""
+    """asyncio's report of each read orbax left unawaited, a task or a bare future, made when
+    the read is collected (often as the process exits)."""
+
+    REPORTS = ("Task exception was never retrieved", "Future exception was never retrieved")
 
     def filter(self, record: logging.LogRecord) -> bool:
-        return not record.getMessage().startswith("Task exception was never retrieved")
+        return not record.getMessage().startswith(self.REPORTS)
 
 
 def _drop_damaged_read_leftovers() -> None:
