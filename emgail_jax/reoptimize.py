@@ -1,6 +1,7 @@
 """Is the learned reward a reward? Train fresh policies on it and measure their ERD (paper §5.2).
 
     python -m emgail_jax.reoptimize RUN_DIR [--seed S] [--rl-seed R] [--draws N] [--snapshot ITER]
+        [--keep-draw most|nearest]
         [--ensemble N | --across-seeds | --consolidate STEPS [--consolidate-*]]
         [--reward-form FORM] [--absorbing-reward learned|random] [--iterations N] [--gamma G]
         [--no-baseline] [--cache DIR] [--env-set KEY=FACTOR ...] [--out PATH]
@@ -16,7 +17,8 @@ for ``load_reward(RUN_DIR, refit=NAME)`` and reused by any later check of it), n
 seeing the true reward; the seeds' and intentions' policies are vmapped in one program
 (``--rl-seed R``: another draw of their initialisation and samples, to tell a reward that fails
 from a search that did; ``--draws N``: N draws, keeping per intention the agent that earns the
-most learned reward, as a user without the true reward would; each finished draw, and the
+most learned reward, as a user without the true reward would, or with ``--keep-draw nearest``
+the one nearest what the demonstrations earn; each finished draw, and the
 training of the one under way every few minutes, is kept beside the check's file until it is
 written, so a check stopped part-way goes on from there; ``--merge`` joins checks of one
 seed each, run with ``--seed S`` on other cores or machines, into the check of them all,
@@ -156,8 +158,9 @@ def print_result(run, result: dict) -> None:
     for seed_result in result["per_seed"] if "draws" in result else []:
         draws_erd = " ".join(two(e) for e in seed_result["draws_erd"])
         console.print(
-            f"seed {seed_result['run_seed']}: best of {len(result['draws'])} draws by the "
-            f"learned reward (each draw's ERD {draws_erd}), true intentions acted by draws "
+            f"seed {seed_result['run_seed']}: of {len(result['draws'])} draws, kept by the "
+            f"learned reward ({result.get('draw_rule', 'most')}; each draw's ERD {draws_erd}), "
+            "true intentions acted by draws "
             + " ".join(str(result["rl_seeds"][d]) for d in seed_result["draw"])
         )
     for seed_number, price in zip(
@@ -207,8 +210,17 @@ def argument_parser() -> argparse.ArgumentParser:
         default=1,
         metavar="N",
         help="train N draws (RL seeds R .. R + N - 1) and keep per intention the agent that "
-        "earns the most learned reward; the true-reward baseline's the one that earns the "
-        "most true reward (default 1); a check stopped part-way goes on where it stopped",
+        "earns the most learned reward (--keep-draw); the true-reward baseline's the one that "
+        "earns the most true reward (default 1); a check stopped part-way goes on where it "
+        "stopped",
+    )
+    parser.add_argument(
+        "--keep-draw",
+        choices=reward_check.DRAW_RULES,
+        default="most",
+        help="with --draws: per intention keep the agent that earns the most learned reward "
+        "per step (default), or the one nearest what the demonstrations earn, passing over "
+        "one that may have found what the reward overpays",
     )
     parser.add_argument(
         "--snapshot", type=int, default=None, metavar="ITER", help="the rewards of this snapshot"
@@ -480,6 +492,8 @@ def _check_options(args: argparse.Namespace) -> None:
         raise RunError("--rl-seed must be 0 or more")
     if args.draws < 1:
         raise RunError("--draws must be at least 1")
+    if args.keep_draw != "most" and args.draws == 1:
+        raise RunError("--keep-draw chooses among draws: give --draws N with N > 1 too")
     if args.iterations is not None and args.iterations < 1:
         raise RunError("--iterations must be at least 1")
     if args.gamma is not None and not 0 < args.gamma <= 1:
@@ -789,7 +803,11 @@ def _reoptimized(
             )
             finished.write(rl_seed, draw)
         draws.append(draw)
-    result = draws[0] if args.draws == 1 else reward_check.chosen_by_learned_reward(draws)
+    result = (
+        draws[0]
+        if args.draws == 1
+        else reward_check.chosen_by_learned_reward(draws, args.keep_draw)
+    )
     # What the fresh agents were paid: an AIRL run's policies trained on f - log pi, its
     # fresh agents on g_i(s).
     airl = run.config.method.m_step.form.airl
@@ -819,7 +837,7 @@ def _reoptimized(
 def check_identity(args: argparse.Namespace, run) -> dict:
     """What a check's draws depend on: its options (not how many draws, nor where and how it
     reports) and the iteration of the networks checked."""
-    unrelated = ("draws", "quiet", "out", "baseline", "cache", "merge")
+    unrelated = ("draws", "keep_draw", "quiet", "out", "baseline", "cache", "merge")
     options = {k: v for k, v in sorted(vars(args).items()) if k not in unrelated}
     # Left out when not given, as before the option existed, so that those checks resume.
     if options["value_target_scaling"] is None:
@@ -839,6 +857,8 @@ def default_name(args) -> str:
         parts.append(f"rl-{args.rl_seed}")
     if args.draws > 1:
         parts.append(f"draws-{args.draws}")
+        if args.keep_draw != "most":
+            parts.append(f"keep-{args.keep_draw}")
     if args.iterations is not None:
         parts.append(f"it-{args.iterations}")
     if args.gamma is not None:

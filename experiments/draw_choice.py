@@ -3,10 +3,11 @@ check's file alone (nothing trained):
 
     python experiments/draw_choice.py RUN/reoptimize-refit.json [CHECK.json ...]
 
-- most: the check's own rule, per learned intention the agent that earns the most learned
-  reward per step (``reward_check.chosen_by_learned_reward``);
-- nearest: the agent whose learned reward per step is nearest what the demonstrations earn, as
-  one that out-earns them far may have found what the reward overpays;
+- most: the check's default rule, per learned intention the agent that earns the most learned
+  reward per step (``reward_check.kept_draws``);
+- nearest: ``reoptimize --keep-draw nearest``, the agent whose learned reward per step is
+  nearest what the demonstrations earn, as one that out-earns them far may have found what the
+  reward overpays;
 - by true ERD: per true intention the draw of the lowest ERD, which no user without the true
   reward can choose: what the draws held.
 
@@ -26,14 +27,11 @@ import numpy as np
 
 def kept(rows: list[dict], rule: str) -> list[int]:
     """Per true intention, the draw ``rule`` keeps among one seed's ``rows`` (one per draw)."""
-    matching = np.asarray(rows[0]["matching"])
+    from emgail_jax.host.reward_check import kept_draws
+
     if rule == "by true ERD":
         return list(np.array([r["erd_per_intention"] for r in rows], float).argmin(0))
-    earned = np.array([r["learned_reward_per_step"]["fresh_policies"] for r in rows], float)
-    if rule == "most":
-        return list(earned.argmax(0)[matching])
-    demonstrations = np.asarray(rows[0]["learned_reward_per_step"]["demonstrations"], float)
-    return list(np.abs(earned - demonstrations).argmin(0)[matching])
+    return list(kept_draws(rows, rule)[np.asarray(rows[0]["matching"])])
 
 
 RULES = ("most", "nearest", "by true ERD")

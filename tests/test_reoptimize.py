@@ -115,6 +115,13 @@ def test_checks_of_one_seed_each_merge_into_the_check_of_every_seed(
 
     again = to_json_value(reward_check.chosen_by_learned_reward(merged["draws"]))
     assert {name: merged[name] for name in again} == again
+    # The rule that keeps a draw trains nothing: the same parts merge under the other rule.
+    nearest = tmp_path / "nearest.json"
+    merge_nearest = [*merge[:-2], str(nearest), "--keep-draw", "nearest", "--merge", *parts]
+    assert reoptimize.main(merge_nearest) == 0
+    kept = json.loads(nearest.read_text())
+    again = to_json_value(reward_check.chosen_by_learned_reward(merged["draws"], "nearest"))
+    assert kept["draw_rule"] == "nearest" and {name: kept[name] for name in again} == again
     assert merged["baseline"]["cache"] and merged["check"]["options"]["seed"] is None
     # The same seed twice, a part checked with other options, or of every seed, is refused.
     refused = [
@@ -232,6 +239,7 @@ def test_a_snapshot_is_reoptimised_on_its_own_networks(tiny_run, reoptimized):
         (["--env-set", "gravity=2", "--no-baseline"], "drop --no-baseline"),
         (["--reference-draws", "0"], "--reference-draws must be at least 1"),
         (["--draws", "0"], "--draws must be at least 1"),
+        (["--keep-draw", "nearest"], "--keep-draw chooses among draws: give --draws N"),
         (["--merge", "a.json", "--seed", "0"], "--merge joins checks of one seed each: drop"),
         (["--merge", "missing.json"], "--merge: cannot read 'missing.json'"),
         (["--absorbing-reward", "random"], "--absorbing-reward prices an absorbing state, and"),
@@ -351,6 +359,8 @@ def test_the_default_file_names_what_was_checked():
     assert reoptimize.default_name(args) == "reoptimize-rl-2.json"
     args = reoptimize.parse_args(["RUN", "--rl-seed", "2", "--draws", "3"])
     assert reoptimize.default_name(args) == "reoptimize-rl-2-draws-3.json"
+    args = reoptimize.parse_args(["RUN", "--draws", "3", "--keep-draw", "nearest"])
+    assert reoptimize.default_name(args) == "reoptimize-draws-3-keep-nearest.json"
     args = reoptimize.parse_args(["RUN", "--iterations", "1000", "--gamma", "0.999"])
     assert reoptimize.default_name(args) == "reoptimize-it-1000-gamma-0.999.json"
     args = reoptimize.parse_args(["RUN", "--gae-lambda", "0.995"])

@@ -290,6 +290,24 @@ def test_each_intention_keeps_the_draw_that_earns_the_most_learned_reward():
     assert chosen["train_time_s"] == 4.0
 
 
+def test_the_nearest_rule_keeps_the_agent_nearest_what_the_demonstrations_earn():
+    """The demonstrations earn 0.5 and 0.4 per step: learned intention 0's draw 0 out-earns them
+    far (0.9) and is passed over for draw 1's 0.45; learned 1's draw 0 (0.3) is nearer 0.4 than
+    draw 1's 0.2, and is kept by both rules."""
+    draws = [_draw(0, [0.9, 0.3], [0.6, 0.1]), _draw(1, [0.45, 0.2], [0.3, 0.2])]
+    rows = [d["per_seed"][0] for d in draws]
+    assert list(reward_check.kept_draws(rows, "most")) == [0, 0]
+    assert list(reward_check.kept_draws(rows, "nearest")) == [1, 0]
+    chosen = reward_check.chosen_by_learned_reward(draws, "nearest")
+    seed = chosen["per_seed"][0]
+    assert chosen["draw_rule"] == "nearest" and seed["draw"] == [0, 1]  # true 0 is learned 1
+    np.testing.assert_allclose(seed["erd_per_intention"], [0.6, 0.2])
+    np.testing.assert_allclose(seed["learned_reward_per_step"]["fresh_policies"], [0.45, 0.3])
+    assert reward_check.chosen_by_learned_reward(draws)["draw_rule"] == "most"
+    with pytest.raises(ValueError, match="no draw rule 'least'"):
+        reward_check.kept_draws(rows, "least")
+
+
 def test_one_draw_chosen_is_that_draw():
     draw = _draw(0, [0.3, 0.1], [0.123456789, 0.987654321])
     chosen = reward_check.chosen_by_learned_reward([draw])

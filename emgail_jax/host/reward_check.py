@@ -424,17 +424,33 @@ def picked(draws: list[dict], pick) -> dict:
     return {**result, "draw": pick}
 
 
-def chosen_by_learned_reward(draws: list[dict]) -> dict:
+DRAW_RULES = ("most", "nearest")
+
+
+def kept_draws(rows: list[dict], rule: str = "most") -> np.ndarray:
+    """Per learned intention, the draw ``rule`` keeps among one seed's ``rows`` (one per draw),
+    by the learned reward per step each agent earned over the last iterations: ``most``, the
+    agent that earned the most; ``nearest``, the one nearest what the demonstrations earn (one
+    that out-earns them far may have found what the reward overpays off their support)."""
+    earned = np.array([r["learned_reward_per_step"]["fresh_policies"] for r in rows], float)
+    if rule == "most":
+        return earned.argmax(0)
+    if rule == "nearest":
+        demonstrations = np.asarray(rows[0]["learned_reward_per_step"]["demonstrations"], float)
+        return np.abs(earned - demonstrations).argmin(0)
+    raise ValueError(f"no draw rule {rule!r}: one of {', '.join(DRAW_RULES)}")
+
+
+def chosen_by_learned_reward(draws: list[dict], rule: str = "most") -> dict:
     """Several draws of fresh agents on the same rewards (:func:`reoptimize` results of the same
-    seeds, one per RL seed) as one check: per run seed and learned intention, the agent that
-    earned the most learned reward per step over the last iterations (a fall paid the absorbing
-    state's reward for every step left, :func:`~emgail_jax.method.rl.reward_per_step`), the
-    choice a user without the true reward can make. Each seed's ``draw`` says which draw acts
-    each true intention."""
+    seeds, one per RL seed) as one check: per run seed and learned intention, the agent
+    :func:`kept_draws` keeps by ``rule`` (a fall paid the absorbing state's reward for every
+    step left, :func:`~emgail_jax.method.rl.reward_per_step`), a choice a user without the true
+    reward can make. Each seed's ``draw`` says which draw acts each true intention."""
     per_seed = []
     for rows in zip(*(d["per_seed"] for d in draws), strict=True):
         earned = np.array([r["learned_reward_per_step"]["fresh_policies"] for r in rows])
-        best = earned.argmax(0)  # [K learned]
+        best = kept_draws(rows, rule)  # [K learned]
         chosen = picked(rows, best[np.asarray(rows[0]["matching"])])
         chosen["learned_reward_per_step"] = {
             "fresh_policies": earned[best, np.arange(len(best))],
@@ -447,6 +463,7 @@ def chosen_by_learned_reward(draws: list[dict]) -> dict:
     return {
         **{name: draws[0][name] for name in shared},
         "rl_seeds": [d["rl_seed"] for d in draws],
+        "draw_rule": rule,
         **over_seeds(per_seed),
         "draws_erd_mean": [d["erd_mean"] for d in draws],
         "draws": draws,
