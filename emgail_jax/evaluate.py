@@ -33,6 +33,7 @@ from scipy.optimize import linear_sum_assignment
 import envs
 from emgail_jax.host import jax_setup, records, run_lock
 from emgail_jax.host.checkpoints import CheckpointError
+from emgail_jax.host.command_line import ArgumentParser
 from emgail_jax.host.demonstration_files import DemonstrationError
 from emgail_jax.host.run_spec import RunError
 from emgail_jax.host.saved_run import SavedRun
@@ -274,7 +275,7 @@ def write_figures(
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="python -m emgail_jax.evaluate", description=__doc__.split("\n")[0]
     )
     parser.add_argument("run_dir")

@@ -36,6 +36,7 @@ from importlib import resources
 import numpy as np
 
 from emgail_jax.host import jax_setup
+from emgail_jax.host.command_line import ArgumentParser
 from emgail_jax.host.expert_bars import evaluation_keys, quality
 
 
@@ -452,9 +453,7 @@ def export_minari(env, out: str | None) -> int:
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(
-        prog="python -m emgail_jax.experts", description=__doc__.split("\n")[0]
-    )
+    parser = ArgumentParser(prog="python -m emgail_jax.experts", description=__doc__.split("\n")[0])
     parser.add_argument("--env", required=True, choices=sorted(SPECS))
     parser.add_argument("--seeds", type=int, default=2, help="seeds per intention; best kept")
     parser.add_argument("--iterations", type=int, default=None, help="default: the env's spec")

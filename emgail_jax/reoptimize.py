@@ -78,6 +78,7 @@ import os
 import sys
 
 from emgail_jax.host import check_progress, jax_setup, reward_check
+from emgail_jax.host.command_line import ArgumentParser
 from emgail_jax.host.schedule import FINAL_WINDOW  # the iterations averaged, as training's
 
 
@@ -186,7 +187,7 @@ def print_result(run, result: dict) -> None:
 def argument_parser() -> argparse.ArgumentParser:
     from emgail_jax.method.config import REWARD_FORMS
 
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="python -m emgail_jax.reoptimize", description=__doc__.split("\n")[0]
     )
     parser.add_argument("run_dir")

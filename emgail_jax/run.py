@@ -21,6 +21,7 @@ import sys
 import traceback
 
 from emgail_jax.host import jax_setup, records, stopping
+from emgail_jax.host.command_line import ArgumentParser
 from emgail_jax.host.run_directory import default_output, prepare_output, writing
 from emgail_jax.host.run_spec import DEFAULT_RANDOM_EPISODES, RunError, RunSpec, read_summary
 from emgail_jax.host.summary_table import print_summary
@@ -49,9 +50,7 @@ def _parser() -> tuple[argparse.ArgumentParser, tuple[str, ...]]:
         RunSchedule,
     )
 
-    parser = argparse.ArgumentParser(
-        prog="python -m emgail_jax.run", description=__doc__.split("\n")[0]
-    )
+    parser = ArgumentParser(prog="python -m emgail_jax.run", description=__doc__.split("\n")[0])
     defining = parser.add_argument_group(
         "the run's definition (a resumed run takes these from its summary.json)"
     )

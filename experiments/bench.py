@@ -34,6 +34,8 @@ import sys
 import tempfile
 import time
 
+from emgail_jax.host.command_line import ArgumentParser
+
 # Seconds per iteration of the reference implementation on this CPU (one seed): training only,
 # and with the evaluation it runs after every iteration.
 REFERENCE_S = {"swimmer-2": (5.14, 8.53), "halfcheetah-3": (8.49, 15.0)}
@@ -266,7 +268,7 @@ def print_table(results: list[dict], seed_counts: list[int]) -> None:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--envs", nargs="+", default=["driver:2", "halfcheetah:3"])
     parser.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 4])
     parser.add_argument("--chunks", type=int, default=2, help="timed chunks of 10 iterations")

@@ -21,11 +21,13 @@ import sys
 import tempfile
 import time
 
+from emgail_jax.host.command_line import ArgumentParser
+
 WARM_UP = 10  # iterations trained before the timed ones: the compile and the first chunk
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--env", default="halfcheetah")
     parser.add_argument("--intentions", type=int, default=2)
     parser.add_argument("--rows", type=int, default=2)

@@ -24,7 +24,6 @@ os.environ["XLA_FLAGS"] = (
     os.environ.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={_CORES}"
 ).strip()
 
-import argparse  # noqa: E402
 import time  # noqa: E402
 
 import jax  # noqa: E402
@@ -35,6 +34,7 @@ from jax.sharding import Mesh, PartitionSpec  # noqa: E402
 from mujoco import rollout  # noqa: E402
 
 import envs  # noqa: E402
+from emgail_jax.host.command_line import ArgumentParser  # noqa: E402
 
 # Target ratio MJX / native (env-steps/s) per env, and the batch that reaches it on 2 cores.
 TARGETS = {"swimmer": 1.0, "hopper": 0.5, "halfcheetah": 0.5, "reacher": 1.0}
@@ -112,7 +112,7 @@ def timed(run) -> float:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--envs", nargs="+", default=list(TARGETS))
     parser.add_argument("--batch", type=int, default=None, help="MJX batch (default: per env)")
     parser.add_argument("--native-batch", type=int, default=256)

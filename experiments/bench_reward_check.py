@@ -15,12 +15,13 @@ every iteration costs most of a rollout more. Both ways train TRPO on the env's 
 
 from __future__ import annotations
 
-import argparse
 import sys
+
+from emgail_jax.host.command_line import ArgumentParser
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--env", default="halfcheetah")
     parser.add_argument("--intentions", type=int, default=2)
     parser.add_argument("--rows", type=int, default=2)

@@ -21,7 +21,6 @@ Exits with status 1 otherwise.
 
 from __future__ import annotations
 
-import argparse
 import sys
 
 import jax
@@ -31,6 +30,7 @@ import numpy as np
 import envs
 from emgail_jax import experts
 from emgail_jax.host import expert_bars, jax_setup
+from emgail_jax.host.command_line import ArgumentParser
 from envs.mjx_base import mujoco_default_solver
 
 MJX_ENVS = ("swimmer", "hopper", "halfcheetah", "reacher")
@@ -74,7 +74,7 @@ def use_native_physics(env: envs.Env, model: mujoco.MjModel) -> envs.Env:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--envs", nargs="+", default=list(MJX_ENVS), choices=MJX_ENVS)
     parser.add_argument("--episodes", type=int, default=10)
     args = parser.parse_args()

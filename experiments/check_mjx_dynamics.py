@@ -30,7 +30,6 @@ Exits with status 1 if a check fails.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import sys
 
@@ -39,6 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
+from emgail_jax.host.command_line import ArgumentParser
 from envs.mjx_base import mujoco_default_solver, native_rollout
 
 
@@ -120,7 +120,7 @@ def compare(name: str, check: Check, starts: int, **options) -> list[dict]:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--envs", nargs="+", default=list(CHECKS))
     parser.add_argument("--starts", type=int, default=8, help="initial states per gait")
     parser.add_argument("--iterations", type=int, help="override the env's solver iterations")

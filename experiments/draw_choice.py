@@ -18,11 +18,12 @@ per intention, else its best whole draw.
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 
 import numpy as np
+
+from emgail_jax.host.command_line import ArgumentParser
 
 
 def kept(rows: list[dict], rule: str) -> list[int]:
@@ -48,7 +49,7 @@ def rule_erds(check: dict) -> dict[int, dict[str, float]]:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("checks", nargs="+", metavar="CHECK")
     args = parser.parse_args(argv)
     for path in args.checks:

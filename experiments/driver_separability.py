@@ -16,11 +16,13 @@ import sys
 
 import numpy as np
 
+from emgail_jax.host.command_line import ArgumentParser
+
 DEFAULT_RADII = (3.6, 4.0, 4.5, 5.0, 6.0, 7.0, 8.0, 10.0, 12.0, 15.0, 20.0, 30.0, 50.0)
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--radii", type=float, nargs="+", default=DEFAULT_RADII)
     parser.add_argument("--demo-seed", type=int, default=0)
     parser.add_argument("--out", default=None, help="also write separability.csv/.md here")

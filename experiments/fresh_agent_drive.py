@@ -16,13 +16,13 @@ learned reward per step with the agent's own actions against zero actions in the
 
 from __future__ import annotations
 
-import argparse
-
 import numpy as np
+
+from emgail_jax.host.command_line import ArgumentParser
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("run_dir")
     parser.add_argument(
         "--seed", type=int, default=None, help="as run --seed numbers it (default: the first)"

@@ -23,6 +23,8 @@ import sys
 import jax.numpy as jnp
 import numpy as np
 
+from emgail_jax.host.command_line import ArgumentParser
+
 
 def signals(run, seed: int) -> dict[str, np.ndarray]:
     """Per demonstration of ``seed``: ``holder [E]``, ``true [E]`` (-1 unknown), and ``logit``,
@@ -88,7 +90,7 @@ def table(found: dict[str, np.ndarray], k: int) -> list[str]:
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("run_dir", metavar="RUN_DIR")
     parser.add_argument("--snapshot", type=int, default=None, metavar="ITER")
     parser.add_argument(

@@ -34,6 +34,8 @@ import sys
 
 import numpy as np
 
+from emgail_jax.host.command_line import ArgumentParser
+
 STEPS_SHOWN = (0, 1, 2, 3, 5, 8, 12, 20, 30, 45, 60, 80, 99)
 
 
@@ -53,7 +55,7 @@ def by_tenth(values: np.ndarray, step: np.ndarray) -> str:
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--env", required=True)
     parser.add_argument("--intentions", type=int, required=True)
     parser.add_argument("--episodes", type=int, default=500, help="fresh episodes per intention")

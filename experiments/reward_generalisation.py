@@ -31,8 +31,9 @@ at that snapshot (its networks and policies; a refit ``reoptimize --snapshot ITE
 
 from __future__ import annotations
 
-import argparse
 import sys
+
+from emgail_jax.host.command_line import ArgumentParser
 
 
 def learned_reward_per_step(env, act, reward, key, rows, episodes: int):
@@ -184,7 +185,7 @@ def print_along_training(
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("run_dir")
     parser.add_argument("--episodes", type=int, default=20, help="fresh episodes per row")
     parser.add_argument("--refit", default=None, help="a refitted reward saved in the run")

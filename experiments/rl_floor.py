@@ -12,13 +12,14 @@ same budget with the same B-step can be expected to beat this curve.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 
+from emgail_jax.host.command_line import ArgumentParser
+
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--env", required=True)
     parser.add_argument("--intentions", type=int, default=1)
     parser.add_argument("--iterations", type=int, default=400)

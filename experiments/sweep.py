@@ -49,6 +49,7 @@ from collections.abc import Callable, Iterator
 
 import numpy as np
 
+from emgail_jax.host.command_line import ArgumentParser
 from sweep_cells import (
     Cell,
     Status,
@@ -588,7 +589,7 @@ def _format_duration(seconds: float) -> str:
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=4)
     parser.add_argument("--iterations", type=int, default=400)
     parser.add_argument("--only", default=None, help="comma-separated figures or cell names")

@@ -11,13 +11,14 @@ run's ``summary.json``) should come out near them.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import sys
 
+from emgail_jax.host.command_line import ArgumentParser
+
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--env", required=True)
     parser.add_argument("--episodes", type=int, nargs="+", required=True, help="per intention")
     parser.add_argument("--radius", type=float, default=None, help="the driver's path 2")
