@@ -24,12 +24,11 @@ import sys
 import numpy as np
 
 from emgail_jax.host.command_line import ArgumentParser
+from emgail_jax.host.reward_check import kept_draws, picked
 
 
 def kept(rows: list[dict], rule: str) -> list[int]:
     """Per true intention, the draw ``rule`` keeps among one seed's ``rows`` (one per draw)."""
-    from emgail_jax.host.reward_check import kept_draws
-
     if rule == "by true ERD":
         return list(np.array([r["erd_per_intention"] for r in rows], float).argmin(0))
     return list(kept_draws(rows, rule)[np.asarray(rows[0]["matching"])])
@@ -40,8 +39,6 @@ RULES = ("most", "nearest", "by true ERD")
 
 def rule_erds(check: dict) -> dict[int, dict[str, float]]:
     """Per run seed of ``check`` (a file of several draws), each rule's ERD."""
-    from emgail_jax.host.reward_check import picked
-
     found = {}
     for rows in zip(*(d["per_seed"] for d in check["draws"]), strict=True):
         found[rows[0]["run_seed"]] = {rule: picked(rows, kept(rows, rule))["erd"] for rule in RULES}

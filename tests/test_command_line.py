@@ -44,6 +44,8 @@ def test_the_commands_refuse_a_bad_choice_in_one_line():
         ["-m", "emgail_jax.reoptimize", "RUN", "--keep-draw", "least"],
     ]
     for command in commands:
-        done = subprocess.run([sys.executable, *command], capture_output=True, text=True)
+        done = subprocess.run(
+            [sys.executable, *command], capture_output=True, text=True, timeout=120
+        )
         assert done.returncode == 2
         assert done.stderr.startswith("error: argument ") and done.stderr.count("\n") == 1
