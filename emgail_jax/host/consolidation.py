@@ -49,8 +49,8 @@ from emgail_jax.method.training import (
     seed_state,
     training_env,
 )
+from emgail_jax.variants.assembly import VariantLoss
 from emgail_jax.variants.extras import attached, extras_of, more_samples
-from emgail_jax.variants.hooks import VariantLoss
 from emgail_jax.variants.support import with_support_negatives
 
 

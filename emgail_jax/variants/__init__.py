@@ -18,6 +18,6 @@ Each plugs into the update through the named hooks of :mod:`emgail_jax.method.ho
 The method never imports this package.
 """
 
-from emgail_jax.variants.hooks import hooks_for, make_train
+from emgail_jax.variants.assembly import hooks_for, make_train
 
 __all__ = ["hooks_for", "make_train"]
