@@ -61,7 +61,7 @@ class Refit:
     from the run's final weights or, ``fresh``, from new ones; ``support_noise`` > 0 adds a
     copy of every policy sample moved by Gaussian noise of that standard deviation (in the
     normalised observation's units and the action's own: the M-step's
-    :mod:`~emgail_jax.method.support` negatives). Every step sees every sample (and one draw
+    :mod:`~emgail_jax.variants.support` negatives). Every step sees every sample (and one draw
     of the noisy copies) or, with ``batch`` > 0, that many samples per intention drawn anew
     from the snapshots' pool (and their noisy copies), as training's M-step sees one
     iteration's batch; the demonstrations are whole in every step. ``ranking`` > 0 adds that
