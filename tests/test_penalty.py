@@ -5,10 +5,9 @@ import jax
 import jax.numpy as jnp
 import optax
 import pytest
-from test_discriminator import LN3, toy_apply
+from test_discriminator import LN3, network_batch, toy_apply  # noqa: F401 (a fixture)
 
-from emgail_jax.method.discriminator import discriminator_loss, discriminator_update
-from emgail_jax.method.networks import Discriminator
+from emgail_jax.method.discriminator import LossInputs, discriminator_loss, discriminator_update
 from emgail_jax.method.optim import Learner
 from emgail_jax.variants.penalty import GradientPenalty, input_gradient_norms
 
@@ -26,7 +25,7 @@ def test_gradient_penalty_hand_computed_on_a_linear_logit():
         policy_conditions=jnp.broadcast_to(jnp.eye(2)[:, None], (2, 3, 2)),
     )
     params = jnp.array([0.0, LN3])
-    assert float(input_gradient_norms(toy_apply, params, **batch)) == pytest.approx(2.0)
+    assert float(input_gradient_norms(toy_apply, params, LossInputs(**batch))) == pytest.approx(2.0)
     plain, metrics = discriminator_loss(toy_apply, params, **batch)
     penalised, penalised_metrics = discriminator_loss(
         toy_apply, params, **batch, hook=GradientPenalty(0.5)
@@ -36,22 +35,8 @@ def test_gradient_penalty_hand_computed_on_a_linear_logit():
     assert float(penalised_metrics["discriminator/gradient_norm"]) == pytest.approx(2.0)
 
 
-def test_gradient_penalty_flattens_the_trained_logit():
-    k, n, m = 3, 6, 3
-    keys = jax.random.split(jax.random.PRNGKey(0), 6)
-    net = Discriminator(hidden=(8,), heads=True)
-    batch = dict(
-        expert_obs=jax.random.normal(keys[0], (n, 4)),
-        expert_actions=jax.random.normal(keys[1], (n, 2)),
-        expert_weights=jax.nn.softmax(jax.random.normal(keys[2], (n, k))),
-        conditions=jnp.eye(k),
-        policy_obs=jax.random.normal(keys[3], (k, m, 4)),
-        policy_actions=jax.random.normal(keys[4], (k, m, 2)),
-        policy_conditions=jnp.broadcast_to(jnp.eye(k)[:, None, :], (k, m, k)),
-    )
-    params = net.init(
-        keys[5], batch["policy_obs"], batch["policy_actions"], batch["policy_conditions"]
-    )
+def test_gradient_penalty_flattens_the_trained_logit(network_batch):  # noqa: F811
+    net, params, batch = network_batch
     optimizer = optax.adam(1e-2)
     norms = {}
     for weight in (0.0, 1.0):
@@ -60,5 +45,5 @@ def test_gradient_penalty_flattens_the_trained_logit():
             net.apply, optimizer, p, 100, **batch, hook=hook
         )
         trained, _ = jax.jit(fit)(Learner.create(params, optimizer))
-        norms[weight] = float(input_gradient_norms(net.apply, trained.params, **batch))
+        norms[weight] = float(input_gradient_norms(net.apply, trained.params, LossInputs(**batch)))
     assert norms[1.0] < 0.5 * norms[0.0]

@@ -13,21 +13,12 @@ import jax.numpy as jnp
 from emgail_jax.method.discriminator import LossHook, LossInputs, expert_logits
 
 
-def input_gradient_norms(
-    apply: Callable,
-    params,
-    *,
-    expert_obs,
-    expert_actions,
-    expert_weights,
-    conditions,
-    policy_obs,
-    policy_actions,
-    policy_conditions,
-) -> jax.Array:
+def input_gradient_norms(apply: Callable, params, inputs: LossInputs) -> jax.Array:
     """The mean squared norm of d f / d(s, a) on the expert pairs (under each condition, weighted
     as in the loss) and on the policy samples, half each: a zero-centred penalty that keeps
     the logit, and so the reward, from growing steeply where the data lie."""
+    expert_obs, expert_actions, expert_weights, conditions = inputs[:4]
+    policy_obs, policy_actions, policy_conditions = inputs[4:]
 
     def squared(grads):
         return sum(jnp.sum(g**2, -1) for g in grads)
@@ -50,5 +41,5 @@ class GradientPenalty(LossHook):
     weight: float
 
     def regulariser(self, apply: Callable, params, inputs: LossInputs):
-        norms = input_gradient_norms(apply, params, **inputs._asdict())
+        norms = input_gradient_norms(apply, params, inputs)
         return self.weight * norms, {"discriminator/gradient_norm": norms}
