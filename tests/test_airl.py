@@ -6,16 +6,17 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from emgail_jax.method.airl import (
+from emgail_jax.method.algorithms import make_algorithm
+from emgail_jax.method.config import RewardForm
+from emgail_jax.method.discriminator import Read, discriminator_loss, expert_scores, learned_reward
+from emgail_jax.method.networks import AIRLDiscriminator, GaussianPolicy
+from emgail_jax.variants.airl import (
+    LogitOffsets,
     expert_log_densities,
     own_log_densities,
     successor,
     with_log_densities,
 )
-from emgail_jax.method.algorithms import make_algorithm
-from emgail_jax.method.config import RewardForm
-from emgail_jax.method.discriminator import discriminator_loss, expert_scores, learned_reward
-from emgail_jax.method.networks import AIRLDiscriminator, GaussianPolicy
 
 K, M, N, D, A = 2, 3, 4, 2, 1
 
@@ -87,12 +88,13 @@ def test_with_log_densities_conditions_the_policy_as_the_discriminator(random_ba
     batch = random_batch(k=K, m=M, n=N, obs_dim=D, act_dim=A)
     densities = with_log_densities(batch, net.apply, params, algorithm)
     c = K if heads else 1
-    assert densities.log_policy.shape == (K, M)
-    assert densities.expert_log_policy.shape == (N, c)
+    extras = densities.extra
+    assert extras.log_policy.shape == (K, M)
+    assert extras.expert_log_policy.shape == (N, c)
     rows = algorithm.policy_condition(batch.own_intention(), K)
     mean, log_std = net.apply(params, batch.obs, rows, intention_major=True)
     np.testing.assert_allclose(
-        densities.log_policy, _gaussian_log_density(batch.executed, mean, log_std), rtol=1e-5
+        extras.log_policy, _gaussian_log_density(batch.executed, mean, log_std), rtol=1e-5
     )
 
 
@@ -121,8 +123,7 @@ def test_loss_logit_is_f_minus_log_pi(random_batch, jit):
         policy_obs=batch.obs,
         policy_actions=batch.executed,
         policy_conditions=own,
-        expert_log_policy=expert_log_pi,
-        policy_log_policy=policy_log_pi,
+        hook=LogitOffsets(offsets=policy_log_pi, expert_offsets=expert_log_pi),
     )
     loss, _ = _maybe_jit(loss_of, jit)(params)
     f_real = (batch.expert_obs[:, 0] + batch.expert_actions[:, 0])[:, None] + params[None]
@@ -132,13 +133,9 @@ def test_loss_logit_is_f_minus_log_pi(random_batch, jit):
         np.logaddexp(0, fake)
     )
     assert float(loss) == pytest.approx(float(expected), rel=1e-5)
-    scored = batch.replace(
-        expert_successor=batch.expert_actions,
-        successor=batch.executed,
-        expert_log_policy=expert_log_pi,
-    )
+    read = Read(batch.executed, batch.expert_actions, policy_log_pi, expert_log_pi)
     np.testing.assert_allclose(
-        expert_scores(_toy_apply, params, scored, jnp.eye(K)), real, rtol=1e-5
+        expert_scores(_toy_apply, params, batch.expert_obs, read, jnp.eye(K)), real, rtol=1e-5
     )
 
 
@@ -169,3 +166,24 @@ def test_reward_is_the_logit_f_minus_log_pi(jit):
     )(params)
     f = net.apply(params, obs, follows, own, intention_major=True)
     np.testing.assert_allclose(reward, f - log_pi, rtol=1e-5, atol=1e-6)
+
+
+def test_the_form_reads_successors_and_offsets_where_the_paper_reads_actions(random_batch):
+    from emgail_jax.method.hooks import Form
+    from emgail_jax.variants.airl import AirlForm
+    from emgail_jax.variants.extras import attached
+
+    batch = random_batch(k=3, m=4, n=6, obs_dim=2)
+    assert Form().read(batch) == Read(batch.executed, batch.expert_actions)
+    airl = attached(
+        batch,
+        successor=np.ones((3, 4, 3)),
+        expert_successor=np.ones((6, 3)),
+        log_policy=np.zeros((3, 4)),
+        expert_log_policy=np.zeros((6, 3)),
+    )
+    assert airl.check() is airl
+    extras = airl.extra
+    assert AirlForm().read(airl) == Read(
+        extras.successor, extras.expert_successor, extras.log_policy, extras.expert_log_policy
+    )

@@ -85,7 +85,7 @@ def by_hand(
         bootstrap,
         config.gamma,
         config.gae_lambda,
-        end_values,
+        end_values=end_values,
     )
     advantages = intention_major(advantages)
     advantages = (advantages - advantages.mean(1, keepdims=True)) / (

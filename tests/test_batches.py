@@ -20,11 +20,6 @@ def test_a_consistent_batch_passes_its_shape_check(random_batch):
         lambda b: b.replace(expert_actions=b.expert_actions[:5]),  # fewer than the pairs
         lambda b: b.replace(expert_obs=b.expert_obs[:, :1]),  # another observation size
         lambda b: b.replace(obs=b.obs[0]),  # not grouped by intention
-        # termination flags of fewer samples, or of fewer pairs
-        lambda b: b.replace(terminal=np.zeros((3, 3)), expert_terminal=np.zeros(6)),
-        lambda b: b.replace(terminal=np.zeros((3, 4)), expert_terminal=np.zeros(5)),
-        # AIRL's successors without the continuation flag
-        lambda b: b.replace(successor=np.zeros((3, 4, 2)), expert_successor=np.zeros((6, 2))),
     ],
 )
 def test_a_batch_with_mismatched_shapes_is_refused(broken, random_batch):
@@ -61,34 +56,16 @@ def test_a_demonstration_shorter_than_an_episode_ends_in_a_termination(jit):
     np.testing.assert_array_equal(pairs.terminations(2), [0, 0, 0, 0, 0, 1])
 
 
-def test_the_discriminator_reads_actions_or_with_airl_successors(random_batch):
-    batch = random_batch(k=3, m=4, n=6, obs_dim=2)
-    assert batch.discriminated() == (batch.executed, batch.expert_actions)
-    assert batch.log_policy_offsets() == {}
-    airl = batch.replace(
-        successor=np.ones((3, 4, 3)),
-        expert_successor=np.ones((6, 3)),
-        log_policy=np.zeros((3, 4)),
-        expert_log_policy=np.zeros((6, 3)),
-    )
-    assert airl.check() is airl
-    assert airl.discriminated() == (airl.successor, airl.expert_successor)
-    assert set(airl.log_policy_offsets()) == {"policy_log_policy", "expert_log_policy"}
-
-
 @pytest.mark.parametrize("jit", [False, True])
 def test_more_samples_follow_the_batchs_own_under_each_intention(random_batch, jit):
-    """Further negatives go after the batch's own in each intention's row, their termination
-    flags with them where the batch keeps flags; the demonstrations are untouched."""
+    """Further negatives go after the batch's own in each intention's row; the demonstrations
+    are untouched."""
     batch = random_batch(k=3, m=4, n=6, obs_dim=2)
     more_obs, more_executed = np.full((3, 2, 2), 7.0), np.full((3, 2, 1), 8.0)
     append = lambda b: b.with_more_samples(more_obs, more_executed)
     out = (jax.jit(append) if jit else append)(batch)
-    assert out.check() is out and out.obs.shape == (3, 6, 2) and out.terminal is None
+    assert out.check() is out and out.obs.shape == (3, 6, 2) and out.extra is None
     np.testing.assert_array_equal(out.obs[:, :4], batch.obs)
     np.testing.assert_array_equal(out.obs[:, 4:], more_obs)
     np.testing.assert_array_equal(out.executed[:, 4:], more_executed)
     np.testing.assert_array_equal(out.expert_obs, batch.expert_obs)
-    flagged = batch.replace(terminal=np.ones((3, 4)), expert_terminal=np.zeros(6))
-    out = flagged.with_more_samples(more_obs, more_executed, np.zeros((3, 2)))
-    np.testing.assert_array_equal(out.terminal, np.repeat([[1.0] * 4 + [0.0] * 2], 3, 0))

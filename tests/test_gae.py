@@ -117,7 +117,9 @@ def test_an_absorbing_state_bootstraps_the_terminating_transition_hand_computed(
     # delta1 = 2 + .9 * -1.9 - 1 = -0.71 ; A1 = -0.71 (done still cuts the recursion) ;
     # A0 = 1.4 + .45 * -0.71 = 1.0805 ; A2, A3 as without it.
     gae = jax.jit(generalized_advantages, static_argnums=(4, 5)) if jit else generalized_advantages
-    advantages, returns = gae(rewards, values, dones, jnp.array(3.0), 0.9, 0.5, end_values)
+    advantages, returns = gae(
+        rewards, values, dones, jnp.array(3.0), 0.9, 0.5, end_values=end_values
+    )
     np.testing.assert_allclose(advantages, [1.0805, -0.71, 5.415, 4.7], rtol=1e-6)
     np.testing.assert_allclose(returns, [1.5805, 0.29, 6.915, 6.7], rtol=1e-6)
 
@@ -142,7 +144,7 @@ def test_a_truncation_gets_no_absorbing_value():
     ends = absorbing_value(jnp.float32(-5.0), steps_left(time, 4), 0.9)
     np.testing.assert_allclose(ends, [-5.0, 0.0, -5.0 * (1 + 0.9 + 0.81), -5.0 * 1.9], rtol=1e-6)
     gae = lambda dones, end_values=None: generalized_advantages(
-        rewards, values, dones, jnp.array(3.0), 0.9, 0.5, end_values
+        rewards, values, dones, jnp.array(3.0), 0.9, 0.5, end_values=end_values
     )
     for with_end, without in zip(gae(truncated, ends), gae(truncated), strict=True):
         np.testing.assert_array_equal(with_end, without)

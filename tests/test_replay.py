@@ -7,7 +7,8 @@ import numpy as np
 
 from emgail_jax.method.batches import NormalizedBatch
 from emgail_jax.method.normalizer import RunningStats
-from emgail_jax.method.replay import Replay, with_replay
+from emgail_jax.variants.extras import attached
+from emgail_jax.variants.replay import Replay, with_replay
 
 R, K, M, D, A = 3, 2, 4, 2, 1
 
@@ -93,12 +94,11 @@ def test_termination_flags_travel_with_their_samples():
         executed=executed[:, :M],
         expert_obs=jnp.zeros((3, D)),
         expert_actions=jnp.zeros((3, A)),
-        terminal=even(executed[:, :M]),
-        expert_terminal=jnp.zeros(3),
     )
+    seen = attached(seen, terminal=even(executed[:, :M]), expert_terminal=jnp.zeros(3))
     _, negatives = with_replay(replay, seen, obs[:, :M], lambda x: x)
-    assert negatives.terminal.shape == (K, 2 * M)
-    np.testing.assert_array_equal(negatives.terminal, even(negatives.executed))
+    assert negatives.extra.terminal.shape == (K, 2 * M)
+    np.testing.assert_array_equal(negatives.extra.terminal, even(negatives.executed))
 
 
 def test_successors_travel_with_their_samples_normalised_when_drawn():
@@ -114,6 +114,9 @@ def test_successors_travel_with_their_samples_normalised_when_drawn():
         executed=executed,
         expert_obs=jnp.zeros((3, D)),
         expert_actions=jnp.zeros((3, A)),
+    )
+    seen = attached(
+        seen,
         successor=jnp.concatenate([obs, raw[..., -1:]], -1),
         expert_successor=jnp.zeros((3, D + 1)),
     )
@@ -121,8 +124,8 @@ def test_successors_travel_with_their_samples_normalised_when_drawn():
     for jit in (False, True):
         together = lambda r: with_replay(r, seen, obs, normalize, raw)
         replay_after, negatives = (jax.jit(together) if jit else together)(replay)
-        assert negatives.successor.shape == (K, 2 * M, D + 1)
-        drawn = negatives.successor[:, M:]
+        assert negatives.extra.successor.shape == (K, 2 * M, D + 1)
+        drawn = negatives.extra.successor[:, M:]
         # Every sample's successor is its own observation + 1 (normalised: - 1), its flag its
         # action's parity.
         np.testing.assert_allclose(drawn[..., :-1], negatives.obs[:, M:] + 1.0)

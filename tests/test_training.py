@@ -19,11 +19,11 @@ from emgail_jax.method.training import (
     TrainState,
     make_networks,
     make_policy_stages,
-    make_train,
     normalized_batch,
     responsibilities_of,
     training_env,
 )
+from emgail_jax.variants import hooks_for, make_train
 
 pytestmark = pytest.mark.heavy
 
@@ -285,7 +285,7 @@ def test_discriminator_and_posterior_see_the_executed_actions(env, expert):
         return transitions, batch
 
     transitions, batch = jax.jit(seen)(state, jax.random.PRNGKey(1))
-    assert batch.terminal is None and batch.expert_terminal is None  # no absorbing states
+    assert batch.extra is None  # nothing a variant attaches
     assert np.abs(transitions.action).max() > 2.0
     np.testing.assert_array_equal(
         batch.executed, np.clip(intention_major(transitions.action), -1.0, 1.0)
@@ -470,7 +470,7 @@ def test_a_replay_changes_only_the_m_steps_negatives(env, expert, emgail, gail, 
     the run's without it. Off, the state holds no replay."""
     config = CONFIG.with_values(algo=algo, discriminator_replay=3)
     state0, [(state1, metrics), *_], _ = _train(config, env, expert, 1)
-    replay = state1.replay
+    replay = state1.negatives
     assert replay.obs.shape == (3, K, B * T, env.observation_size)
     assert int(replay.pushed) == 1 and not np.any(replay.obs[1:])
     # Slot 0 is the first rollout, time-major per intention: the envs' starts lead it.
@@ -479,7 +479,7 @@ def test_a_replay_changes_only_the_m_steps_negatives(env, expert, emgail, gail, 
     if without is None:  # Info/IntentionGAIL's run without a replay is not trained here
         return
     _, [(plain, plain_metrics), *_], _ = without
-    assert plain.replay is None
+    assert plain.negatives is None
     np.testing.assert_array_equal(state1.key, plain.key)
     if algo != "gail":
         for a, b in zip(_leaves(state1.posterior), _leaves(plain.posterior), strict=True):
@@ -504,39 +504,6 @@ def test_support_noise_changes_only_the_m_steps_negatives(env, expert, emgail, g
     assert metrics["discriminator/loss"] != plain_metrics["discriminator/loss"]
 
 
-def test_support_in_box_clips_only_the_noisy_copies(env, expert):
-    """Clipping the copies into the inputs' box changes the M-step's loss (copies of noise 3
-    leave the action box) and nothing the E-step or the keys see."""
-    free = CONFIG.with_values(discriminator_support_noise=3.0)
-    _, [(state, metrics), *_], _ = _train(
-        free.with_values(discriminator_support_in_box=True), env, expert, 1
-    )
-    _, [(plain, plain_metrics), *_], _ = _train(free, env, expert, 1)
-    np.testing.assert_array_equal(state.key, plain.key)
-    for a, b in zip(_leaves(state.posterior), _leaves(plain.posterior), strict=True):
-        np.testing.assert_array_equal(a, b)
-    assert metrics["discriminator/loss"] != plain_metrics["discriminator/loss"]
-
-
-def test_a_delayed_gradient_penalty_leaves_the_updates_before_it_alone(env, expert):
-    """Penalty 10 from the second update: the first matches a run without any penalty, and
-    the second trains another discriminator (its loss metric, before the steps, still
-    matches)."""
-    delayed = CONFIG.with_values(
-        discriminator_gradient_penalty=10.0, discriminator_gradient_penalty_from=1
-    )
-    _, delayed_steps, _ = _train(delayed, env, expert, 2)
-    _, plain_steps, _ = _train(CONFIG, env, expert, 2)
-    (first, _), (second, second_metrics) = delayed_steps
-    (plain, _), (plain_second, _) = plain_steps
-    for a, b in zip(_leaves(first.discriminator), _leaves(plain.discriminator), strict=True):
-        np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-7)
-    pairs = zip(_leaves(second.discriminator), _leaves(plain_second.discriminator), strict=True)
-    moved = [not np.allclose(a, b, rtol=1e-3) for a, b in pairs]
-    assert any(moved)
-    assert np.isfinite(second_metrics["discriminator/gradient_norm"])
-
-
 def test_absorbing_states_add_only_the_indicators_weights_and_the_replays_flags(env, expert):
     """Off, nothing of the state changes; on, the discriminator's first layer has one input
     more (so its Adam moments too) and a replay keeps each sample's termination flag."""
@@ -552,8 +519,8 @@ def test_absorbing_states_add_only_the_indicators_weights_and_the_replays_flags(
         jax.tree.map(jnp.shape, off)
     )
     on = shapes(plain.with_values(absorbing_state=True))
-    assert off.replay.terminal is None and on.replay.terminal.shape == (2, K, B * T)
-    on = on.replace(replay=on.replay.replace(terminal=None))
+    assert off.negatives.terminal is None and on.negatives.terminal.shape == (2, K, B * T)
+    on = on.replace(negatives=on.negatives.replace(terminal=None))
     paths = lambda tree: {
         jax.tree_util.keystr(path): leaf.shape
         for path, leaf in jax.tree_util.tree_leaves_with_path(tree)
@@ -576,7 +543,7 @@ def test_an_absorbing_run_learns_the_absorbing_states_reward(env, expert):
     assert {"discriminator/absorbing_d", "train/absorbing_reward"} <= set(metrics)
     assert 0.0 < metrics["discriminator/absorbing_d"] < 1.0
     assert metrics["train/absorbing_reward"] > 0.0  # -log(1 - D), the default form
-    assert not np.any(state.replay.terminal)
+    assert not np.any(state.negatives.terminal)
     assert all(np.all(np.isfinite(leaf)) for leaf in _leaves(state))
 
 
@@ -588,9 +555,10 @@ def test_a_tempered_e_step_weighs_the_evidence_by_the_iteration(env, expert, emg
     config = CONFIG.method.replace(
         e_step=CONFIG.method.e_step.replace(trajectory_temper_iterations=4)
     ).resolved(env)
-    networks = make_networks(config, env)
+    hooks = hooks_for(config)
+    networks = make_networks(config, env, hooks)
     for state, metrics in steps:
-        held = responsibilities_of(networks, config, state, expert).gamma
+        held = responsibilities_of(networks, config, state, expert, hooks).gamma
         per_demonstration = jax.ops.segment_sum(held, expert.episode, expert.episodes)
         pairs = jax.ops.segment_sum(np.ones(len(expert.episode)), expert.episode, expert.episodes)
         np.testing.assert_allclose(
@@ -612,7 +580,7 @@ def test_airl_discriminator_trains_with_its_successors_and_log_densities(env, ex
     ).with_values(discriminator_gradient_penalty=0.1)
     state, steps, _ = _train(config, env, expert, 2)
     assert set(state.discriminator.params["params"]) == {"reward_net", "shaping_net"}
-    assert state.replay.successor.shape[-1] == env.observation_size + 1
+    assert state.negatives.successor.shape[-1] == env.observation_size + 1
     for _, metrics in steps:
         for key in ("discriminator/loss", "train/pseudo_reward", "discriminator/gradient_norm"):
             assert np.isfinite(metrics[key]), key

@@ -31,7 +31,7 @@ import numpy as np
 from emgail_jax.host import checkpoints, records
 from emgail_jax.method import normalizer as obs_norm
 from emgail_jax.method.batches import NormalizedBatch
-from emgail_jax.method.discriminator import discriminator_loss, state_only
+from emgail_jax.method.discriminator import Read, discriminator_loss, state_only
 from emgail_jax.method.optim import Learner, minimize
 from emgail_jax.method.ranking import ranking_loss
 from emgail_jax.method.rollout import (
@@ -42,7 +42,6 @@ from emgail_jax.method.rollout import (
     uniform_random_policy,
 )
 from emgail_jax.method.skeleton import intention_rows
-from emgail_jax.method.support import with_support_negatives
 from emgail_jax.method.training import (
     RunData,
     make_optimizers,
@@ -50,6 +49,9 @@ from emgail_jax.method.training import (
     seed_state,
     training_env,
 )
+from emgail_jax.variants.assembly import VariantLoss
+from emgail_jax.variants.extras import attached, extras_of, more_samples
+from emgail_jax.variants.support import with_support_negatives
 
 
 @dataclass(frozen=True)
@@ -59,7 +61,7 @@ class Refit:
     from the run's final weights or, ``fresh``, from new ones; ``support_noise`` > 0 adds a
     copy of every policy sample moved by Gaussian noise of that standard deviation (in the
     normalised observation's units and the action's own: the M-step's
-    :mod:`~emgail_jax.method.support` negatives). Every step sees every sample (and one draw
+    :mod:`~emgail_jax.variants.support` negatives). Every step sees every sample (and one draw
     of the noisy copies) or, with ``batch`` > 0, that many samples per intention drawn anew
     from the snapshots' pool (and their noisy copies), as training's M-step sees one
     iteration's batch; the demonstrations are whole in every step. ``ranking`` > 0 adds that
@@ -239,8 +241,8 @@ def consolidated_parameters(
     )
     if refit.absorbing:
         episode_length = run.problem.env.episode_length
-        pool = pool.replace(
-            terminal=terminal, expert_terminal=pairs.terminations(episode_length)
+        pool = attached(
+            pool, terminal=terminal, expert_terminal=pairs.terminations(episode_length)
         ).check()
     met_agents = None
     if agents is not None:
@@ -280,12 +282,8 @@ def consolidated_parameters(
         return with_support_negatives(seen, key, refit.support_noise)
 
     def loss_inputs(seen: NormalizedBatch) -> dict:
-        absorbed = {}
-        if seen.terminal is not None:
-            absorbed = dict(
-                expert_absorbed=seen.expert_terminal @ algorithm.expert_weights(gamma),
-                policy_absorbed=seen.terminal.sum(1),
-            )
+        absorbing = extras_of(seen).terminal is not None
+        hook = VariantLoss(absorbing, refit.gradient_penalty)(seen, Read.of(seen), gamma, algorithm)
         return dict(
             expert_obs=seen.expert_obs,
             expert_actions=seen.expert_actions,
@@ -294,8 +292,7 @@ def consolidated_parameters(
             policy_obs=seen.obs,
             policy_actions=seen.executed,
             policy_conditions=algorithm.discriminator_condition(seen.own_intention(), k),
-            gradient_penalty=refit.gradient_penalty,
-            **absorbed,
+            hook=hook,
         )
 
     def drawn(pool: NormalizedBatch, agents, key: jax.Array) -> NormalizedBatch:
@@ -304,15 +301,13 @@ def consolidated_parameters(
         key_draw, key_moved = jax.random.split(key)
         take = lambda x, rows: None if x is None else x[:, rows]
         rows = jax.random.randint(key_draw, (refit.batch,), 0, pool.obs.shape[1])
-        seen = pool.replace(
-            obs=take(pool.obs, rows),
-            executed=take(pool.executed, rows),
-            terminal=take(pool.terminal, rows),
-        )
+        seen = pool.replace(obs=take(pool.obs, rows), executed=take(pool.executed, rows))
+        if pool.extra is not None:
+            seen = attached(seen, terminal=take(extras_of(pool).terminal, rows))
         if agents is not None:
             key_agents = jax.random.fold_in(key, 1)
             rows = jax.random.randint(key_agents, (refit.batch,), 0, agents[0].shape[1])
-            seen = seen.with_more_samples(*(take(x, rows) for x in agents))
+            seen = more_samples(seen, *(take(x, rows) for x in agents))
         return with_noise(seen, key_moved)
 
     apply = run.networks.discriminator.apply
@@ -351,7 +346,7 @@ def consolidated_parameters(
     def refitted(
         learner: Learner, pool: NormalizedBatch, floor, agents
     ) -> tuple[Learner, dict, dict]:
-        whole = pool if agents is None else pool.with_more_samples(*agents)
+        whole = pool if agents is None else more_samples(pool, *agents)
         whole = with_noise(whole, key_noise)
         levels = ranked_levels(pool, floor) if refit.ranking else None
         if refit.batch or refit.ranking:

@@ -30,6 +30,7 @@ from emgail_jax.method.training import (
     make_networks,
     responsibilities_of,
 )
+from emgail_jax.variants import hooks_for
 
 
 def final_results(
@@ -73,7 +74,7 @@ def final_results(
     )
     if not method.algo.learns_posterior:  # no E-step to read
         return results
-    networks = make_networks(method, problem.env)
+    networks = make_networks(method, problem.env, hooks_for(method))
     responsibilities = final_responsibilities(networks, method, states, demos)
     gamma = np.asarray(responsibilities.gamma)  # [S, N, K]
     held = np.stack([demonstrations_held(g, demos.episode, demos.episodes) for g in gamma])
@@ -115,7 +116,8 @@ def final_responsibilities(networks, config, states, demos) -> Responsibilities:
     """The E-step's responsibilities of ``demos`` under every seed's final state (``states``,
     leading axis seed) and the method ``config``, as training computes them: one compiled call
     vmapped over the seeds; every leaf ``[S, ...]``."""
-    of_seed = lambda state: responsibilities_of(networks, config, state, demos)
+    hooks = hooks_for(config)
+    of_seed = lambda state: responsibilities_of(networks, config, state, demos, hooks)
     return jax.device_get(jax.jit(jax.vmap(of_seed))(states))
 
 

@@ -34,7 +34,7 @@ from emgail_jax.method.algorithms import Algorithm, make_algorithm
 from emgail_jax.method.batches import DemonstrationPairs
 from emgail_jax.method.choosing import demonstrations_held
 from emgail_jax.method.config import RunConfig
-from emgail_jax.method.discriminator import absorbing_reward, learned_reward
+from emgail_jax.method.discriminator import learned_reward
 from emgail_jax.method.discriminator import state_only as state_only_discriminator
 from emgail_jax.method.networks import policy_action
 from emgail_jax.method.posterior import (
@@ -47,10 +47,11 @@ from emgail_jax.method.training import (
     TrainState,
     clustering_metrics,
     make_networks,
-    make_train,
     responsibilities_of,
     seed_state,
 )
+from emgail_jax.variants import hooks_for, make_train
+from emgail_jax.variants.absorbing import absorbing_reward
 
 
 @dataclasses.dataclass
@@ -101,7 +102,7 @@ class SavedRun:
             algorithm=make_algorithm(
                 config.method.algo, config.info_weight, config.method.reward_form
             ),
-            networks=make_networks(config.method, env),
+            networks=make_networks(config.method, env, hooks_for(config.method)),
             state=state,
             history=history,
             iteration=iteration,
@@ -220,7 +221,7 @@ class SavedRun:
         if self.config.method.reward.absorbing_state:
             return self
         config = self.config.with_values(absorbing_state=True)
-        networks = make_networks(config.method, self.problem.env)
+        networks = make_networks(config.method, self.problem.env, hooks_for(config.method))
         return dataclasses.replace(self, config=config, networks=networks)
 
     def for_refit(self, name: str) -> SavedRun:
@@ -435,8 +436,9 @@ class SavedRun:
         if not self.algorithm.learns_posterior:
             raise RunError(f"{self.config.method.algo} learns no posterior")
         state = self.seed_state(seed)
+        method = self.config.method
         result = responsibilities_of(
-            self.networks, self.config.method, state, self.demonstration_pairs
+            self.networks, method, state, self.demonstration_pairs, hooks_for(method)
         )
         return jax.device_get(result)
 

@@ -23,7 +23,8 @@ from emgail_jax.host.run_spec import RunError, RunSpec, read_summary, stored_sou
 from emgail_jax.host.schedule import evaluation_plan
 from emgail_jax.host.seed_runner import Runner, chunks, gather
 from emgail_jax.method.batches import DemonstrationPairs
-from emgail_jax.method.training import RunData, make_train
+from emgail_jax.method.training import RunData
+from emgail_jax.variants import make_train
 
 SUMMARY = "summary.json"
 

@@ -106,7 +106,13 @@ def make_b_step(
         values = time_major(predict(obs, condition, time), t)
         bootstrap = predict(samples.last_obs, samples.last_condition, samples.last_time)
         advantages, returns = generalized_advantages(
-            reward, values, samples.done, bootstrap, config.gamma, config.gae_lambda, end_values
+            reward,
+            values,
+            samples.done,
+            bootstrap,
+            config.gamma,
+            config.gae_lambda,
+            end_values=end_values,
         )
         # Each intention's advantages are standardised on their own, so that no intention's
         # reward scale dominates a shared policy update.

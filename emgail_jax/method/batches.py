@@ -6,6 +6,8 @@ N demonstration pairs, D observation and A action dimensions.
 
 from __future__ import annotations
 
+from typing import Any
+
 import chex
 import jax
 import jax.numpy as jnp
@@ -111,31 +113,9 @@ class NormalizedBatch:
     executed: jax.Array  # [K, M, A] their actions as executed (clipped)
     expert_obs: jax.Array  # [N, D]
     expert_actions: jax.Array  # [N, A] executed
-    # With absorbing states only (None otherwise): 1.0 where a sample's transition, or a
-    # demonstration's last pair, ended its episode before the time limit.
-    terminal: jax.Array | None = None  # [K, M]
-    expert_terminal: jax.Array | None = None  # [N]
-    # With AIRL's discriminator only (None otherwise, :mod:`emgail_jax.method.airl`): what f
-    # reads after each pair (its successor), and log pi of the executed actions under the
-    # current policy, a sample's under its own intention, an expert pair's under every
-    # discriminator condition.
-    successor: jax.Array | None = None  # [K, M, D + 1]
-    expert_successor: jax.Array | None = None  # [N, D + 1]
-    log_policy: jax.Array | None = None  # [K, M]
-    expert_log_policy: jax.Array | None = None  # [N, C]
-
-    def discriminated(self) -> tuple[jax.Array, jax.Array]:
-        """``(samples [K, M, X], expert pairs [N, X])``: what the discriminator reads beside
-        the observation, the executed actions (GAIL's) or the successors (AIRL's)."""
-        if self.successor is None:
-            return self.executed, self.expert_actions
-        return self.successor, self.expert_successor
-
-    def log_policy_offsets(self) -> dict:
-        """The discriminator loss's log-density offsets of the logit (AIRL's; none for GAIL)."""
-        if self.log_policy is None:
-            return {}
-        return dict(policy_log_policy=self.log_policy, expert_log_policy=self.expert_log_policy)
+    # What the variants attach (:mod:`emgail_jax.variants`), a pytree of theirs with
+    # ``appended(more)`` and ``check(batch)``; None in the paper's method.
+    extra: Any = None
 
     def own_intention(self) -> jax.Array:
         """``[K, M]``: the intention whose policy made each sample (row k is k)."""
@@ -151,26 +131,17 @@ class NormalizedBatch:
         chex.assert_equal_shape_prefix((self.expert_obs, self.expert_actions), 1)
         chex.assert_equal_shape_suffix((self.obs, self.expert_obs), 1)
         chex.assert_equal_shape_suffix((self.executed, self.expert_actions), 1)
-        if self.terminal is not None:
-            chex.assert_shape(self.terminal, self.obs.shape[:2])
-            chex.assert_shape(self.expert_terminal, self.expert_obs.shape[:1])
-        if self.successor is not None:
-            follows = self.obs.shape[-1] + 1
-            chex.assert_shape(self.successor, (*self.obs.shape[:2], follows))
-            chex.assert_shape(self.expert_successor, (self.expert_obs.shape[0], follows))
+        if self.extra is not None:
+            self.extra.check(self)
         return self
 
-    def with_more_samples(
-        self, obs: jax.Array, executed: jax.Array, terminal=None, successor=None
-    ) -> NormalizedBatch:
+    def with_more_samples(self, obs: jax.Array, executed: jax.Array, extra=None) -> NormalizedBatch:
         """This batch with further samples ``obs [K, m, D]``, ``executed [K, m, A]`` after its
-        own under each intention (``[K, M + m, ...]``), and their termination flags ``[K,
-        m]`` and successors ``[K, m, D + 1]`` where the batch keeps them: the M-step's further
-        negatives (:mod:`~emgail_jax.method.replay`, :mod:`~emgail_jax.method.support`)."""
-        both = lambda own, more: None if own is None else jnp.concatenate([own, more], axis=1)
+        own under each intention (``[K, M + m, ...]``), and what the variants attach of them
+        (``extra``, where the batch has theirs): the M-step's further negatives."""
+        both = lambda own, more: jnp.concatenate([own, more], axis=1)
         return self.replace(
             obs=both(self.obs, obs),
             executed=both(self.executed, executed),
-            terminal=both(self.terminal, terminal),
-            successor=both(self.successor, successor),
+            extra=None if self.extra is None else self.extra.appended(extra),
         )

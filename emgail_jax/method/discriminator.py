@@ -10,23 +10,14 @@ weights are the responsibilities gamma (eq. 19); the baselines' D(s, a) has a si
 condition with weight one (eq. 22). Policy samples are scored under their own condition only.
 The reward the discriminator defines is in :mod:`emgail_jax.method.algorithms`.
 
-AIRL's discriminator (``--set discriminator_form=airl``, :mod:`emgail_jax.method.airl`) runs
-through the same loss: its network reads a pair's successor where GAIL's reads the action, and
-its logit is f - log pi, the log-densities entering here as fixed offsets of the logit.
-
-With absorbing states (``--set absorbing_state=true``, DAC), a termination leads to the
-absorbing state, one pair (normalised observation and action zeros, the absorbing indicator 1:
-:class:`~emgail_jax.method.networks.Discriminator`) that the discriminator learns like any
-other: one absorbing sample per policy transition that terminated, as a negative, and per
-demonstration that ended in one, as a positive. One sample per termination, as DAC's replay
-holds one: the horizon it lasts enters the B-step's value
-(:func:`~emgail_jax.method.gae.absorbing_value`), not D's loss, where a policy that falls early
-would otherwise put most of the negatives' weight on that one pair.
+Variants change the loss through a :class:`LossHook` (:mod:`emgail_jax.method.hooks`): what is
+subtracted from the logit, how each term averages its samples, and a regulariser.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import NamedTuple
 
 import chex
 import jax
@@ -46,36 +37,59 @@ def expert_logits(apply: Callable, params, obs, actions, conditions: jax.Array) 
     return apply(params, obs[None], actions[None], conditions[:, None, :], intention_major=True).T
 
 
-def expert_scores(apply: Callable, params, batch: NormalizedBatch, conditions) -> jax.Array:
-    """``[N, C]``: the logit of every expert pair of ``batch`` under every condition
-    ``conditions [C, c]``, as the loss scores it (AIRL's: f - log pi)."""
-    _, expert_inputs = batch.discriminated()
-    logits = expert_logits(apply, params, batch.expert_obs, expert_inputs, conditions)
-    return logits if batch.expert_log_policy is None else logits - batch.expert_log_policy
+class Read(NamedTuple):
+    """What the discriminator's logit reads beside the observation: ``samples [K, M, X]`` and
+    ``experts [N, X]`` (the paper's: the executed actions), and what is subtracted from the
+    logit (None: nothing), ``[K, M]`` of the samples and ``[N, C]`` of the expert pairs under
+    every condition."""
+
+    samples: jax.Array
+    experts: jax.Array
+    offsets: jax.Array | None = None
+    expert_offsets: jax.Array | None = None
+
+    @classmethod
+    def of(cls, batch: NormalizedBatch) -> Read:
+        """The paper's: the executed actions of ``batch``."""
+        return cls(batch.executed, batch.expert_actions)
 
 
-def absorbing_logits(
-    apply: Callable, params, conditions: jax.Array, obs_size: int, action_size: int
-) -> jax.Array:
-    """``[C]``: f of the absorbing pair (observation and action zeros, the absorbing indicator
-    1) under every condition ``conditions [C, c]``."""
-    c = conditions.shape[0]
-    zeros = lambda size: jnp.zeros((c, 1, size))
-    logits = apply(
-        params,
-        zeros(obs_size),
-        zeros(action_size),
-        conditions[:, None, :],
-        intention_major=True,
-        absorbed=jnp.ones((c, 1)),
-    )
-    return logits[:, 0]
+def expert_scores(apply: Callable, params, expert_obs, read: Read, conditions) -> jax.Array:
+    """``[N, C]``: the logit of every expert pair ``expert_obs [N, D]``, reading ``read``, under
+    every condition ``conditions [C, c]``, as the loss scores it (its offsets subtracted)."""
+    logits = expert_logits(apply, params, expert_obs, read.experts, conditions)
+    return logits if read.expert_offsets is None else logits - read.expert_offsets
 
 
-def _with_absorbing(losses: jax.Array, absorbing_losses: jax.Array, counts: jax.Array):
-    """The mean loss over ``losses`` (one per sample) and ``counts [C]`` absorbing samples
-    whose losses are ``absorbing_losses [C]``."""
-    return (losses.sum() + jnp.sum(counts * absorbing_losses)) / (losses.size + counts.sum())
+class LossInputs(NamedTuple):
+    """The discriminator loss's inputs (see :func:`discriminator_loss`)."""
+
+    expert_obs: jax.Array
+    expert_actions: jax.Array
+    expert_weights: jax.Array
+    conditions: jax.Array
+    policy_obs: jax.Array
+    policy_actions: jax.Array
+    policy_conditions: jax.Array
+
+
+class LossHook:
+    """What a variant changes in :func:`discriminator_loss`; this base changes nothing (the
+    paper's loss)."""
+
+    def logits(self, real: jax.Array, fake: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """The logits the loss scores, from f of the expert pairs ``real [N, C]`` and of the
+        policy samples ``fake [C, M]``."""
+        return real, fake
+
+    def terms(self, apply: Callable, params, inputs: LossInputs, expert_losses, policy_losses):
+        """``(expert term, policy term, metrics)``: each term's mean over its samples' losses
+        (``expert_losses [N]``, ``policy_losses [C, M]``)."""
+        return jnp.mean(expert_losses), jnp.mean(policy_losses), {}
+
+    def regulariser(self, apply: Callable, params, inputs: LossInputs):
+        """``(penalty or None, metrics)``: a term added to the loss (None: none)."""
+        return None, {}
 
 
 def discriminator_loss(
@@ -89,14 +103,10 @@ def discriminator_loss(
     policy_obs: jax.Array,
     policy_actions: jax.Array,
     policy_conditions: jax.Array,
-    gradient_penalty: float | jax.Array = 0.0,
-    expert_absorbed: jax.Array | None = None,
-    policy_absorbed: jax.Array | None = None,
-    expert_log_policy: jax.Array | None = None,
-    policy_log_policy: jax.Array | None = None,
+    hook: LossHook | None = None,
 ):
     """Logistic loss: expert pairs are real, weighted over conditions; policy samples are fake;
-    plus ``gradient_penalty`` times :func:`input_gradient_norms` (none computed at 0).
+    with what a variant's ``hook`` changes (None: nothing, the paper's loss).
 
     Args:
       expert_obs, expert_actions: ``[N, D]``, ``[N, A]`` (normalised observations).
@@ -105,88 +115,38 @@ def discriminator_loss(
       policy_obs, policy_actions, policy_conditions: ``[C, M, D]``, ``[C, M, A]``,
         ``[C, M, c]``: M samples of each condition, row c generated under condition c (the
         intention-major layout of :func:`~emgail_jax.method.rollout.intention_major`).
-      expert_absorbed, policy_absorbed: with absorbing states (both or neither), the
-        absorbing pair as a real sample, weighted ``[C]`` under each condition (the summed
-        weights of the demonstrations that ended in a termination), and as a fake one,
-        ``[rows]`` samples under each row's condition (its terminations); each counts as one
-        sample more in its term's mean.
-      expert_log_policy, policy_log_policy: AIRL's (both or neither; ``expert_actions`` and
-        ``policy_actions`` then hold the successors): ``[N, C]`` log pi of every expert pair
-        under every condition, ``[C, M]`` of every sample under its own, subtracted from f.
-        The gradient penalty reads f alone.
     """
+    hook = hook or LossHook()
+    inputs = LossInputs(
+        expert_obs,
+        expert_actions,
+        expert_weights,
+        conditions,
+        policy_obs,
+        policy_actions,
+        policy_conditions,
+    )
     real = expert_logits(apply, params, expert_obs, expert_actions, conditions)
     fake = apply(params, policy_obs, policy_actions, policy_conditions, intention_major=True)
-    if policy_log_policy is not None:
-        real, fake = real - expert_log_policy, fake - policy_log_policy
+    real, fake = hook.logits(real, fake)
     expert_losses = jnp.sum(expert_weights * jax.nn.softplus(-real), -1)
     policy_losses = jax.nn.softplus(fake)
-    absorbing_metrics = {}
-    if policy_absorbed is None:
-        expert_term, policy_term = jnp.mean(expert_losses), jnp.mean(policy_losses)
-    else:
-        sizes = (policy_obs.shape[-1], policy_actions.shape[-1])
-        real_absorbing = absorbing_logits(apply, params, conditions, *sizes)
-        fake_absorbing = absorbing_logits(apply, params, policy_conditions[:, 0], *sizes)
-        expert_term = _with_absorbing(
-            expert_losses, jax.nn.softplus(-real_absorbing), expert_absorbed
-        )
-        policy_term = _with_absorbing(
-            policy_losses, jax.nn.softplus(fake_absorbing), policy_absorbed
-        )
-        absorbing_metrics = {"discriminator/absorbing_d": jnp.mean(jax.nn.sigmoid(fake_absorbing))}
+    expert_term, policy_term, term_metrics = hook.terms(
+        apply, params, inputs, expert_losses, policy_losses
+    )
     loss = expert_term + policy_term
     real_d = jnp.sum(expert_weights * jax.nn.sigmoid(real), -1)
     metrics = {
         "discriminator/loss": loss,
         "discriminator/expert_d": jnp.mean(real_d),
         "discriminator/policy_d": jnp.mean(jax.nn.sigmoid(fake)),
-        **absorbing_metrics,
+        **term_metrics,
     }
-    if isinstance(gradient_penalty, jax.Array) or gradient_penalty:
-        norms = input_gradient_norms(
-            apply,
-            params,
-            expert_obs=expert_obs,
-            expert_actions=expert_actions,
-            expert_weights=expert_weights,
-            conditions=conditions,
-            policy_obs=policy_obs,
-            policy_actions=policy_actions,
-            policy_conditions=policy_conditions,
-        )
-        loss = loss + gradient_penalty * norms
-        metrics["discriminator/gradient_norm"] = norms
+    penalty, penalty_metrics = hook.regulariser(apply, params, inputs)
+    if penalty is not None:
+        loss = loss + penalty
+        metrics.update(penalty_metrics)
     return loss, metrics
-
-
-def input_gradient_norms(
-    apply: Callable,
-    params,
-    *,
-    expert_obs,
-    expert_actions,
-    expert_weights,
-    conditions,
-    policy_obs,
-    policy_actions,
-    policy_conditions,
-) -> jax.Array:
-    """The mean squared norm of d f / d(s, a) on the expert pairs (under each condition, weighted
-    as in the loss) and on the policy samples, half each: a zero-centred penalty that keeps
-    the logit, and so the reward, from growing steeply where the data lie."""
-
-    def squared(grads):
-        return sum(jnp.sum(g**2, -1) for g in grads)
-
-    real = []
-    for c in range(conditions.shape[0]):  # K <= 4 heads, each pair's gradient under each
-        one = lambda o, a, c=c: jnp.sum(expert_logits(apply, params, o, a, conditions)[:, c])
-        real.append(squared(jax.grad(one, (0, 1))(expert_obs, expert_actions)))
-    real = jnp.mean(jnp.sum(expert_weights * jnp.stack(real, -1), -1))
-    fake_sum = lambda o, a: jnp.sum(apply(params, o, a, policy_conditions, intention_major=True))
-    fake = jnp.mean(squared(jax.grad(fake_sum, (0, 1))(policy_obs, policy_actions)))
-    return 0.5 * (real + fake)
 
 
 def discriminator_update(
@@ -209,54 +169,40 @@ class MStep:
     metrics: dict
 
 
-def gradient_penalty_at(config: MStepConfig, iteration: jax.Array | None) -> float | jax.Array:
-    """The gradient penalty's weight at ``iteration`` (the updates done before this one): a
-    constant, or 0 before ``config.gradient_penalty_from``."""
-    if not config.gradient_penalty_from or iteration is None:
-        return config.gradient_penalty
-    return jnp.where(iteration >= config.gradient_penalty_from, config.gradient_penalty, 0.0)
-
-
 def make_m_step(apply: Callable, optimizer: optax.GradientTransformation, config: MStepConfig):
-    """``m_step(discriminator, batch, gamma, algorithm, iteration=None) -> MStep`` (Algorithm 1,
-    M-step): the discriminator (a :class:`Learner`) learns the expert pairs of ``batch`` (a
-    :class:`NormalizedBatch`), weighted over intentions by ``gamma [N, K]`` as ``algorithm``
-    says (eq. 19 or 22), against the policy samples under their own intention; ``config.steps``
-    full-batch steps, with the gradient penalty :func:`gradient_penalty_at` ``iteration`` weighs.
-    A batch with termination flags adds the absorbing pair on both sides (module docstring)."""
+    """``m_step(discriminator, batch, gamma, algorithm, read=None, hook=None) -> MStep``
+    (Algorithm 1, M-step): the discriminator (a :class:`Learner`) learns the expert pairs of
+    ``batch`` (a :class:`NormalizedBatch`), weighted over intentions by ``gamma [N, K]`` as
+    ``algorithm`` says (eq. 19 or 22), against the policy samples under their own intention;
+    ``config.steps`` full-batch steps. ``read`` (a :class:`Read`; None: the executed actions)
+    is what the logit reads beside the observation, ``hook`` what a variant changes in the
+    loss (:class:`LossHook`)."""
 
     def m_step(
         discriminator: Learner,
         batch: NormalizedBatch,
         gamma: jax.Array,
         algorithm: Algorithm,
-        iteration: jax.Array | None = None,
+        read: Read | None = None,
+        hook: LossHook | None = None,
     ) -> MStep:
         k = batch.obs.shape[0]
         chex.assert_shape(gamma, (batch.expert_obs.shape[0], k))
         own_intention = batch.own_intention()
-        policy_inputs, expert_inputs = batch.discriminated()
-        absorbed = {}
-        if batch.terminal is not None:
-            absorbed = dict(
-                expert_absorbed=batch.expert_terminal @ algorithm.expert_weights(gamma),
-                policy_absorbed=batch.terminal.sum(1),
-            )
+        read = Read.of(batch) if read is None else read
         trained, metrics = discriminator_update(
             apply,
             optimizer,
             discriminator,
             config.steps,
             expert_obs=batch.expert_obs,
-            expert_actions=expert_inputs,
+            expert_actions=read.experts,
             expert_weights=algorithm.expert_weights(gamma),
             conditions=algorithm.discriminator_conditions(k),
             policy_obs=batch.obs,
-            policy_actions=policy_inputs,
+            policy_actions=read.samples,
             policy_conditions=algorithm.discriminator_condition(own_intention, k),
-            gradient_penalty=gradient_penalty_at(config, iteration),
-            **absorbed,
-            **batch.log_policy_offsets(),
+            hook=hook,
         )
         return MStep(trained, metrics)
 
@@ -292,28 +238,12 @@ def learned_reward(
     log P(i | s, a) (``own_log_posterior [...]``) for Info/IntentionGAIL (eq. 23), and
     -log(1 - D(s, a)) for GAIL. ``intention_major``: the leading axis of the inputs is the
     intention (the rollouts' layout ``[K, ...]``, see
-    :func:`~emgail_jax.method.networks.conditioned_mlp`). AIRL's: ``executed`` holds the
-    successors and ``log_policy [...]`` log pi of the pairs' actions, the logit f - log pi.
+    :func:`~emgail_jax.method.networks.conditioned_mlp`). ``executed`` holds what the logit
+    reads beside the observation and ``log_policy [...]``, if given, is subtracted from it
+    (a form's :class:`Read`).
     """
     condition = algorithm.discriminator_condition(intention, num_intentions)
     logit = apply(params, obs, executed, condition, intention_major=intention_major)
     if log_policy is not None:
         logit = logit - log_policy
     return algorithm.pseudo_reward(logit, own_log_posterior)
-
-
-def absorbing_reward(
-    apply: Callable,
-    params,
-    algorithm: Algorithm,
-    num_intentions: int,
-    obs_size: int,
-    action_size: int,
-) -> jax.Array:
-    """``[K]`` the learned reward of the absorbing state under each intention, as
-    :func:`learned_reward` scores a pair; Info/IntentionGAIL's lambda log P(i | s, a) taken at
-    1/K, since the absorbing state tells no intention from another."""
-    intentions = jnp.arange(num_intentions)
-    conditions = algorithm.discriminator_condition(intentions, num_intentions)  # [K, c]
-    logits = absorbing_logits(apply, params, conditions, obs_size, action_size)
-    return algorithm.pseudo_reward(logits, jnp.full(num_intentions, -jnp.log(num_intentions)))

@@ -13,6 +13,7 @@ def generalized_advantages(
     bootstrap_value: jax.Array,
     gamma: float,
     lam: float,
+    *,
     end_values: jax.Array | None = None,
 ) -> tuple[jax.Array, jax.Array]:
     """GAE(gamma, lambda) over a rollout.

@@ -168,7 +168,7 @@ class AIRLDiscriminator(ScalarNet):
     """AIRL's f(s, a, s', i) = g_i(s) + discount * h_i(s') - h_i(s) (Fu et al. 2018, eq. 13):
     g the state-only reward, h the state-only shaping, each conditioned on the intention as
     :class:`Discriminator` is. It takes :class:`Discriminator`'s place in every call, the
-    ``successor [..., D + 1]`` (:func:`~emgail_jax.method.airl.successor`) in the action's:
+    ``successor [..., D + 1]`` (:func:`~emgail_jax.variants.airl.successor`) in the action's:
     the next observation and 1 where the episode goes on after it, 0 where it terminated
     (h(s') = 0 there). The logit of D is f - log pi_i(a | s), which the callers subtract.
 

@@ -16,11 +16,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from emgail_jax.method.batches import (
-    DemonstrationPairs,
-    NormalizedBatch,
-    pairs_per_demonstration,
-)
+from emgail_jax.method.batches import DemonstrationPairs, NormalizedBatch
 from emgail_jax.method.config import EStepConfig, ResponsibilityMode, RewardFrom
 from emgail_jax.method.optim import Learner, minimize
 
@@ -80,24 +76,6 @@ def log_posterior(apply: Callable, params, obs: jax.Array, actions: jax.Array) -
     return jax.nn.log_softmax(apply(params, obs, actions), axis=-1)
 
 
-def evidence_temper(iteration: jax.Array, ramp_iterations: int, pairs: jax.Array) -> jax.Array:
-    """``[E]`` beta_e, the weight of demonstration e's summed log-posterior in the tempered
-    trajectory E-step (``trajectory_temper_iterations``): ``1 / L_e`` at iteration 0, where
-    ``L_e`` is its number of pairs (the mean of its pairs' log-posteriors: as soft as one
-    pair), rising linearly to 1 at iteration ``ramp_iterations`` and 1 from there on.
-
-    Args:
-      iteration: ``[]`` int, the updates done before this E-step (``TrainState.iteration``:
-        0 in the first update); a Python int works too.
-      ramp_iterations: N >= 1, the iteration from which beta is 1 (a Python int).
-      pairs: ``[E]`` float, each demonstration's number of pairs ``L_e`` (>= 1).
-    """
-    progress = jnp.clip(iteration / ramp_iterations, 0.0, 1.0)
-    # Written as 1 - (1 - 1/L)(1 - progress), not 1/L + (1 - 1/L) progress: beta is then
-    # exactly 1 from iteration N on, and the E-step today's to the bit.
-    return 1.0 - (1.0 - 1.0 / pairs) * (1.0 - progress)
-
-
 def trajectory_responsibilities(
     log_p: jax.Array,
     episode: jax.Array,
@@ -115,20 +93,17 @@ def trajectory_responsibilities(
     their summed ``log P(i | .)``: a lean the posterior network has on every pair (an untrained
     one always has some) then cancels instead of growing with the episode length and sending
     every demonstration to one intention, and each demonstration goes where it differs from the
-    others. An option, not the default: it fails reacher-4 (docs/learning-the-mjx-envs.md,
-    experiment 12).
+    others. An option, not the default (see docs/defaults.md, ``responsibilities``).
 
-    ``evidence_weight`` tempers each demonstration's summed log-posterior before the centring
-    and the prior: ``softmax_i(beta_e sum_t log P(i | s_t, a_t) + log w_i)``. Early on, a lean
-    that the product over a demonstration's pairs would multiply into certainty then stays as
-    soft as one pair's (:func:`evidence_temper`; docs/no-empty-intention.md, "Hypothesis:
-    tempering the trajectory evidence early").
+    ``evidence_weight`` weighs each demonstration's summed log-posterior before the centring
+    and the prior: ``softmax_i(beta_e sum_t log P(i | s_t, a_t) + log w_i)`` (a variant's
+    evidence hook, :mod:`emgail_jax.method.hooks`).
 
     Args:
       log_p: ``[N, K]`` log P(i | s, a) of the expert pairs.
       episode: ``[N]`` index of each pair's episode, in ``[0, episodes)``.
       log_prior: ``[K]`` log w_i of the mixture prior; None for the uniform prior.
-      evidence_weight: ``[E]`` beta_e of each demonstration; None: untempered (beta = 1).
+      evidence_weight: ``[E]`` the weight of each demonstration's evidence; None: 1.
     """
     per_episode = jax.ops.segment_sum(log_p, episode, num_segments=episodes)  # [E, K]
     if evidence_weight is not None:
@@ -140,19 +115,6 @@ def trajectory_responsibilities(
     return jax.nn.softmax(per_episode, axis=-1)[episode]
 
 
-def tempered_evidence(
-    config: EStepConfig, iteration: jax.Array, demos: DemonstrationPairs
-) -> jax.Array | None:
-    """``[E]`` beta of each demonstration in the E-step of ``iteration`` (``[]`` int, the
-    updates done before it) under ``config.trajectory_temper_iterations``
-    (:func:`evidence_temper`); None when that is 0, the untempered E-step, which then computes
-    nothing more."""
-    ramp = config.trajectory_temper_iterations
-    if not ramp:
-        return None
-    return evidence_temper(iteration, ramp, pairs_per_demonstration(demos.episode, demos.episodes))
-
-
 @struct.dataclass
 class Responsibilities:
     """What the E-step concludes about the expert pairs, in one place for training, evaluation
@@ -161,7 +123,7 @@ class Responsibilities:
     Attributes:
       gamma: ``[N, K]`` the weights of the M-step: ``P(i | s, a)`` of each pair (eq. 18), or,
         with ``mode="trajectory"``, the posterior of the pair's whole demonstration (its
-        evidence tempered early with ``trajectory_temper_iterations``).
+        evidence weighed by a variant's evidence hook, if any).
       pair_labels: ``[N]`` ``argmax_i P(i | s, a)`` of each pair: the clustering the paper's
         accuracy (eq. 29) scores, in either mode.
       trajectory_labels: ``[N]`` ``argmax_i gamma``: the labels the M-step acts on; equal to
@@ -207,11 +169,11 @@ def expert_responsibilities(
     (per pair, or per demonstration with the product over its pairs), and so are the pair
     labels.
 
-    ``evidence_weight [E]`` (per demonstration modes only; None: untempered) tempers each
+    ``evidence_weight [E]`` (per demonstration modes only; None: 1) weighs each
     demonstration's evidence (see :func:`trajectory_responsibilities`); the pair labels are
     untouched."""
     if evidence_weight is not None and not mode.per_demonstration:
-        raise ValueError(f"the {mode.value} E-step has no trajectory evidence to temper")
+        raise ValueError(f"the {mode.value} E-step has no trajectory evidence to weigh")
     log_p = log_posterior(apply, params, obs, actions)
     log_prior = None if weights is None else jnp.log(weights)
     log_joint = log_p if log_prior is None else log_p + log_prior  # log w_i P(i | s, a) + c
@@ -260,6 +222,7 @@ def make_e_step(
     config: EStepConfig,
     *,
     reward_from: RewardFrom = RewardFrom.UPDATED,
+    evidence: Callable | None = None,
 ):
     """``e_step(posterior, batch, demos, weights, lesson=None, iteration=None) -> EStep``
     (Algorithm 1, E-step).
@@ -271,11 +234,11 @@ def make_e_step(
     reward term, the samples' own log-posterior, comes from the updated posterior or the
     previous one (``reward_from``). With the mixture prior (``config.prior``) gamma also
     weighs each intention by ``weights [K]``, and the E-step re-estimates them from gamma (EM
-    for a mixture's weights); under the uniform prior they pass through unchanged. With
-    ``config.trajectory_temper_iterations`` each demonstration's evidence is tempered by the
-    beta of ``iteration`` (``[]`` int32, the updates done before this E-step:
-    ``TrainState.iteration``; needed only then, :func:`tempered_evidence`). Without a
-    posterior: uniform gamma, zero log-posterior.
+    for a mixture's weights); under the uniform prior they pass through unchanged.
+    ``evidence(iteration, demos) -> [E] or None`` (a variant's hook,
+    :mod:`emgail_jax.method.hooks`; None: none) weighs each demonstration's evidence at
+    ``iteration`` (``[]`` int32, the updates done before this E-step:
+    ``TrainState.iteration``). Without a posterior: uniform gamma, zero log-posterior.
     """
     mixture = config.prior.estimated
 
@@ -292,8 +255,6 @@ def make_e_step(
         if posterior is None:
             uniform = jnp.full((demos.episode.shape[0], k), 1.0 / k)
             return EStep(None, None, uniform, jnp.zeros((k, m)), weights, {})
-        if config.trajectory_temper_iterations and iteration is None:
-            raise ValueError("the tempered trajectory E-step needs the iteration")
         flat = lambda x: x.reshape(k * m, -1)
         obs, actions = flat(batch.obs), flat(batch.executed)
         intentions = own_intention.reshape(-1)
@@ -329,7 +290,7 @@ def make_e_step(
             mode=config.responsibilities,
             labels=demos.labels if demos.has_labels else None,
             weights=weights if mixture else None,
-            evidence_weight=tempered_evidence(config, iteration, demos),
+            evidence_weight=None if evidence is None else evidence(iteration, demos),
         )
         if mixture:
             weights = mixture_weights(responsibilities.gamma)

@@ -115,14 +115,20 @@ class PolicyStages:
 
         return policy
 
+    @property
+    def records_next_obs(self) -> bool:
+        """Whether the rollout records the observations its steps reach (AIRL's discriminator
+        reads them)."""
+        return self.config.m_step.form.airl
+
     def collect(
         self, env: envs.Env, policy: Policy, env_state: envs.State, key: jax.Array
     ) -> tuple[envs.State, Transitions]:
         """Step 1: ``rollout_length`` steps of the auto-resetting ``env`` from ``env_state``
         with ``policy`` (:func:`~emgail_jax.method.rollout.rollout`), the observations reached
-        recorded for AIRL's discriminator."""
-        length, airl = self.config.rollout.rollout_length, self.config.m_step.form.airl
-        return rollout(env, policy, env_state, key, length, next_obs=airl)
+        recorded where :attr:`records_next_obs`."""
+        length = self.config.rollout.rollout_length
+        return rollout(env, policy, env_state, key, length, next_obs=self.records_next_obs)
 
     def improve(
         self,

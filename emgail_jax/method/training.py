@@ -14,11 +14,7 @@ stage is steps 2-3 and the learned reward (:class:`LearnedRewardStage`, which re
 2. E-step (:mod:`emgail_jax.method.posterior`): the posterior learns P(i | s, a) on those samples;
    gamma = P on the expert pairs;
 3. M-step (:mod:`emgail_jax.method.discriminator`): the discriminator learns expert (weighted by
-   gamma) against policy samples (with ``discriminator_replay``, past iterations' too:
-   :mod:`emgail_jax.method.replay`; with ``discriminator_support_noise``, noisy copies of
-   them: :mod:`emgail_jax.method.support`; with ``discriminator_form=airl``, AIRL's discriminator,
-   which reads each pair's successor and the current policy's log-density:
-   :mod:`emgail_jax.method.airl`);
+   gamma) against policy samples;
 4. B-step (:mod:`emgail_jax.method.b_step`): the samples are relabelled with the learned reward, GAE
    computes advantages, TRPO updates the policy, and the value baseline is refitted;
 5. metrics: the clustering accuracy of the E-step and, when ``evaluating``, deterministic
@@ -29,6 +25,10 @@ stage is steps 2-3 and the learned reward (:class:`LearnedRewardStage`, which re
 The rollout and the evaluation episodes are phases of one loop whose body steps the env once:
 the env step, the largest part of an MJX program, is compiled once rather than once for
 training and once more for evaluation.
+
+Research variants change the update at the named places of :mod:`emgail_jax.method.hooks`;
+``make_train(config, env, hooks)`` takes them (default: the paper's method), and
+:mod:`emgail_jax.variants` builds those a config asks for.
 
 The caller ``jit``s ``vmap(update)`` over seeds (see :mod:`emgail_jax.host.seed_runner`).
 """
@@ -48,25 +48,14 @@ from flax import struct
 
 import envs
 from emgail_jax.method import normalizer as obs_norm
-from emgail_jax.method.airl import successor, with_log_densities
 from emgail_jax.method.algorithms import Algorithm, make_algorithm
 from emgail_jax.method.batches import DemonstrationPairs, NormalizedBatch
 from emgail_jax.method.choosing import holds_demonstrations
 from emgail_jax.method.config import MethodConfig, ResponsibilityMode
-from emgail_jax.method.discriminator import (
-    absorbing_reward,
-    expert_scores,
-    learned_reward,
-    make_m_step,
-)
+from emgail_jax.method.discriminator import MStep, expert_scores, learned_reward, make_m_step
+from emgail_jax.method.hooks import PAPER, Hooks, Sampling
 from emgail_jax.method.metrics import cluster_accuracy, normalized_erd
-from emgail_jax.method.networks import (
-    AIRLDiscriminator,
-    Discriminator,
-    GaussianPolicy,
-    Posterior,
-    ValueNet,
-)
+from emgail_jax.method.networks import GaussianPolicy, Posterior, ValueNet
 from emgail_jax.method.optim import Learner
 from emgail_jax.method.posterior import (
     EStep,
@@ -75,9 +64,7 @@ from emgail_jax.method.posterior import (
     expert_responsibilities,
     make_e_step,
     mixture_weights,
-    tempered_evidence,
 )
-from emgail_jax.method.replay import Replay, with_replay
 from emgail_jax.method.reseeding import (
     Reseeding,
     ReseedingRule,
@@ -93,12 +80,10 @@ from emgail_jax.method.rollout import (
     episode_totals,
     fresh_starts,
     intention_major,
-    terminations,
     time_major,
     tree_where,
 )
 from emgail_jax.method.skeleton import PolicyStages, Rewarded, intention_rows, make_update
-from emgail_jax.method.support import KEY_STREAM, InputBox, with_support_negatives
 
 
 @struct.dataclass
@@ -117,8 +102,8 @@ class TrainState:
     # The re-seeding of emptied intentions; None without a posterior or with `--reseed off`
     # (a state of the layout runs had before the option).
     reseeding: Reseeding | None = None
-    # The M-step's replay of past policy samples; None without `discriminator_replay`.
-    replay: Replay | None = None
+    # The carry of a variant's further negatives for the M-step (:mod:`~.hooks`); None without.
+    negatives: Any = None
 
     def network_parameters(self) -> dict[str, Any]:
         """The parameters of each of the four networks (None for GAIL's posterior)."""
@@ -150,21 +135,17 @@ class RunData:
 class Networks:
     policy: GaussianPolicy
     value: ValueNet
-    discriminator: Discriminator | AIRLDiscriminator
+    discriminator: Any  # the hooks' form's network
     posterior: Posterior
 
 
-def make_networks(config: MethodConfig, env: envs.Env) -> Networks:
+def make_networks(config: MethodConfig, env: envs.Env, hooks: Hooks = PAPER) -> Networks:
     shape = config.networks
     heads = shape.intention_input.heads
-    if config.m_step.form.airl:  # f's shaping discounts as the B-step does
-        discriminator = AIRLDiscriminator(shape.hidden, heads, config.b_step.gamma)
-    else:
-        discriminator = Discriminator(shape.hidden, heads, config.reward.absorbing_state)
     return Networks(
         policy=GaussianPolicy(env.action_size, shape.hidden, shape.init_log_std, heads),
         value=ValueNet(shape.hidden, heads),
-        discriminator=discriminator,
+        discriminator=hooks.form.network(config),
         posterior=Posterior(env.num_intentions, shape.hidden),
     )
 
@@ -210,14 +191,20 @@ def clustering_metrics(
 
 
 def responsibilities_of(
-    networks: Networks, config: MethodConfig, state: TrainState, demos: DemonstrationPairs
+    networks: Networks,
+    config: MethodConfig,
+    state: TrainState,
+    demos: DemonstrationPairs,
+    hooks: Hooks = PAPER,
 ) -> Responsibilities:
     """The E-step's responsibilities of ``demos`` under one seed's ``state`` (its posterior,
-    observation statistics and mixture weights), computed as training computes them."""
+    observation statistics and mixture weights), computed as training computes them (with
+    ``hooks``' evidence weights)."""
     expert_obs = obs_norm.normalize(state.normalizer, demos.observations, config.networks.obs_clip)
-    # A state after n updates holds the posterior the E-step of update n - 1 trained; a
-    # tempered E-step weighed the evidence with that update's beta.
-    evidence_weight = tempered_evidence(config.e_step, state.iteration - 1, demos)
+    # A state after n updates holds the posterior the E-step of update n - 1 trained, which
+    # weighed the evidence as that update did.
+    evidence = hooks.evidence
+    evidence_weight = None if evidence is None else evidence(state.iteration - 1, demos)
     return expert_responsibilities(
         networks.posterior.apply,
         state.posterior.params,
@@ -295,7 +282,9 @@ def make_optimizers(config: MethodConfig) -> Optimizers:
     )
 
 
-def make_init(config: MethodConfig, env: envs.Env, networks: Networks, optimizers: Optimizers):
+def make_init(
+    config: MethodConfig, env: envs.Env, networks: Networks, optimizers: Optimizers, hooks: Hooks
+):
     """``init(key, data) -> TrainState``: fresh networks and ``[K, B]`` reset training envs."""
     k, b = env.num_intentions, config.rollout.num_envs
     stages = make_policy_stages(config, env, networks)
@@ -313,7 +302,7 @@ def make_init(config: MethodConfig, env: envs.Env, networks: Networks, optimizer
         obs = jnp.zeros((1, env.observation_size))
         action = jnp.zeros((1, env.action_size))
         policy, value = stages.init(keys["policy"], keys["value"])
-        read = successor(obs, jnp.zeros(1)) if config.m_step.form.airl else action
+        read = hooks.form.init_input(obs, action)
         discriminator = networks.discriminator.init(
             keys["disc"], obs, read, discriminator_condition
         )
@@ -333,29 +322,10 @@ def make_init(config: MethodConfig, env: envs.Env, networks: Networks, optimizer
             key=keys["next"],
             iteration=jnp.zeros((), jnp.int32),
             reseeding=(Reseeding.create(k, data.demos.episodes) if config.reseeds else None),
-            replay=replay_of(config, env, key),
+            negatives=hooks.negatives.init(config, env, key),
         )
 
     return init
-
-
-def replay_of(config: MethodConfig, env: envs.Env, key: jax.Array) -> Replay | None:
-    """An empty replay of ``config.m_step.replay`` iterations (None: none), its key folded
-    from the seed's ``key`` so that no other key of the run changes."""
-    if not config.m_step.replay:
-        return None
-    rollout = config.rollout
-    samples = rollout.num_envs * rollout.rollout_length  # per intention and iteration
-    return Replay.create(
-        config.m_step.replay,
-        env.num_intentions,
-        samples,
-        env.observation_size,
-        env.action_size,
-        jax.random.fold_in(key, 1),
-        absorbing=config.reward.absorbing_state,
-        successors=config.m_step.form.airl,
-    )
 
 
 def lesson_of(memory: Reseeding, demos: DemonstrationPairs) -> Lesson:
@@ -401,7 +371,7 @@ def make_collect(config: MethodConfig, env: envs.Env, stages: PolicyStages):
         carry = (
             state.env_state,
             Transitions.zeros(
-                t, k, b, env.observation_size, env.action_size, config.m_step.form.airl
+                t, k, b, env.observation_size, env.action_size, stages.records_next_obs
             ),
             state.env_state,
             jnp.zeros((k, b, k)),
@@ -437,43 +407,20 @@ def normalized_batch(
     demos: DemonstrationPairs,
     env: envs.Env,
     obs_clip: float,
-    absorbing: bool = False,
 ) -> NormalizedBatch:
     """The rollout and the demonstrations as the posterior and the discriminator see them, with
-    ``normalizer`` (the rollout's statistics included); TRPO keeps the raw samples. With
-    ``absorbing``, the terminations of both, where the discriminator adds absorbing pairs;
-    for a rollout that recorded its next observations (AIRL's), the successors of both."""
+    ``normalizer`` (the rollout's statistics included); TRPO keeps the raw samples."""
     normalize = lambda x: obs_norm.normalize(normalizer, x, obs_clip)
-    batch = NormalizedBatch(
+    return NormalizedBatch(
         normalizer=normalizer,
         obs=normalize(intention_major(transitions.obs)),
         executed=env.clip_action(intention_major(transitions.action)),
         expert_obs=normalize(demos.observations),
         expert_actions=demos.actions,
-    )
-    if transitions.next_obs is not None:
-        batch = batch.replace(
-            successor=successors(transitions, env, normalize),
-            expert_successor=successor(
-                normalize(demos.next_observations), demos.terminations(env.episode_length)
-            ),
-        )
-    if absorbing:
-        batch = batch.replace(
-            terminal=intention_major(terminations(transitions, env.episode_length)),
-            expert_terminal=demos.terminations(env.episode_length),
-        )
-    return batch.check()
+    ).check()
 
 
-def successors(transitions: Transitions, env: envs.Env, normalize=lambda x: x) -> jax.Array:
-    """``[K, M, D + 1]`` the successor of every sample of a rollout that recorded its next
-    observations (``normalize``d; raw by default), grouped by intention."""
-    terminal = terminations(transitions, env.episode_length)
-    return intention_major(successor(normalize(transitions.next_obs), terminal))
-
-
-def make_reseed(config: MethodConfig, networks: Networks, k: int):
+def make_reseed(config: MethodConfig, networks: Networks, k: int, hooks: Hooks = PAPER):
     """``reseed(memory, e, discriminator, seen, demos, algorithm) -> (memory, e)``: the
     E-step's gamma (and mixture weights) with an emptied intention re-seeded
     (:mod:`emgail_jax.method.reseeding`); the demonstrations it takes are those the
@@ -486,7 +433,8 @@ def make_reseed(config: MethodConfig, networks: Networks, k: int):
             logits = expert_scores(
                 networks.discriminator.apply,
                 discriminator.params,
-                seen,
+                seen.expert_obs,
+                hooks.form.read(seen),
                 algorithm.discriminator_conditions(k),
             )  # [N, C]
             column = holder[demos.episode] if algorithm.conditional_discriminator else 0
@@ -519,18 +467,24 @@ def make_reseed(config: MethodConfig, networks: Networks, k: int):
 class LearnedRewardStage:
     """The IRL loop's reward stage of the skeleton: steps 2-3 of Algorithm 1 (the E-step, the
     re-seeding of emptied intentions, the M-step) and the learned reward of every sample under
-    its own intention, on which step 4 improves the policy."""
+    its own intention, on which step 4 improves the policy; variants through ``hooks``."""
 
     config: MethodConfig
     env: envs.Env
     networks: Networks
+    hooks: Hooks
     e_step: Callable  # (posterior, seen, demos, weights, lesson=None, iteration=None) -> EStep
-    m_step: Callable  # (discriminator, seen, gamma, algorithm) -> MStep
+    m_step: Callable  # (discriminator, batch, gamma, algorithm, read=None, hook=None) -> MStep
     reseed: Callable  # see make_reseed
 
     @classmethod
     def create(
-        cls, config: MethodConfig, env: envs.Env, networks: Networks, optimizers: Optimizers
+        cls,
+        config: MethodConfig,
+        env: envs.Env,
+        networks: Networks,
+        optimizers: Optimizers,
+        hooks: Hooks = PAPER,
     ):
         m_step = make_m_step(networks.discriminator.apply, optimizers.discriminator, config.m_step)
         e_step = make_e_step(
@@ -538,54 +492,47 @@ class LearnedRewardStage:
             optimizers.posterior,
             config.e_step,
             reward_from=config.reward.source,
+            evidence=hooks.evidence,
         )
-        reseed = make_reseed(config, networks, env.num_intentions)
-        return cls(config, env, networks, e_step, m_step, reseed)
+        reseed = make_reseed(config, networks, env.num_intentions, hooks)
+        return cls(config, env, networks, hooks, e_step, m_step, reseed)
 
     def pseudo_reward(self, discriminator, algorithm, seen, own_log_posterior) -> jax.Array:
         """``[K, M]`` the B-step's reward of every sample of ``seen`` under its own intention
         (eq. 20 / 23), from the ``discriminator`` (a :class:`Learner`)."""
         k, m = seen.obs.shape[:2]
+        read = self.hooks.form.read(seen)
         return learned_reward(
             self.networks.discriminator.apply,
             discriminator.params,
             algorithm,
             k,
             obs=seen.obs,
-            executed=seen.discriminated()[0],
+            executed=read.samples,
             intention=intention_rows((k, m)),
             own_log_posterior=own_log_posterior,
             intention_major=True,
-            log_policy=seen.log_policy,
+            log_policy=read.offsets,
         )
 
-    def absorbing_reward(self, discriminator, algorithm) -> jax.Array:
-        """``[K]`` the B-step's reward of the absorbing state under each intention, from the
-        ``discriminator`` (a :class:`Learner`)."""
-        env = self.env
-        return absorbing_reward(
-            self.networks.discriminator.apply,
-            discriminator.params,
-            algorithm,
-            env.num_intentions,
-            env.observation_size,
-            env.action_size,
+    def observed(self, state: TrainState, transitions, normalizer, data, algorithm):
+        """``(seen, sampling)``: the rollout and the demonstrations normalised, with what the
+        hooks' form reads of them, and what the hooks may read of the iteration."""
+        obs_clip = self.config.networks.obs_clip
+        sampling = Sampling(
+            transitions=transitions,
+            demos=data.demos,
+            env=self.env,
+            normalize=lambda x: obs_norm.normalize(normalizer, x, obs_clip),
+            policy=(self.networks.policy.apply, state.policy),
+            algorithm=algorithm,
+            key=state.key,
         )
+        seen = normalized_batch(normalizer, transitions, data.demos, self.env, obs_clip)
+        return self.hooks.form.observed(seen, sampling), sampling
 
-    def __call__(self, state: TrainState, transitions, normalizer, evaluating, data) -> Rewarded:
-        config, demos = self.config, data.demos
-        algorithm = algorithm_of(config, data)
-        absorbing = config.reward.absorbing_state
-        seen = normalized_batch(
-            normalizer, transitions, demos, self.env, config.networks.obs_clip, absorbing
-        )
-        densities = lambda batch: batch  # AIRL's log pi, under the policy that made the rollout
-        if config.m_step.form.airl:
-            policy_apply = self.networks.policy.apply
-            densities = lambda batch: with_log_densities(
-                batch, policy_apply, state.policy, algorithm
-            )
-        seen = densities(seen)
+    def expectation(self, state: TrainState, seen, demos, algorithm) -> tuple[EStep, Any]:
+        """``(e, reseeding)``: the E-step, and the re-seeding of an emptied intention."""
         reseeding = state.reseeding
         # EM-GAIL's M-step sees a re-seeding in gamma; Info/IntentionGAIL's D(s, a) ignores
         # gamma, so its posterior learns the held demonstrations instead.
@@ -596,20 +543,22 @@ class LearnedRewardStage:
         )
         if reseeding is not None:
             reseeding, e = self.reseed(reseeding, e, state.discriminator, seen, demos, algorithm)
-        replay, negatives = state.replay, seen
-        if replay is not None:
-            normalize = lambda x: obs_norm.normalize(normalizer, x, config.networks.obs_clip)
-            raw = intention_major(transitions.obs)
-            raw_successors = None if seen.successor is None else successors(transitions, self.env)
-            replay, negatives = with_replay(replay, seen, raw, normalize, raw_successors)
-            negatives = densities(negatives)
-        if config.m_step.support_noise:
-            key = jax.random.fold_in(state.key, KEY_STREAM)
-            box = None
-            if config.m_step.support_in_box:
-                box = InputBox(config.networks.obs_clip, self.env.action_low, self.env.action_high)
-            negatives = with_support_negatives(negatives, key, config.m_step.support_noise, box)
-        m = self.m_step(state.discriminator, negatives, e.gamma, algorithm, state.iteration)
+        return e, reseeding
+
+    def maximization(self, discriminator, negatives, gamma, algorithm) -> MStep:
+        """The M-step on ``negatives`` (the hooks' form reads them, their loss hook adds)."""
+        read = self.hooks.form.read(negatives)
+        loss = self.hooks.loss
+        hook = None if loss is None else loss(negatives, read, gamma, algorithm)
+        return self.m_step(discriminator, negatives, gamma, algorithm, read, hook)
+
+    def __call__(self, state: TrainState, transitions, normalizer, evaluating, data) -> Rewarded:
+        config, demos = self.config, data.demos
+        algorithm = algorithm_of(config, data)
+        seen, sampling = self.observed(state, transitions, normalizer, data, algorithm)
+        e, reseeding = self.expectation(state, seen, demos, algorithm)
+        carry, negatives = self.hooks.negatives(state.negatives, seen, sampling)
+        m = self.maximization(state.discriminator, negatives, e.gamma, algorithm)
         rewarding = config.reward.source.choose(
             updated=m.discriminator, previous=state.discriminator
         )
@@ -619,11 +568,16 @@ class LearnedRewardStage:
         clustering = clustering_metrics(
             e.responsibilities, demos, k, config.e_step.responsibilities, in_use
         )
-        metrics = {**clustering, **e.metrics, **m.metrics, "train/pseudo_reward": reward.mean()}
-        absorbed = None
-        if absorbing:
-            absorbed = self.absorbing_reward(rewarding, algorithm)
-            metrics["train/absorbing_reward"] = absorbed.mean()
+        end_reward, end_metrics = self.hooks.termination.reward(
+            self.networks.discriminator.apply, rewarding.params, algorithm, self.env
+        )
+        metrics = {
+            **clustering,
+            **e.metrics,
+            **m.metrics,
+            "train/pseudo_reward": reward.mean(),
+            **end_metrics,
+        }
         if in_use is not None:
             metrics["posterior/intentions_in_use"] = in_use.sum()
         learned = dict(
@@ -631,24 +585,26 @@ class LearnedRewardStage:
             posterior=e.posterior,
             intention_weights=e.weights,
             reseeding=reseeding,
-            replay=replay,
+            negatives=carry,
         )
-        return Rewarded(time_major(reward, transitions.obs.shape[0]), learned, metrics, absorbed)
+        reward = time_major(reward, transitions.obs.shape[0])
+        return Rewarded(reward, learned, metrics, end_reward)
 
 
-def make_train(config: MethodConfig, env: envs.Env) -> Trainer:
+def make_train(config: MethodConfig, env: envs.Env, hooks: Hooks = PAPER) -> Trainer:
     """Builds ``init(key, data) -> TrainState`` and
     ``update(state, evaluating, data) -> (state, metrics)`` (see the module docstring): the
     trainer skeleton (:mod:`~emgail_jax.method.skeleton`) with the E-step, the M-step and the
-    learned reward as its reward stage."""
+    learned reward as its reward stage; research variants through ``hooks`` (the paper's
+    method by default; a config's: ``emgail_jax.variants.make_train``)."""
     config = config.resolved(env)
-    networks = make_networks(config, env)
+    networks = make_networks(config, env, hooks)
     optimizers = make_optimizers(config)
     stages = make_policy_stages(config, env, networks)
     collect = make_collect(config, env, stages)
-    reward = LearnedRewardStage.create(config, env, networks, optimizers)
+    reward = LearnedRewardStage.create(config, env, networks, optimizers, hooks)
     update = make_update(stages, collect, reward)
-    return Trainer(make_init(config, env, networks, optimizers), update)
+    return Trainer(make_init(config, env, networks, optimizers, hooks), update)
 
 
 class Trainer(NamedTuple):

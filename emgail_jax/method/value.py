@@ -3,7 +3,7 @@
 With target scaling the network predicts V standardised by the running mean and variance of
 every target it was fitted to, so that a reward far from 0 per step (a learned log D near -1
 over a thousand steps) needs no output of hundreds that Adam's small steps take hundreds of
-iterations to reach (docs/rewards-that-reoptimise.md, experiment 74). Its losses are then
+iterations to reach (see docs/defaults.md, ``value_target_scaling``). Its losses are then
 in standardised units.
 """
 

@@ -9,18 +9,25 @@ discriminator keeps saying "fake" where the run's policies have been. One ring b
 EM-GAIL, GAIL and Info/IntentionGAIL alike: it holds each sample under the intention whose
 policy made it, as the M-step scores them. With AIRL's discriminator it holds each sample's
 successor too (s' and whether the episode went on), not its log pi, which the M-step
-recomputes under the current policy (:mod:`emgail_jax.method.airl`).
+recomputes under the current policy (:mod:`emgail_jax.variants.airl`). It plugs into the
+update as the M-step's further negatives (:class:`Replayed`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
 from flax import struct
 
 from emgail_jax.method.batches import NormalizedBatch
+from emgail_jax.method.config import MethodConfig
+from emgail_jax.method.hooks import Negatives, Sampling
+from emgail_jax.method.rollout import intention_major
+from emgail_jax.variants.airl import successors
+from emgail_jax.variants.extras import Extras, extras_of
 
 
 @struct.dataclass
@@ -36,7 +43,7 @@ class Replay:
     # its episode, so that a drawn termination brings its absorbing negative along.
     terminal: jax.Array | None = None  # [R, K, M]
     # With AIRL's discriminator only (None otherwise): each sample's successor, its next
-    # observation raw (:func:`~emgail_jax.method.airl.successor`).
+    # observation raw (:func:`~emgail_jax.variants.airl.successor`).
     successor: jax.Array | None = None  # [R, K, M, D + 1]
 
     @classmethod
@@ -48,6 +55,7 @@ class Replay:
         obs_size: int,
         action_size: int,
         key,
+        *,
         absorbing=False,
         successors=False,
     ) -> Replay:
@@ -101,8 +109,46 @@ def with_replay(
     with as many samples again drawn from it appended to its own (``[K, 2M, ...]``,
     normalised by ``normalize``; their termination flags and successors too, where kept): the
     M-step's negatives (AIRL's log pi: the caller recomputes it on them)."""
-    replay = replay.push(raw_obs, seen.executed, seen.terminal, raw_successor)
+    replay = replay.push(raw_obs, seen.executed, extras_of(seen).terminal, raw_successor)
     replay, obs, executed, terminal, successor = replay.draw(raw_obs.shape[1])
     if successor is not None:
         successor = jnp.concatenate([normalize(successor[..., :-1]), successor[..., -1:]], -1)
-    return replay, seen.with_more_samples(normalize(obs), executed, terminal, successor)
+    more = Extras(terminal=terminal, successor=successor)
+    return replay, seen.with_more_samples(normalize(obs), executed, more)
+
+
+@dataclass(frozen=True)
+class Replayed(Negatives):
+    """The M-step's negatives with as many samples again drawn from a replay of the last
+    ``size`` iterations' (module docstring). ``reread``: what the form recomputes on the
+    grown batch (AIRL's log pi; None: nothing)."""
+
+    size: int
+    reread: Callable[[NormalizedBatch, Sampling], NormalizedBatch] | None = None
+
+    def init(self, config: MethodConfig, env, key: jax.Array) -> Replay:
+        """An empty replay, its key folded from the seed's ``key`` so that no other key of
+        the run changes."""
+        rollout = config.rollout
+        samples = rollout.num_envs * rollout.rollout_length  # per intention and iteration
+        extras = (config.reward.absorbing_state, config.m_step.form.airl)
+        return Replay.create(
+            self.size,
+            env.num_intentions,
+            samples,
+            env.observation_size,
+            env.action_size,
+            jax.random.fold_in(key, 1),
+            absorbing=extras[0],
+            successors=extras[1],
+        )
+
+    def __call__(self, carry: Replay, seen: NormalizedBatch, sampling: Sampling):
+        raw = intention_major(sampling.transitions.obs)
+        raw_successors = None
+        if extras_of(seen).successor is not None:
+            raw_successors = successors(sampling.transitions, sampling.env)
+        replay, negatives = with_replay(carry, seen, raw, sampling.normalize, raw_successors)
+        if self.reread is not None:
+            negatives = self.reread(negatives, sampling)
+        return replay, negatives

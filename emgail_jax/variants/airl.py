@@ -1,5 +1,5 @@
-"""AIRL's discriminator (Fu et al. 2018), as an option of the M-step (``--set
-discriminator_form=airl``; off by default).
+"""AIRL's discriminator (Fu et al. 2018), a form of the M-step's discriminator (``--set
+discriminator_form=airl``; off by default): :class:`AirlForm`.
 
 Per intention i, D_i(s, a, s') = exp f_i / (exp f_i + pi_i(a | s)) with the paper's eq. 13 form
 f_i(s, a, s') = g_i(s) + gamma h_i(s') - h_i(s)
@@ -26,13 +26,20 @@ policy that made it, not of the pi in D's definition.
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
 
+import envs
 from emgail_jax.method.algorithms import Algorithm
 from emgail_jax.method.batches import NormalizedBatch
-from emgail_jax.method.networks import action_distribution
+from emgail_jax.method.config import MethodConfig
+from emgail_jax.method.discriminator import LossHook, Read
+from emgail_jax.method.hooks import Form, Sampling
+from emgail_jax.method.networks import AIRLDiscriminator, action_distribution
+from emgail_jax.method.rollout import Transitions, intention_major, terminations
+from emgail_jax.variants.extras import attached, extras_of
 
 
 def successor(next_obs: jax.Array, terminal: jax.Array) -> jax.Array:
@@ -73,9 +80,67 @@ def with_log_densities(
     k = batch.obs.shape[0]
     own = algorithm.policy_condition(batch.own_intention(), k)
     every = algorithm.discriminator_conditions(k)
-    return batch.replace(
+    return attached(
+        batch,
         log_policy=own_log_densities(policy_apply, params, batch.obs, batch.executed, own),
         expert_log_policy=expert_log_densities(
             policy_apply, params, batch.expert_obs, batch.expert_actions, every
         ),
     )
+
+
+def successors(transitions: Transitions, env: envs.Env, normalize=lambda x: x) -> jax.Array:
+    """``[K, M, D + 1]`` the successor of every sample of a rollout that recorded its next
+    observations (``normalize``d; raw by default), grouped by intention."""
+    terminal = terminations(transitions, env.episode_length)
+    return intention_major(successor(normalize(transitions.next_obs), terminal))
+
+
+class AirlForm(Form):
+    """AIRL's discriminator as the M-step's form (module docstring): f reads each pair's
+    successor, and its logit is f - log pi under the policy that made the rollout."""
+
+    def network(self, config: MethodConfig) -> AIRLDiscriminator:
+        shape = config.networks
+        # f's shaping discounts as the B-step does
+        return AIRLDiscriminator(shape.hidden, shape.intention_input.heads, config.b_step.gamma)
+
+    def init_input(self, obs: jax.Array, action: jax.Array) -> jax.Array:
+        return successor(obs, jnp.zeros(obs.shape[0]))
+
+    def observed(self, batch: NormalizedBatch, sampling: Sampling) -> NormalizedBatch:
+        """``batch`` with the successors of its samples and expert pairs, and log pi of
+        them."""
+        demos, env = sampling.demos, sampling.env
+        batch = attached(
+            batch,
+            successor=successors(sampling.transitions, env, sampling.normalize),
+            expert_successor=successor(
+                sampling.normalize(demos.next_observations), demos.terminations(env.episode_length)
+            ),
+        ).check()
+        return self.densities(batch, sampling)
+
+    def densities(self, batch: NormalizedBatch, sampling: Sampling) -> NormalizedBatch:
+        """``batch`` with log pi of its samples and expert pairs, recomputed whenever the
+        discriminator reads a sample (module docstring)."""
+        apply, params = sampling.policy
+        return with_log_densities(batch, apply, params, sampling.algorithm)
+
+    def read(self, batch: NormalizedBatch) -> Read:
+        extras = extras_of(batch)
+        return Read(
+            extras.successor, extras.expert_successor, extras.log_policy, extras.expert_log_policy
+        )
+
+
+@dataclass(frozen=True)
+class LogitOffsets(LossHook):
+    """The loss's logits less AIRL's log pi: ``offsets [C, M]`` of the policy samples,
+    ``expert_offsets [N, C]`` of the expert pairs."""
+
+    offsets: jax.Array
+    expert_offsets: jax.Array
+
+    def logits(self, real: jax.Array, fake: jax.Array) -> tuple[jax.Array, jax.Array]:
+        return real - self.expert_offsets, fake - self.offsets
