@@ -131,7 +131,7 @@ def _parser() -> tuple[argparse.ArgumentParser, tuple[str, ...]]:
         default=[],
         metavar="KEY=VALUE",
         dest="set",
-        help="any other hyper-parameter of emgail_jax.method.config (its flat key), e.g. --set "
+        help="any other hyper-parameter by its key (emgail_jax.method.settings), e.g. --set "
         "discriminator_steps=5 --set trpo.cg_damping=0 (repeatable)",
     )
     run_option("--num-envs", type=int, help="envs per intention")
@@ -189,59 +189,41 @@ def _intention_count(text: str) -> int | str:
         raise argparse.ArgumentTypeError(f"a number or auto, not '{text}'") from None
 
 
+# The options that are settings of the config under their own name (their ``dest`` is the
+# flat key); the cadence ones may change on resume.
+_CADENCE = ("iterations", "checkpoint_every", "snapshot_every")
+_SETTING_OPTIONS = (
+    *_CADENCE,
+    *("algo", "info_weight", "intention_input", "responsibilities", "num_envs"),
+    *("rollout_length", "eval_every", "chunk_size", "seed_batch"),
+)
+
+
 def spec_from_args(args: argparse.Namespace) -> RunSpec:
+    """The run the command line asks for: a resumed run's from its summary.json, with the
+    cadence given; a new run's from its options, its reward recipe and its ``--set`` settings,
+    its config built from all of them at once."""
     import envs
     from emgail_jax.host.demonstration_sources import canonical
     from emgail_jax.method.config import RewardRecipe, RunConfig
 
-    # What may change on resume: the host's schedule of outputs and the total.
-    continued = {
-        "iterations": args.iterations,
-        "checkpoint_every": args.checkpoint_every,
-        "snapshot_every": args.snapshot_every,
-    }
     if args.resume is not None:
-        return _resumed_spec(args, continued)
-
+        return _resumed_spec(args)
     env = args.env or "driver"
-    # The run's own counts; the config checks its hyper-parameters itself.
-    for name in ("seeds", "random_episodes"):
-        value = getattr(args, name)
-        if value is not None and value < 1:
-            raise RunError(f"--{name.replace('_', '-')} must be at least 1; got {value}")
+    _check_counts(args, env)
     intentions, choosing = _learned_intentions(args, env)
-    env_options = {}
-    if args.radius is not None:
-        if env != "driver":
-            raise RunError("--radius applies to the driver env only")
-        env_options["radius"] = args.radius
-    overrides = {
-        **continued,
-        "algo": args.algo,
-        "info_weight": args.info_weight,
-        "intention_input": args.intention_input,
-        "responsibilities": args.responsibilities,
-        "prior": "mixture" if choosing else args.prior,
-        "choose_intentions": choosing or None,
-        "reseed": None if args.reseed is None else args.reseed == "on",
-        "num_envs": args.num_envs,
-        "rollout_length": args.rollout_length,
-        "eval_every": args.eval_every,
-        "chunk_size": args.chunk_size,
-        "seed_batch": args.seed_batch,
-    }
-    config = _with_options(RunConfig(), overrides)
     recipe = RewardRecipe(args.rewards or RewardRecipe.PAPER)
-    config = config.with_values(**recipe.settings(terminates=envs.env_class(env).terminates))
-    try:
-        config = config.with_settings(args.set)
-    except ValueError as error:
-        given = "" if recipe is RewardRecipe.PAPER else f" (with --rewards {recipe})"
-        raise RunError(f"--set{given}: {error}") from None
+    config = _configured(
+        RunConfig(),
+        _config_options(args, choosing),
+        recipe=recipe.settings(terminates=envs.env_class(env).terminates),
+        texts=args.set,
+        given="" if recipe is RewardRecipe.PAPER else f" (with --rewards {recipe})",
+    )
     return RunSpec(
         env=env,
         intentions=intentions,
-        env_options=env_options,
+        env_options={} if args.radius is None else {"radius": args.radius},
         algo=config.method.algo.value,
         seeds=args.seeds or DEFAULT_SEEDS,
         first_seed=args.seed or 0,
@@ -252,8 +234,28 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
     )
 
 
-def _resumed_spec(args: argparse.Namespace, continued: dict) -> RunSpec:
-    """The spec of the run ``--resume`` continues, with the ``continued`` options given."""
+def _check_counts(args: argparse.Namespace, env: str) -> None:
+    """Refuses the run's own counts out of range and options of another env (the config
+    checks its hyper-parameters itself)."""
+    for name in ("seeds", "random_episodes"):
+        value = getattr(args, name)
+        if value is not None and value < 1:
+            raise RunError(f"--{name.replace('_', '-')} must be at least 1; got {value}")
+    if args.radius is not None and env != "driver":
+        raise RunError("--radius applies to the driver env only")
+
+
+def _config_options(args: argparse.Namespace, choosing: bool) -> dict:
+    """The config's settings the options give, by flat key (an option not given: absent)."""
+    options = {key: getattr(args, key) for key in _SETTING_OPTIONS}
+    options["prior"] = "mixture" if choosing else args.prior
+    options["choose_intentions"] = choosing or None
+    options["reseed"] = None if args.reseed is None else args.reseed == "on"
+    return {key: value for key, value in options.items() if value is not None}
+
+
+def _resumed_spec(args: argparse.Namespace) -> RunSpec:
+    """The spec of the run ``--resume`` continues, with the cadence options given."""
     given = [f"--{name.replace('_', '-')}" for name in run_options() if getattr(args, name)]
     if given or args.out or args.overwrite:
         dropped = ", ".join(given) or "--out/--overwrite"
@@ -263,19 +265,26 @@ def _resumed_spec(args: argparse.Namespace, continued: dict) -> RunSpec:
             "cadence may be given)"
         )
     spec = RunSpec.from_summary(read_summary(args.resume))
-    return dataclasses.replace(spec, config=_with_options(spec.config, continued))
+    cadence = {key: getattr(args, key) for key in _CADENCE if getattr(args, key) is not None}
+    return dataclasses.replace(spec, config=_configured(spec.config, cadence))
 
 
-def _with_options(config, options: dict):
-    """``config`` with the settings of the command line's options (None: not given); a value
-    out of its domain is named as the option."""
+def _configured(config, options: dict, *, recipe=None, texts=(), given=""):
+    """``config`` with, at once, the settings of the command line's ``options``, then a reward
+    ``recipe``'s, then ``--set``'s ``texts``; a value out of its domain is named as the option
+    that gave it, anything else the settings refuse as ``--set`` (``given``: with what)."""
+    from emgail_jax.method import settings
     from emgail_jax.method.config import SettingError
 
-    given = {key: value for key, value in options.items() if value is not None}
     try:
-        return config.with_values(**given)
+        chosen = settings.parsed(texts, like=config)
+        return config.with_values(**{**options, **(recipe or {}), **chosen})
     except SettingError as error:
-        raise RunError(error.naming(f"--{error.key.replace('_', '-')}")) from None
+        if error.key in options and error.key not in chosen:
+            raise RunError(error.naming(f"--{error.key.replace('_', '-')}")) from None
+        raise RunError(f"--set{given}: {error}") from None
+    except ValueError as error:
+        raise RunError(f"--set{given}: {error}" if texts else str(error)) from None
 
 
 def _learned_intentions(args: argparse.Namespace, env: str) -> tuple[int | None, bool]:
