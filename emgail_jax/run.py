@@ -23,7 +23,13 @@ import traceback
 from emgail_jax.host import jax_setup, records, stopping
 from emgail_jax.host.command_line import ArgumentParser
 from emgail_jax.host.run_directory import default_output, prepare_output, writing
-from emgail_jax.host.run_spec import DEFAULT_RANDOM_EPISODES, RunError, RunSpec, read_summary
+from emgail_jax.host.run_spec import (
+    DEFAULT_RANDOM_EPISODES,
+    RunError,
+    RunSpec,
+    read_summary,
+    stored_seeds,
+)
 from emgail_jax.host.summary_table import print_summary
 
 DEFAULT_SEEDS = 4
@@ -202,51 +208,34 @@ _SETTING_OPTIONS = (
 def spec_from_args(args: argparse.Namespace) -> RunSpec:
     """The run the command line asks for: a resumed run's from its summary.json, with the
     cadence given; a new run's from its options, its reward recipe and its ``--set`` settings,
-    its config built from all of them at once."""
-    import envs
-    from emgail_jax.host.demonstration_sources import canonical
-    from emgail_jax.method.config import RewardRecipe, RunConfig
+    its config built from all of them at once. A setting refused is named as the option or
+    the ``--set`` that gave it."""
+    from emgail_jax.method.config import SettingError
 
+    options = _config_options(args)
+    try:
+        if args.resume is not None:
+            return _resumed_spec(args, options)
+        return _new_spec(args, options)
+    except ValueError as error:
+        if type(error) not in (ValueError, SettingError):  # not the settings': RunError & co.
+            raise
+        if isinstance(error, SettingError) and options.get(error.key, error) == error.value:
+            raise RunError(error.naming(f"--{error.key.replace('_', '-')}")) from None
+        if not args.set:
+            raise RunError(str(error)) from None
+        recipe = f" (with --rewards {args.rewards})" if args.rewards not in (None, "paper") else ""
+        raise RunError(f"--set{recipe}: {error}") from None
+
+
+def _config_options(args: argparse.Namespace) -> dict:
+    """The config's settings the options give, by flat key (an option not given: absent),
+    once the options that cannot go together are refused."""
     if args.resume is not None:
-        return _resumed_spec(args)
-    env = args.env or "driver"
-    _check_counts(args, env)
-    intentions, choosing = _learned_intentions(args, env)
-    recipe = RewardRecipe(args.rewards or RewardRecipe.PAPER)
-    config = _configured(
-        RunConfig(),
-        _config_options(args, choosing),
-        recipe=recipe.settings(terminates=envs.env_class(env).terminates),
-        texts=args.set,
-        given="" if recipe is RewardRecipe.PAPER else f" (with --rewards {recipe})",
-    )
-    return RunSpec(
-        env=env,
-        intentions=intentions,
-        env_options={} if args.radius is None else {"radius": args.radius},
-        algo=config.method.algo.value,
-        seeds=args.seeds or DEFAULT_SEEDS,
-        first_seed=args.seed or 0,
-        demo_sources=tuple(map(canonical, args.demos or ())),
-        demo_seed=args.demo_seed or 0,
-        config=config,
-        random_episodes=args.random_episodes or DEFAULT_RANDOM_EPISODES,
-    )
-
-
-def _check_counts(args: argparse.Namespace, env: str) -> None:
-    """Refuses the run's own counts out of range and options of another env (the config
-    checks its hyper-parameters itself)."""
-    for name in ("seeds", "random_episodes"):
-        value = getattr(args, name)
-        if value is not None and value < 1:
-            raise RunError(f"--{name.replace('_', '-')} must be at least 1; got {value}")
-    if args.radius is not None and env != "driver":
-        raise RunError("--radius applies to the driver env only")
-
-
-def _config_options(args: argparse.Namespace, choosing: bool) -> dict:
-    """The config's settings the options give, by flat key (an option not given: absent)."""
+        _refuse_run_options(args)
+        return {key: getattr(args, key) for key in _CADENCE if getattr(args, key) is not None}
+    choosing = args.intentions == "auto"
+    _refuse_counts(args, choosing)
     options = {key: getattr(args, key) for key in _SETTING_OPTIONS}
     options["prior"] = "mixture" if choosing else args.prior
     options["choose_intentions"] = choosing or None
@@ -254,8 +243,8 @@ def _config_options(args: argparse.Namespace, choosing: bool) -> dict:
     return {key: value for key, value in options.items() if value is not None}
 
 
-def _resumed_spec(args: argparse.Namespace) -> RunSpec:
-    """The spec of the run ``--resume`` continues, with the cadence options given."""
+def _refuse_run_options(args: argparse.Namespace) -> None:
+    """A resumed run takes its own settings: only the cadence may be given."""
     given = [f"--{name.replace('_', '-')}" for name in run_options() if getattr(args, name)]
     if given or args.out or args.overwrite:
         dropped = ", ".join(given) or "--out/--overwrite"
@@ -264,50 +253,66 @@ def _resumed_spec(args: argparse.Namespace) -> RunSpec:
             "(only --iterations, the new total, and the --checkpoint-every and --snapshot-every "
             "cadence may be given)"
         )
-    spec = RunSpec.from_summary(read_summary(args.resume))
-    cadence = {key: getattr(args, key) for key in _CADENCE if getattr(args, key) is not None}
-    return dataclasses.replace(spec, config=_configured(spec.config, cadence))
 
 
-def _configured(config, options: dict, *, recipe=None, texts=(), given=""):
-    """``config`` with, at once, the settings of the command line's ``options``, then a reward
-    ``recipe``'s, then ``--set``'s ``texts``; a value out of its domain is named as the option
-    that gave it, anything else the settings refuse as ``--set`` (``given``: with what)."""
-    from emgail_jax.method import settings
-    from emgail_jax.method.config import SettingError
-
-    try:
-        chosen = settings.parsed(texts, like=config)
-        return config.with_values(**{**options, **(recipe or {}), **chosen})
-    except SettingError as error:
-        if error.key in options and error.key not in chosen:
-            raise RunError(error.naming(f"--{error.key.replace('_', '-')}")) from None
-        raise RunError(f"--set{given}: {error}") from None
-    except ValueError as error:
-        raise RunError(f"--set{given}: {error}" if texts else str(error)) from None
-
-
-def _learned_intentions(args: argparse.Namespace, env: str) -> tuple[int | None, bool]:
-    """``(K learned or None for the env's default, whether K is chosen from the data)``; auto
-    starts from ``--max-intentions``, by default all the env has."""
-    import envs
+def _refuse_counts(args: argparse.Namespace, choosing: bool) -> None:
+    """Refuses the run's own counts out of range and options that do not go together (the
+    config checks its hyper-parameters itself)."""
     from emgail_jax.method.config import AlgorithmName
 
-    choosing = args.intentions == "auto"
+    for name in ("seeds", "random_episodes", "intentions", "max_intentions"):
+        value = getattr(args, name)
+        if value is not None and value != "auto" and value < 1:
+            raise RunError(f"--{name.replace('_', '-')} must be at least 1; got {value}")
+    if args.radius is not None and (args.env or "driver") != "driver":
+        raise RunError("--radius applies to the driver env only")
     if args.max_intentions is not None and not choosing:
         raise RunError("--max-intentions goes with --intentions auto")
-    count = args.intentions
-    if choosing:
-        count = args.max_intentions
-        if count is None:
-            count = len(envs.env_class(env).intention_names)
-    if count is not None and count < 1:
-        raise RunError("--intentions and --max-intentions must be at least 1")
     if choosing and args.prior == "uniform":
         raise RunError("--intentions auto weighs the intentions: drop --prior uniform")
-    if choosing and args.algo is not None and not AlgorithmName(args.algo).learns_posterior:
+    if choosing and args.algo == AlgorithmName.GAIL:
         raise RunError("--intentions auto needs a posterior: use --algo emgail or infogail")
-    return count, choosing
+
+
+def _resumed_spec(args: argparse.Namespace, cadence: dict) -> RunSpec:
+    """The spec of the run ``--resume`` continues, with the ``cadence`` settings given."""
+    summary = read_summary(args.resume)
+    spec = RunSpec.from_summary(summary)
+    return dataclasses.replace(spec, config=spec.config.with_values(**cadence))
+
+
+def _new_spec(args: argparse.Namespace, options: dict) -> RunSpec:
+    """The spec of a new run: the ``options``' settings, then the reward recipe's for the env,
+    then ``--set``'s, the config built from them at once."""
+    import envs
+    from emgail_jax.host.demonstration_sources import canonical
+    from emgail_jax.method import settings
+    from emgail_jax.method.config import RewardRecipe, RunConfig
+
+    env = args.env or "driver"
+    demo_sources = tuple(map(canonical, args.demos or ()))
+    # K learned: the env's unless given; auto starts from --max-intentions or all the env has.
+    kind = envs.env_class(env)
+    intentions = args.intentions
+    if intentions == "auto":
+        intentions = args.max_intentions or len(kind.intention_names)
+    recipe = RewardRecipe(args.rewards or RewardRecipe.PAPER)
+    chosen = settings.parsed(args.set, like=RunConfig())
+    config = RunConfig().with_values(
+        **{**options, **recipe.settings(terminates=kind.terminates), **chosen}
+    )
+    return RunSpec(
+        env=env,
+        intentions=intentions,
+        env_options={} if args.radius is None else {"radius": args.radius},
+        algo=config.method.algo.value,
+        seeds=args.seeds or DEFAULT_SEEDS,
+        first_seed=args.seed or 0,
+        demo_sources=demo_sources,
+        demo_seed=args.demo_seed or 0,
+        config=config,
+        random_episodes=args.random_episodes or DEFAULT_RANDOM_EPISODES,
+    )
 
 
 def _command(
@@ -360,7 +365,7 @@ def _open_run(args: argparse.Namespace, held: contextlib.ExitStack, locked: bool
     out = args.resume or args.out
     # Before anything reads or writes the directory: a live run keeps it.
     if primary and out is not None and not locked:
-        _hold_output(args, held)
+        held.enter_context(writing(out, new=args.resume is None))
     spec = spec_from_args(args)
     seed_sharding(spec.seeds)  # the seeds fit the processes, before anything compiles
     if out is None:
@@ -397,7 +402,8 @@ def main(argv=None) -> int:
         return 2
     if distributed is not None:
         # Every process refuses alike, before it waits for the others.
-        error = jax_setup.seed_share_error(_seeds_of(args), distributed.num_processes)
+        seeds = args.seeds or DEFAULT_SEEDS if args.resume is None else stored_seeds(args.resume)
+        error = jax_setup.seed_share_error(seeds, distributed.num_processes)
         if error:
             print(f"error: {error}", file=sys.stderr)
             return 2
@@ -407,7 +413,7 @@ def main(argv=None) -> int:
         # The lock at once, before JAX starts (a run of several processes takes it later, so
         # that the others hear of a refusal).
         try:
-            _hold_output(args, held)
+            held.enter_context(writing(args.resume or args.out, new=args.resume is None))
         except RunError as error:
             print(f"error: {error}", file=sys.stderr)
             return 2
@@ -421,19 +427,6 @@ def main(argv=None) -> int:
     if distributed is not None:
         jax_setup.leave(code)
     return code
-
-
-def _seeds_of(args: argparse.Namespace) -> int:
-    """The seeds of the run asked for, as :func:`spec_from_args` will find them."""
-    if args.resume is not None:
-        with contextlib.suppress(RunError, AttributeError, TypeError, ValueError):
-            return int(read_summary(args.resume).get("seeds", 1))
-        return 1  # no readable summary: the command fails later, with its own message
-    return args.seeds or DEFAULT_SEEDS
-
-
-def _hold_output(args: argparse.Namespace, held: contextlib.ExitStack) -> None:
-    held.enter_context(writing(args.resume or args.out, new=args.resume is None))
 
 
 def _main(
