@@ -136,7 +136,6 @@ def _parser() -> tuple[argparse.ArgumentParser, tuple[str, ...]]:
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        dest="set",
         help="any other hyper-parameter by its key (emgail_jax.method.settings), e.g. --set "
         "discriminator_steps=5 --set trpo.cg_damping=0 (repeatable)",
     )
