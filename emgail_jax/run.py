@@ -217,9 +217,12 @@ def spec_from_args(args: argparse.Namespace) -> RunSpec:
             return _resumed_spec(args, options)
         return _new_spec(args, options)
     except ValueError as error:
-        if type(error) not in (ValueError, SettingError):  # not the settings': RunError & co.
+        # The settings refuse with a ValueError or a SettingError; a RunError, an EnvError or a
+        # DemonstrationError (its subclasses) already says what to change.
+        if type(error) not in (ValueError, SettingError):
             raise
-        if isinstance(error, SettingError) and options.get(error.key, error) == error.value:
+        option = isinstance(error, SettingError) and error.key in options
+        if option and options[error.key] == error.value:
             raise RunError(error.naming(f"--{error.key.replace('_', '-')}")) from None
         if not args.set:
             raise RunError(str(error)) from None
