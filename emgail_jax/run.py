@@ -120,8 +120,8 @@ def _parser() -> tuple[argparse.ArgumentParser, tuple[str, ...]]:
     run_option(
         "--reseed",
         choices=("on", "off"),
-        help="re-seed an intention that holds no demonstration (default on; "
-        "docs/no-empty-intention.md)",
+        help="re-seed an intention that holds no demonstration (default on; docs/defaults.md, "
+        "reseed)",
     )
     run_option(
         "--rewards",
@@ -129,7 +129,7 @@ def _parser() -> tuple[argparse.ArgumentParser, tuple[str, ...]]:
         help="how the rewards are trained: the paper's (default), or for-reuse, rewards meant for "
         "a fresh agent to re-optimise (log D, a replay of past samples with noise around them, a "
         "gradient penalty, absorbing states where episodes end early; each one --set away; "
-        "docs/rewards-that-reoptimise.md)",
+        "docs/defaults.md, run --rewards)",
     )
     run_option(
         "--set",

@@ -117,7 +117,7 @@ class RewardFrom(enum.StrEnum):
 class RewardRecipe(enum.StrEnum):
     """``run --rewards``: how the rewards are trained, as one choice over several settings.
     ``paper``: the paper's (the defaults). ``for-reuse``: rewards meant to be taken away and
-    re-optimised by a fresh agent (why these settings: docs/defaults.md, ``rewards``)."""
+    re-optimised by a fresh agent (why these settings: docs/defaults.md, ``run --rewards``)."""
 
     PAPER = "paper"
     FOR_REUSE = "for-reuse"
@@ -287,7 +287,7 @@ class NetworkConfig(_Layer):
 
 
 # E-steps a re-seeded intention is held to the demonstrations it took, by algorithm
-# (docs/no-empty-intention.md). EM-GAIL's re-seeded policy needs the time to reach its
+# (docs/defaults.md, ``reseed_window``). EM-GAIL's re-seeded policy needs the time to reach its
 # demonstrations before its posterior judges the split again; Info/IntentionGAIL's shared
 # discriminator lets a longer hold drift back onto the other path, and ended worse. GAIL has
 # no posterior and never re-seeds.

@@ -57,8 +57,9 @@ SETTINGS: dict[str, tuple[str, ...]] = {
 
 _KEYS = {path: key for key, path in SETTINGS.items()}
 
-# Settings deleted as refuted (docs/notebook/), with the value every run saved before then
-# held unless it tried them: such a config still loads, one that tried them cannot be rebuilt.
+# Settings deleted as refuted (docs/defaults.md, "Deleted settings"), with the value every run
+# saved before then held unless it tried them: such a config still loads, one that tried them
+# cannot be rebuilt.
 DELETED = {"discriminator_gradient_penalty_from": 0, "discriminator_support_in_box": False}
 
 # Settings added after runs were saved, with the value those runs ran with.
