@@ -23,7 +23,13 @@ import traceback
 from emgail_jax.host import jax_setup, records, stopping
 from emgail_jax.host.command_line import ArgumentParser
 from emgail_jax.host.run_directory import default_output, prepare_output, writing
-from emgail_jax.host.run_spec import DEFAULT_RANDOM_EPISODES, RunError, RunSpec, read_summary
+from emgail_jax.host.run_spec import (
+    DEFAULT_RANDOM_EPISODES,
+    RunError,
+    RunSpec,
+    read_summary,
+    stored_seeds,
+)
 from emgail_jax.host.summary_table import print_summary
 
 DEFAULT_SEEDS = 4
@@ -114,8 +120,8 @@ def _parser() -> tuple[argparse.ArgumentParser, tuple[str, ...]]:
     run_option(
         "--reseed",
         choices=("on", "off"),
-        help="re-seed an intention that holds no demonstration (default on; "
-        "docs/no-empty-intention.md)",
+        help="re-seed an intention that holds no demonstration (default on; docs/defaults.md, "
+        "reseed)",
     )
     run_option(
         "--rewards",
@@ -123,15 +129,14 @@ def _parser() -> tuple[argparse.ArgumentParser, tuple[str, ...]]:
         help="how the rewards are trained: the paper's (default), or for-reuse, rewards meant for "
         "a fresh agent to re-optimise (log D, a replay of past samples with noise around them, a "
         "gradient penalty, absorbing states where episodes end early; each one --set away; "
-        "docs/rewards-that-reoptimise.md)",
+        "docs/defaults.md, run --rewards)",
     )
     run_option(
         "--set",
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        dest="set",
-        help="any other hyper-parameter of emgail_jax.method.config (its flat key), e.g. --set "
+        help="any other hyper-parameter by its key (emgail_jax.method.settings), e.g. --set "
         "discriminator_steps=5 --set trpo.cg_damping=0 (repeatable)",
     )
     run_option("--num-envs", type=int, help="envs per intention")
@@ -189,71 +194,59 @@ def _intention_count(text: str) -> int | str:
         raise argparse.ArgumentTypeError(f"a number or auto, not '{text}'") from None
 
 
+# The options that are settings of the config under their own name (their ``dest`` is the
+# flat key); the cadence ones may change on resume.
+_CADENCE = ("iterations", "checkpoint_every", "snapshot_every")
+_SETTING_OPTIONS = (
+    *_CADENCE,
+    *("algo", "info_weight", "intention_input", "responsibilities", "num_envs"),
+    *("rollout_length", "eval_every", "chunk_size", "seed_batch"),
+)
+
+
 def spec_from_args(args: argparse.Namespace) -> RunSpec:
-    import envs
-    from emgail_jax.host.demonstration_sources import canonical
-    from emgail_jax.method.config import RewardRecipe, RunConfig
+    """The run the command line asks for: a resumed run's from its summary.json, with the
+    cadence given; a new run's from its options, its reward recipe and its ``--set`` settings,
+    its config built from all of them at once. A setting refused is named as the option or
+    the ``--set`` that gave it."""
+    from emgail_jax.method.config import SettingError
 
-    # What may change on resume: the host's schedule of outputs and the total.
-    continued = {
-        "iterations": args.iterations,
-        "checkpoint_every": args.checkpoint_every,
-        "snapshot_every": args.snapshot_every,
-    }
-    if args.resume is not None:
-        return _resumed_spec(args, continued)
-
-    env = args.env or "driver"
-    # The run's own counts; the config checks its hyper-parameters itself.
-    for name in ("seeds", "random_episodes"):
-        value = getattr(args, name)
-        if value is not None and value < 1:
-            raise RunError(f"--{name.replace('_', '-')} must be at least 1; got {value}")
-    intentions, choosing = _learned_intentions(args, env)
-    env_options = {}
-    if args.radius is not None:
-        if env != "driver":
-            raise RunError("--radius applies to the driver env only")
-        env_options["radius"] = args.radius
-    overrides = {
-        **continued,
-        "algo": args.algo,
-        "info_weight": args.info_weight,
-        "intention_input": args.intention_input,
-        "responsibilities": args.responsibilities,
-        "prior": "mixture" if choosing else args.prior,
-        "choose_intentions": choosing or None,
-        "reseed": None if args.reseed is None else args.reseed == "on",
-        "num_envs": args.num_envs,
-        "rollout_length": args.rollout_length,
-        "eval_every": args.eval_every,
-        "chunk_size": args.chunk_size,
-        "seed_batch": args.seed_batch,
-    }
-    config = _with_options(RunConfig(), overrides)
-    recipe = RewardRecipe(args.rewards or RewardRecipe.PAPER)
-    config = config.with_values(**recipe.settings(terminates=envs.env_class(env).terminates))
+    options = _config_options(args)
     try:
-        config = config.with_settings(args.set)
+        if args.resume is not None:
+            return _resumed_spec(args, options)
+        return _new_spec(args, options)
     except ValueError as error:
-        given = "" if recipe is RewardRecipe.PAPER else f" (with --rewards {recipe})"
-        raise RunError(f"--set{given}: {error}") from None
-    return RunSpec(
-        env=env,
-        intentions=intentions,
-        env_options=env_options,
-        algo=config.method.algo.value,
-        seeds=args.seeds or DEFAULT_SEEDS,
-        first_seed=args.seed or 0,
-        demo_sources=tuple(map(canonical, args.demos or ())),
-        demo_seed=args.demo_seed or 0,
-        config=config,
-        random_episodes=args.random_episodes or DEFAULT_RANDOM_EPISODES,
-    )
+        # The settings refuse with a ValueError or a SettingError; a RunError, an EnvError or a
+        # DemonstrationError (its subclasses) already says what to change.
+        if type(error) not in (ValueError, SettingError):
+            raise
+        option = isinstance(error, SettingError) and error.key in options
+        if option and options[error.key] == error.value:
+            raise RunError(error.naming(f"--{error.key.replace('_', '-')}")) from None
+        if not args.set:
+            raise RunError(str(error)) from None
+        recipe = f" (with --rewards {args.rewards})" if args.rewards not in (None, "paper") else ""
+        raise RunError(f"--set{recipe}: {error}") from None
 
 
-def _resumed_spec(args: argparse.Namespace, continued: dict) -> RunSpec:
-    """The spec of the run ``--resume`` continues, with the ``continued`` options given."""
+def _config_options(args: argparse.Namespace) -> dict:
+    """The config's settings the options give, by flat key (an option not given: absent),
+    once the options that cannot go together are refused."""
+    if args.resume is not None:
+        _refuse_run_options(args)
+        return {key: getattr(args, key) for key in _CADENCE if getattr(args, key) is not None}
+    choosing = args.intentions == "auto"
+    _refuse_counts(args, choosing)
+    options = {key: getattr(args, key) for key in _SETTING_OPTIONS}
+    options["prior"] = "mixture" if choosing else args.prior
+    options["choose_intentions"] = choosing or None
+    options["reseed"] = None if args.reseed is None else args.reseed == "on"
+    return {key: value for key, value in options.items() if value is not None}
+
+
+def _refuse_run_options(args: argparse.Namespace) -> None:
+    """A resumed run takes its own settings: only the cadence may be given."""
     given = [f"--{name.replace('_', '-')}" for name in run_options() if getattr(args, name)]
     if given or args.out or args.overwrite:
         dropped = ", ".join(given) or "--out/--overwrite"
@@ -262,43 +255,66 @@ def _resumed_spec(args: argparse.Namespace, continued: dict) -> RunSpec:
             "(only --iterations, the new total, and the --checkpoint-every and --snapshot-every "
             "cadence may be given)"
         )
-    spec = RunSpec.from_summary(read_summary(args.resume))
-    return dataclasses.replace(spec, config=_with_options(spec.config, continued))
 
 
-def _with_options(config, options: dict):
-    """``config`` with the settings of the command line's options (None: not given); a value
-    out of its domain is named as the option."""
-    from emgail_jax.method.config import SettingError
-
-    given = {key: value for key, value in options.items() if value is not None}
-    try:
-        return config.with_values(**given)
-    except SettingError as error:
-        raise RunError(error.naming(f"--{error.key.replace('_', '-')}")) from None
-
-
-def _learned_intentions(args: argparse.Namespace, env: str) -> tuple[int | None, bool]:
-    """``(K learned or None for the env's default, whether K is chosen from the data)``; auto
-    starts from ``--max-intentions``, by default all the env has."""
-    import envs
+def _refuse_counts(args: argparse.Namespace, choosing: bool) -> None:
+    """Refuses the run's own counts out of range and options that do not go together (the
+    config checks its hyper-parameters itself)."""
     from emgail_jax.method.config import AlgorithmName
 
-    choosing = args.intentions == "auto"
+    for name in ("seeds", "random_episodes", "intentions", "max_intentions"):
+        value = getattr(args, name)
+        if value is not None and value != "auto" and value < 1:
+            raise RunError(f"--{name.replace('_', '-')} must be at least 1; got {value}")
+    if args.radius is not None and (args.env or "driver") != "driver":
+        raise RunError("--radius applies to the driver env only")
     if args.max_intentions is not None and not choosing:
         raise RunError("--max-intentions goes with --intentions auto")
-    count = args.intentions
-    if choosing:
-        count = args.max_intentions
-        if count is None:
-            count = len(envs.env_class(env).intention_names)
-    if count is not None and count < 1:
-        raise RunError("--intentions and --max-intentions must be at least 1")
     if choosing and args.prior == "uniform":
         raise RunError("--intentions auto weighs the intentions: drop --prior uniform")
-    if choosing and args.algo is not None and not AlgorithmName(args.algo).learns_posterior:
+    if choosing and args.algo == AlgorithmName.GAIL:
         raise RunError("--intentions auto needs a posterior: use --algo emgail or infogail")
-    return count, choosing
+
+
+def _resumed_spec(args: argparse.Namespace, cadence: dict) -> RunSpec:
+    """The spec of the run ``--resume`` continues, with the ``cadence`` settings given."""
+    summary = read_summary(args.resume)
+    spec = RunSpec.from_summary(summary)
+    return dataclasses.replace(spec, config=spec.config.with_values(**cadence))
+
+
+def _new_spec(args: argparse.Namespace, options: dict) -> RunSpec:
+    """The spec of a new run: the ``options``' settings, then the reward recipe's for the env,
+    then ``--set``'s, the config built from them at once."""
+    import envs
+    from emgail_jax.host.demonstration_sources import canonical
+    from emgail_jax.method import settings
+    from emgail_jax.method.config import RewardRecipe, RunConfig
+
+    env = args.env or "driver"
+    demo_sources = tuple(map(canonical, args.demos or ()))
+    # K learned: the env's unless given; auto starts from --max-intentions or all the env has.
+    kind = envs.env_class(env)
+    intentions = args.intentions
+    if intentions == "auto":
+        intentions = args.max_intentions or len(kind.intention_names)
+    recipe = RewardRecipe(args.rewards or RewardRecipe.PAPER)
+    chosen = settings.parsed(args.set, like=RunConfig())
+    config = RunConfig().with_values(
+        **{**options, **recipe.settings(terminates=kind.terminates), **chosen}
+    )
+    return RunSpec(
+        env=env,
+        intentions=intentions,
+        env_options={} if args.radius is None else {"radius": args.radius},
+        algo=config.method.algo.value,
+        seeds=args.seeds or DEFAULT_SEEDS,
+        first_seed=args.seed or 0,
+        demo_sources=demo_sources,
+        demo_seed=args.demo_seed or 0,
+        config=config,
+        random_episodes=args.random_episodes or DEFAULT_RANDOM_EPISODES,
+    )
 
 
 def _command(
@@ -351,7 +367,7 @@ def _open_run(args: argparse.Namespace, held: contextlib.ExitStack, locked: bool
     out = args.resume or args.out
     # Before anything reads or writes the directory: a live run keeps it.
     if primary and out is not None and not locked:
-        _hold_output(args, held)
+        held.enter_context(writing(out, new=args.resume is None))
     spec = spec_from_args(args)
     seed_sharding(spec.seeds)  # the seeds fit the processes, before anything compiles
     if out is None:
@@ -388,7 +404,8 @@ def main(argv=None) -> int:
         return 2
     if distributed is not None:
         # Every process refuses alike, before it waits for the others.
-        error = jax_setup.seed_share_error(_seeds_of(args), distributed.num_processes)
+        seeds = args.seeds or DEFAULT_SEEDS if args.resume is None else stored_seeds(args.resume)
+        error = jax_setup.seed_share_error(seeds, distributed.num_processes)
         if error:
             print(f"error: {error}", file=sys.stderr)
             return 2
@@ -398,7 +415,7 @@ def main(argv=None) -> int:
         # The lock at once, before JAX starts (a run of several processes takes it later, so
         # that the others hear of a refusal).
         try:
-            _hold_output(args, held)
+            held.enter_context(writing(args.resume or args.out, new=args.resume is None))
         except RunError as error:
             print(f"error: {error}", file=sys.stderr)
             return 2
@@ -412,19 +429,6 @@ def main(argv=None) -> int:
     if distributed is not None:
         jax_setup.leave(code)
     return code
-
-
-def _seeds_of(args: argparse.Namespace) -> int:
-    """The seeds of the run asked for, as :func:`spec_from_args` will find them."""
-    if args.resume is not None:
-        with contextlib.suppress(RunError, AttributeError, TypeError, ValueError):
-            return int(read_summary(args.resume).get("seeds", 1))
-        return 1  # no readable summary: the command fails later, with its own message
-    return args.seeds or DEFAULT_SEEDS
-
-
-def _hold_output(args: argparse.Namespace, held: contextlib.ExitStack) -> None:
-    held.enter_context(writing(args.resume or args.out, new=args.resume is None))
 
 
 def _main(

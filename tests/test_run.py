@@ -177,6 +177,11 @@ def _error(capsys):
         (["--set", "discriminator_form=bogus"], "discriminator_form must be one of gail, airl"),
         (["--set", "discriminator_form=airl", "--algo", "infogail"], "not infogail"),
         (["--rewards", "for-reuse", "--set", "discriminator_form=airl"], "with --rewards"),
+        (["--intentions", "0"], "--intentions must be at least 1; got 0"),
+        (["--num-envs", "0"], "--num-envs must be at least 1 (or None, the default); got 0"),
+        (["--num-envs", "2", "--set", "num_envs=0"], "--set: num_envs must be at least 1"),
+        (["--set", "discriminator_support_in_box=true"], "unknown setting"),
+        (["--set", "discriminator_gradient_penalty_from=3"], "unknown setting"),
     ],
 )
 def test_bad_input_gives_one_line_and_exit_code_2(tmp_path, capsys, extra, message):

@@ -5,7 +5,7 @@ import json
 
 import pytest
 
-from emgail_jax.host.run_spec import RunError, RunSpec, read_summary
+from emgail_jax.host.run_spec import RunError, RunSpec, read_summary, stored_seeds
 from emgail_jax.method.config import RunConfig
 
 
@@ -43,6 +43,22 @@ def test_a_summary_that_is_no_run_or_holds_a_refused_config_is_one_line():
     with pytest.raises(RunError, match=r"refuses: gamma must be in \(0, 1\]") as refused:
         RunSpec.from_summary(summary)
     assert "\n" not in str(refused.value)
+
+
+def test_a_summary_of_a_deleted_setting_loads_at_its_old_default_and_is_refused_else():
+    summary = _spec().to_summary()
+    summary["config"]["discriminator_support_in_box"] = False
+    assert RunSpec.from_summary(summary) == _spec()
+    summary["config"]["discriminator_support_in_box"] = True
+    with pytest.raises(RunError, match="discriminator_support_in_box was deleted") as refused:
+        RunSpec.from_summary(summary)
+    assert "\n" not in str(refused.value)
+
+
+def test_stored_seeds_reads_the_summary_or_says_1(tmp_path):
+    assert stored_seeds(str(tmp_path)) == 1  # no summary: the command fails later
+    (tmp_path / "summary.json").write_text(json.dumps(_spec().to_summary()))
+    assert stored_seeds(str(tmp_path)) == 2
 
 
 def test_reading_a_summary_names_the_directory_or_the_file_at_fault(tmp_path):

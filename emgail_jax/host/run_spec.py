@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import os
@@ -91,3 +92,11 @@ def read_summary(run_dir: str) -> dict:
             return json.load(f)
     except (json.JSONDecodeError, UnicodeDecodeError) as error:
         raise RunError(f"'{path}' is not valid JSON ({error})") from None
+
+
+def stored_seeds(run_dir: str) -> int:
+    """The seeds of the run in ``run_dir`` as its summary.json has them (1 when it has no
+    readable summary: the command that asks fails later, with its own message)."""
+    with contextlib.suppress(RunError, AttributeError, TypeError, ValueError):
+        return int(read_summary(run_dir).get("seeds", 1))
+    return 1

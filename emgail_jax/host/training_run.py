@@ -48,13 +48,7 @@ def train(
     config = spec.config.resolved(problem.env)
     runner, parameters = _runner(spec, problem, config)
     writes = jax.process_index() == 0
-    summary = {
-        **summary_header(spec, problem, config),
-        "devices": [str(d) for d in runner.sharding.mesh.devices.flat],
-        "processes": jax.process_count(),
-        "machine": records.machine_facts(),
-        "parameters": parameters,
-    }
+    summary = {**summary_header(spec, problem, config), **_where(runner), "parameters": parameters}
     earlier = read_summary(out).get("timings", NO_TIMINGS) if resume else NO_TIMINGS
     write = _SummaryWriter(os.path.join(out, SUMMARY), writes)
     if not resume:  # before the first compile: from then on a killed run can be resumed
@@ -93,6 +87,15 @@ def train(
 
 
 NO_TIMINGS = {"compile_time_s": 0.0, "train_time_s": 0.0, "iterations": 0}
+
+
+def _where(runner: Runner) -> dict:
+    """``summary.json``'s record of where the run trained."""
+    return {
+        "devices": [str(d) for d in runner.sharding.mesh.devices.flat],
+        "processes": jax.process_count(),
+        "machine": records.machine_facts(),
+    }
 
 
 @dataclasses.dataclass(frozen=True)

@@ -4,21 +4,22 @@ one sub-config per step), what only the host reads (:class:`RunSchedule`), and t
 
 Options are typed here, once (``enum`` members whose values are the command line's and
 ``summary.json``'s spellings, with the behaviour the method needs as properties), and every
-setting is checked against its domain (:data:`SETTINGS`) whenever a config is built. The
-user's namespace is flat (``--set discriminator_steps=5``, ``summary.json``'s ``config``):
-:data:`SETTINGS` maps each flat key to its place in the layers. Why the defaults are what they
-are, with the measurements: docs/defaults.md.
+field is checked against its domain whenever a layer is built. The user's namespace is flat
+(``--set discriminator_steps=5``, ``summary.json``'s ``config``):
+:mod:`emgail_jax.method.settings` maps each flat key to its place in the layers. Why the
+defaults are what they are, with the measurements: docs/defaults.md.
 """
 
 from __future__ import annotations
 
-import ast
 import dataclasses
 import enum
 import math
 import numbers
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+
+from emgail_jax.method import settings
 
 
 class AlgorithmName(enum.StrEnum):
@@ -54,20 +55,6 @@ class DiscriminatorForm(enum.StrEnum):
     @property
     def airl(self) -> bool:
         return self is DiscriminatorForm.AIRL
-
-
-@dataclass(frozen=True)
-class TRPOConfig:
-    """The B-step's TRPO (:mod:`emgail_jax.method.trpo`)."""
-
-    max_kl: float = 0.01
-    cg_iterations: int = 10
-    cg_damping: float = 0.1
-    line_search_steps: int = 10
-    line_search_decay: float = 0.5
-    # Accept a step only if the surrogate improves by at least this fraction of the linear
-    # prediction (and by more than zero).
-    accept_ratio: float = 0.1
 
 
 class IntentionInput(enum.StrEnum):
@@ -130,7 +117,7 @@ class RewardFrom(enum.StrEnum):
 class RewardRecipe(enum.StrEnum):
     """``run --rewards``: how the rewards are trained, as one choice over several settings.
     ``paper``: the paper's (the defaults). ``for-reuse``: rewards meant to be taken away and
-    re-optimised by a fresh agent (docs/rewards-that-reoptimise.md, experiments 21 and 22)."""
+    re-optimised by a fresh agent (why these settings: docs/defaults.md, ``run --rewards``)."""
 
     PAPER = "paper"
     FOR_REUSE = "for-reuse"
@@ -147,7 +134,8 @@ class RewardRecipe(enum.StrEnum):
             "discriminator_replay": 400,
             # And a normaliser's standard deviation around those places.
             "discriminator_support_noise": 1.0,
-            # A reward smooth enough for a search from scratch to climb (experiment 22).
+            # A reward smooth enough for a search from scratch to climb (docs/defaults.md,
+            # ``discriminator_gradient_penalty``).
             "discriminator_gradient_penalty": 0.1,
             # Log D pays for falling early unless a fall leads somewhere the reward prices.
             "absorbing_state": terminates,
@@ -213,88 +201,14 @@ WIDTHS = Domain(lambda v: all(COUNT.holds(w) for w in v), "a tuple of layer widt
 BOOLEAN = Domain(lambda v: isinstance(v, bool), "True or False")
 
 
-@dataclass(frozen=True)
-class Setting:
-    """Where a flat key lives in the layers (attribute names from :class:`RunConfig` down),
-    and its domain."""
-
-    path: tuple[str, ...]
-    domain: Domain | None = None  # None: a config of its own (trpo), checked field by field
+def _setting(domain: Domain, default=dataclasses.MISSING, **kwargs):
+    """A field of a layer whose values are checked against ``domain`` on construction."""
+    return field(default=default, metadata={"domain": domain}, **kwargs)
 
 
-def _at(*path: str, domain: Domain | None = None) -> Setting:
-    return Setting(path, domain)
-
-
-# Every hyper-parameter by its flat key (--set, summary.json), in summary.json's order: where it
-# lives and its domain. trpo.FIELD keys reach into TRPOConfig.
-SETTINGS: dict[str, Setting] = {
-    "algo": _at("method", "algo", domain=_one_of(AlgorithmName)),
-    "iterations": _at("schedule", "iterations", domain=COUNT),
-    "num_envs": _at("method", "rollout", "num_envs", domain=_or_default(COUNT)),
-    "rollout_length": _at("method", "rollout", "rollout_length", domain=_or_default(COUNT)),
-    "eval_every": _at("schedule", "eval_every", domain=COUNT),
-    "hidden": _at("method", "networks", "hidden", domain=WIDTHS),
-    "intention_input": _at("method", "networks", "intention_input", domain=_one_of(IntentionInput)),
-    "responsibilities": _at(
-        "method", "e_step", "responsibilities", domain=_one_of(ResponsibilityMode)
-    ),
-    "trajectory_temper_iterations": _at(
-        "method", "e_step", "trajectory_temper_iterations", domain=_integers(0)
-    ),
-    "prior": _at("method", "e_step", "prior", domain=_one_of(Prior)),
-    "reseed": _at("method", "e_step", "reseed", domain=BOOLEAN),
-    "reseed_patience": _at("method", "e_step", "reseed_patience", domain=COUNT),
-    "reseed_window": _at("method", "e_step", "reseed_window", domain=_or_default(COUNT)),
-    "reseed_attempts": _at("method", "e_step", "reseed_attempts", domain=_integers(0)),
-    "choose_intentions": _at("method", "choose_intentions", domain=BOOLEAN),
-    "init_log_std": _at("method", "networks", "init_log_std", domain=FINITE),
-    "obs_clip": _at("method", "networks", "obs_clip", domain=POSITIVE),
-    "gamma": _at("method", "b_step", "gamma", domain=FRACTION),
-    "gae_lambda": _at("method", "b_step", "gae_lambda", domain=FRACTION),
-    "trpo": _at("method", "b_step", "trpo"),
-    "value_learning_rate": _at("method", "b_step", "value_learning_rate", domain=POSITIVE),
-    "value_epochs": _at("method", "b_step", "value_epochs", domain=COUNT),
-    "value_minibatches": _at("method", "b_step", "value_minibatches", domain=COUNT),
-    "value_target_scaling": _at("method", "b_step", "value_target_scaling", domain=BOOLEAN),
-    "discriminator_learning_rate": _at("method", "m_step", "learning_rate", domain=POSITIVE),
-    "discriminator_steps": _at("method", "m_step", "steps", domain=COUNT),
-    "discriminator_gradient_penalty": _at(
-        "method", "m_step", "gradient_penalty", domain=NON_NEGATIVE
-    ),
-    "discriminator_gradient_penalty_from": _at(
-        "method", "m_step", "gradient_penalty_from", domain=_integers(0)
-    ),
-    "discriminator_replay": _at("method", "m_step", "replay", domain=_integers(0)),
-    "discriminator_support_noise": _at("method", "m_step", "support_noise", domain=NON_NEGATIVE),
-    "discriminator_support_in_box": _at("method", "m_step", "support_in_box", domain=BOOLEAN),
-    "discriminator_form": _at("method", "m_step", "form", domain=_one_of(DiscriminatorForm)),
-    "posterior_learning_rate": _at("method", "e_step", "learning_rate", domain=POSITIVE),
-    "posterior_steps": _at("method", "e_step", "steps", domain=COUNT),
-    "reward_from": _at("method", "reward", "source", domain=_one_of(RewardFrom)),
-    "reward_form": _at("method", "reward", "form", domain=_one_of(RewardForm)),
-    "absorbing_state": _at("method", "reward", "absorbing_state", domain=BOOLEAN),
-    "info_weight": _at("info_weight", domain=NON_NEGATIVE),
-    "chunk_size": _at("schedule", "chunk_size", domain=COUNT),
-    "seed_batch": _at("schedule", "seed_batch", domain=_or_default(COUNT)),
-    "checkpoint_every": _at("schedule", "checkpoint_every", domain=COUNT),
-    "snapshot_every": _at("schedule", "snapshot_every", domain=_integers(0)),
-}
-
-TRPO_DOMAINS = {
-    "max_kl": POSITIVE,
-    "cg_iterations": COUNT,
-    "cg_damping": NON_NEGATIVE,
-    "line_search_steps": COUNT,
-    "line_search_decay": _numbers(lambda v: 0 < v < 1, "in (0, 1)"),
-    "accept_ratio": _numbers(lambda v: 0 <= v <= 1, "in [0, 1]"),
-}
-
-# Every domain by its --set key (trpo's fields as trpo.FIELD).
-DOMAINS: dict[str, Domain] = {
-    **{key: s.domain for key, s in SETTINGS.items() if s.domain is not None},
-    **{f"trpo.{name}": domain for name, domain in TRPO_DOMAINS.items()},
-}
+def _option(default: enum.Enum):
+    """A field of a layer that takes one of the options of ``default``'s enum."""
+    return field(default=default, metadata={"domain": _one_of(type(default))})
 
 
 class SettingError(ValueError):
@@ -312,16 +226,15 @@ class SettingError(ValueError):
 def _settle(node, prefix: tuple[str, ...]) -> None:
     """Checks the fields of ``node`` (the config at ``prefix`` in the layers) against their
     domains and turns option names into their enum members."""
-    for key, setting in SETTINGS.items():
-        if setting.path[:-1] != prefix or setting.domain is None:
+    for f in dataclasses.fields(node):
+        domain = f.metadata.get("domain")
+        if domain is None:  # a layer of its own, checked on its construction
             continue
-        name = setting.path[-1]
-        value = getattr(node, name)
-        if not setting.domain.holds(value):
-            raise SettingError(key, value, setting.domain)
-        options = type(next(f for f in dataclasses.fields(node) if f.name == name).default)
-        if issubclass(options, enum.Enum):
-            object.__setattr__(node, name, options(value))
+        value = getattr(node, f.name)
+        if not domain.holds(value):
+            raise SettingError(settings.key_of((*prefix, f.name)), value, domain)
+        if isinstance(f.default, enum.Enum):
+            object.__setattr__(node, f.name, type(f.default)(value))
 
 
 class _Layer:
@@ -337,13 +250,28 @@ class _Layer:
 
 
 @dataclass(frozen=True)
+class TRPOConfig(_Layer):
+    """The B-step's TRPO (:mod:`emgail_jax.method.trpo`)."""
+
+    PREFIX = ("method", "b_step", "trpo")
+    max_kl: float = _setting(POSITIVE, 0.01)
+    cg_iterations: int = _setting(COUNT, 10)
+    cg_damping: float = _setting(NON_NEGATIVE, 0.1)
+    line_search_steps: int = _setting(COUNT, 10)
+    line_search_decay: float = _setting(_numbers(lambda v: 0 < v < 1, "in (0, 1)"), 0.5)
+    # Accept a step only if the surrogate improves by at least this fraction of the linear
+    # prediction (and by more than zero).
+    accept_ratio: float = _setting(_numbers(lambda v: 0 <= v <= 1, "in [0, 1]"), 0.1)
+
+
+@dataclass(frozen=True)
 class RolloutConfig(_Layer):
     """Samples per iteration: ``num_envs`` envs per intention, ``rollout_length`` steps each
     (None: the env's, :func:`rollout_defaults`); the evaluation runs one episode per env."""
 
     PREFIX = ("method", "rollout")
-    num_envs: int | None = None
-    rollout_length: int | None = None
+    num_envs: int | None = _setting(_or_default(COUNT), None)
+    rollout_length: int | None = _setting(_or_default(COUNT), None)
 
 
 @dataclass(frozen=True)
@@ -352,14 +280,14 @@ class NetworkConfig(_Layer):
     initial log-std, and the clip of the normalised observations."""
 
     PREFIX = ("method", "networks")
-    hidden: tuple[int, ...] = (64, 64)
-    intention_input: IntentionInput = IntentionInput.HEADS
-    init_log_std: float = 0.0
-    obs_clip: float = 5.0
+    hidden: tuple[int, ...] = _setting(WIDTHS, (64, 64))
+    intention_input: IntentionInput = _option(IntentionInput.HEADS)
+    init_log_std: float = _setting(FINITE, 0.0)
+    obs_clip: float = _setting(POSITIVE, 5.0)
 
 
 # E-steps a re-seeded intention is held to the demonstrations it took, by algorithm
-# (docs/no-empty-intention.md). EM-GAIL's re-seeded policy needs the time to reach its
+# (docs/defaults.md, ``reseed_window``). EM-GAIL's re-seeded policy needs the time to reach its
 # demonstrations before its posterior judges the split again; Info/IntentionGAIL's shared
 # discriminator lets a longer hold drift back onto the other path, and ended worse. GAIL has
 # no posterior and never re-seeds.
@@ -375,15 +303,16 @@ class EStepConfig(_Layer):
     iteration N (``posterior.evidence_temper``; 0: untempered, the default)."""
 
     PREFIX = ("method", "e_step")
-    responsibilities: ResponsibilityMode = ResponsibilityMode.TRAJECTORY
-    trajectory_temper_iterations: int = 0
-    prior: Prior = Prior.UNIFORM
-    learning_rate: float = 1e-3
-    steps: int = 20
-    reseed: bool = True
-    reseed_patience: int = 10
-    reseed_window: int | None = None  # None: the algorithm's, RESEED_WINDOWS
-    reseed_attempts: int = 3
+    responsibilities: ResponsibilityMode = _option(ResponsibilityMode.TRAJECTORY)
+    trajectory_temper_iterations: int = _setting(_integers(0), 0)
+    prior: Prior = _option(Prior.UNIFORM)
+    learning_rate: float = _setting(POSITIVE, 1e-3)
+    steps: int = _setting(COUNT, 20)
+    reseed: bool = _setting(BOOLEAN, True)
+    reseed_patience: int = _setting(COUNT, 10)
+    # None: the algorithm's, RESEED_WINDOWS.
+    reseed_window: int | None = _setting(_or_default(COUNT), None)
+    reseed_attempts: int = _setting(_integers(0), 3)
 
     def __post_init__(self):
         super().__post_init__()
@@ -397,23 +326,19 @@ class EStepConfig(_Layer):
 @dataclass(frozen=True)
 class MStepConfig(_Layer):
     """The M-step (:mod:`emgail_jax.method.discriminator`): full-batch Adam steps, the
-    weight of a zero-centred gradient penalty on the logit (0: none) and the iteration it
-    starts at (0: the first; later lets the intentions separate before it), the iterations of
-    past policy samples replayed as further negatives (:mod:`emgail_jax.method.replay`; 0:
-    none), the standard deviation of the noise that moves a copy of every negative off the
-    run's samples (:mod:`emgail_jax.method.support`; 0: none), whether those copies are
-    clipped into the inputs' box as real inputs are, and the discriminator's form (GAIL's, or
-    AIRL's: :mod:`emgail_jax.method.airl`)."""
+    weight of a zero-centred gradient penalty on the logit (0: none), the iterations of past
+    policy samples replayed as further negatives (:mod:`emgail_jax.method.replay`; 0: none),
+    the standard deviation of the noise that moves a copy of every negative off the run's
+    samples (:mod:`emgail_jax.method.support`; 0: none), and the discriminator's form (GAIL's,
+    or AIRL's: :mod:`emgail_jax.method.airl`)."""
 
     PREFIX = ("method", "m_step")
-    learning_rate: float = 1e-3
-    steps: int = 10
-    gradient_penalty: float = 0.0
-    gradient_penalty_from: int = 0
-    replay: int = 0
-    support_noise: float = 0.0
-    support_in_box: bool = False
-    form: DiscriminatorForm = DiscriminatorForm.GAIL
+    learning_rate: float = _setting(POSITIVE, 1e-3)
+    steps: int = _setting(COUNT, 10)
+    gradient_penalty: float = _setting(NON_NEGATIVE, 0.0)
+    replay: int = _setting(_integers(0), 0)
+    support_noise: float = _setting(NON_NEGATIVE, 0.0)
+    form: DiscriminatorForm = _option(DiscriminatorForm.GAIL)
 
 
 @dataclass(frozen=True)
@@ -422,22 +347,15 @@ class BStepConfig(_Layer):
     (``value_epochs`` epochs of ``value_minibatches`` Adam steps)."""
 
     PREFIX = ("method", "b_step")
-    gamma: float = 0.995
-    gae_lambda: float = 0.97
+    gamma: float = _setting(FRACTION, 0.995)
+    gae_lambda: float = _setting(FRACTION, 0.97)
     trpo: TRPOConfig = field(default_factory=TRPOConfig)
-    value_learning_rate: float = 1e-3
-    value_epochs: int = 20
-    value_minibatches: int = 4
+    value_learning_rate: float = _setting(POSITIVE, 1e-3)
+    value_epochs: int = _setting(COUNT, 20)
+    value_minibatches: int = _setting(COUNT, 4)
     # V fitted to its targets standardised by their running mean and variance (off: the raw
     # returns, as the paper's code has it).
-    value_target_scaling: bool = False
-
-    def __post_init__(self):
-        super().__post_init__()
-        for name, domain in TRPO_DOMAINS.items():
-            value = getattr(self.trpo, name)
-            if not domain.holds(value):
-                raise SettingError(f"trpo.{name}", value, domain)
+    value_target_scaling: bool = _setting(BOOLEAN, False)
 
 
 @dataclass(frozen=True)
@@ -447,9 +365,9 @@ class RewardConfig(_Layer):
     2019; off: an episode's end is worth 0, as the paper has it)."""
 
     PREFIX = ("method", "reward")
-    form: RewardForm = RewardForm.GAIL
-    source: RewardFrom = RewardFrom.UPDATED
-    absorbing_state: bool = False
+    form: RewardForm = _option(RewardForm.GAIL)
+    source: RewardFrom = _option(RewardFrom.UPDATED)
+    absorbing_state: bool = _setting(BOOLEAN, False)
 
 
 @dataclass(frozen=True)
@@ -459,14 +377,14 @@ class MethodConfig(_Layer):
     (``--intentions auto``, :mod:`emgail_jax.method.choosing`)."""
 
     PREFIX = ("method",)
-    algo: AlgorithmName = AlgorithmName.EMGAIL
+    algo: AlgorithmName = _option(AlgorithmName.EMGAIL)
     e_step: EStepConfig = field(default_factory=EStepConfig)
     m_step: MStepConfig = field(default_factory=MStepConfig)
     b_step: BStepConfig = field(default_factory=BStepConfig)
     networks: NetworkConfig = field(default_factory=NetworkConfig)
     reward: RewardConfig = field(default_factory=RewardConfig)
     rollout: RolloutConfig = field(default_factory=RolloutConfig)
-    choose_intentions: bool = False
+    choose_intentions: bool = _setting(BOOLEAN, False)
 
     def __post_init__(self):
         super().__post_init__()
@@ -476,16 +394,6 @@ class MethodConfig(_Layer):
             raise ValueError(
                 "choosing the number of intentions needs a posterior and the mixture prior: "
                 "an algo other than gail, and prior mixture"
-            )
-        if self.m_step.support_in_box and not self.m_step.support_noise:
-            raise ValueError(
-                "discriminator_support_in_box clips the noisy copies of the negatives: "
-                "give discriminator_support_noise=S too"
-            )
-        if self.m_step.gradient_penalty_from and not self.m_step.gradient_penalty:
-            raise ValueError(
-                "discriminator_gradient_penalty_from delays the gradient penalty: "
-                "give discriminator_gradient_penalty=W too"
             )
         if self.m_step.form.airl:
             _check_airl(self)
@@ -543,12 +451,12 @@ class RunSchedule(_Layer):
     so a resumed run keeps it), and iterations between checkpoints and snapshots (0: none)."""
 
     PREFIX = ("schedule",)
-    iterations: int = 400
-    eval_every: int = 10
-    chunk_size: int = 10
-    seed_batch: int | None = None
-    checkpoint_every: int = 50
-    snapshot_every: int = 50
+    iterations: int = _setting(COUNT, 400)
+    eval_every: int = _setting(COUNT, 10)
+    chunk_size: int = _setting(COUNT, 10)
+    seed_batch: int | None = _setting(_or_default(COUNT), None)
+    checkpoint_every: int = _setting(COUNT, 50)
+    snapshot_every: int = _setting(_integers(0), 50)
 
 
 @dataclass(frozen=True)
@@ -558,7 +466,7 @@ class RunConfig(_Layer):
 
     method: MethodConfig = field(default_factory=MethodConfig)
     schedule: RunSchedule = field(default_factory=RunSchedule)
-    info_weight: float = 1.0
+    info_weight: float = _setting(NON_NEGATIVE, 1.0)
 
     def resolved(self, env) -> RunConfig:
         return self.replace(method=self.method.resolved(env))
@@ -567,38 +475,37 @@ class RunConfig(_Layer):
         """What identifies the compiled update (with the env): the method config."""
         return self.method
 
-    def with_settings(self, settings: Sequence[str]) -> RunConfig:
-        """A copy with ``KEY=VALUE`` settings applied, e.g. ``["discriminator_steps=5",
-        "trpo.cg_damping=0"]`` (``run --set``): any hyper-parameter by its flat key or its
-        path in the layers (``method.m_step.steps=5``), typed like its default."""
-        config = self
-        for setting in settings:
-            key, sep, text = setting.partition("=")
-            key = key.strip()
-            if not sep or not key:
-                raise ValueError(f"a setting is KEY=VALUE, e.g. trpo.max_kl=0.02; got '{setting}'")
-            config = _with_setting(config, _path_of(key), text.strip(), key)
-        return config
-
     def with_values(self, **values) -> RunConfig:
-        """A copy with settings given by their flat keys as values (``algo="gail",
-        discriminator_steps=5``)."""
-        config = self
-        for key, value in values.items():
-            if key not in SETTINGS:
-                raise ValueError(f"unknown setting '{key}'; choose one of {', '.join(SETTINGS)}")
-            config = _replaced(config, SETTINGS[key].path, value)
-        return config
+        """A copy with settings given as values by their flat keys (``algo="gail",
+        discriminator_steps=5``, ``**{"trpo.max_kl": 0.02}``) or layered paths, applied at
+        once: each layer is checked with all its new values. Every builder comes down to this
+        one."""
+        return _changed(self, settings.layered(values))
+
+    def with_settings(self, texts: Sequence[str]) -> RunConfig:
+        """A copy with ``KEY=VALUE`` settings applied (``run --set``), e.g.
+        ``["discriminator_steps=5", "trpo.cg_damping=0", "method.m_step.steps=5"]``, each value
+        typed like the one it replaces."""
+        return self.with_values(**settings.parsed(texts, like=self))
+
+    @classmethod
+    def from_dict(cls, values: dict) -> RunConfig:
+        """Inverse of :meth:`to_dict`: the ``config`` of a ``summary.json``, also one written
+        before some settings existed or after some were deleted."""
+        return cls().with_values(**settings.saved(values))
 
     def value(self, key: str):
         """The setting at flat key ``key`` (``"discriminator_steps"``)."""
-        return _walk(self, SETTINGS[key].path)
+        node = self
+        for name in settings.path_of(key):
+            node = getattr(node, name)
+        return node
 
     def to_dict(self) -> dict:
         """The flat dict of every setting by its key, as ``summary.json`` stores it."""
         flat = {}
-        for key, setting in SETTINGS.items():
-            value = _walk(self, setting.path)
+        for key in settings.SETTINGS:
+            value = self.value(key)
             if dataclasses.is_dataclass(value):
                 value = dataclasses.asdict(value)
             elif isinstance(value, enum.Enum):
@@ -606,115 +513,16 @@ class RunConfig(_Layer):
             flat[key] = value
         return flat
 
-    @classmethod
-    def from_dict(cls, values: dict) -> RunConfig:
-        """Inverse of :meth:`to_dict` (e.g. the ``config`` of a ``summary.json``, also one
-        written before some settings existed)."""
-        values = dict(values)
-        # Runs written before the option existed fed the intention as a one-hot input.
-        values.setdefault("intention_input", "onehot")
-        values.setdefault("seed_batch", None)
-        values.setdefault("responsibilities", "pair")
-        values.setdefault("eval_every", 1)
-        values.setdefault("reward_from", "updated")
-        values.setdefault("reward_form", "gail")
-        values.setdefault("reseed", False)
-        values.pop("eval_episodes", None)  # runs written before evaluation used num_envs
-        values["hidden"] = tuple(values["hidden"])
-        values["trpo"] = TRPOConfig(**values["trpo"])
-        unknown = sorted(set(values) - set(SETTINGS))
-        if unknown:
-            raise TypeError(f"unknown settings {', '.join(unknown)}")
-        layers = {}
-        for key, value in values.items():
-            node = layers
-            *parents, name = SETTINGS[key].path
-            for parent in parents:
-                node = node.setdefault(parent, {})
-            node[name] = value
-        return _build(cls, layers)
 
-
-def _build(cls, layers: dict):
-    """``cls`` from the nested dict ``layers`` of its fields (absent ones: defaults)."""
-    kinds = {f.name: f for f in dataclasses.fields(cls)}
-    built = {}
-    for name, value in layers.items():
-        layer = kinds[name].default_factory
-        if isinstance(value, dict) and isinstance(layer, type) and issubclass(layer, _Layer):
-            value = _build(layer, value)
-        built[name] = value
-    return cls(**built)
-
-
-def _path_of(key: str) -> list[str]:
-    """The layered path of ``--set`` key ``key``: a flat key (``discriminator_steps``,
-    ``trpo.max_kl``) or a path itself (``method.m_step.steps``)."""
-    head, *rest = key.split(".")
-    if head in SETTINGS:
-        return [*SETTINGS[head].path, *rest]
-    if head in ("method", "schedule"):
-        return key.split(".")
-    raise ValueError(
-        f"unknown setting '{key}'; choose one of {', '.join(SETTINGS)} "
-        "(or a path such as method.m_step.steps)"
-    )
-
-
-def _walk(node, path: Sequence[str]):
-    for name in path:
-        node = getattr(node, name)
-    return node
-
-
-def _replaced(node, path: Sequence[str], value):
-    """``node`` (a frozen dataclass) with the field at ``path`` set to ``value``."""
-    name, *rest = path
-    if rest:
-        value = _replaced(getattr(node, name), rest, value)
-    return dataclasses.replace(node, **{name: value})
-
-
-def _with_setting(node, path: list[str], text: str, key: str):
-    """``node`` (a frozen dataclass) with the field at ``path`` parsed from ``text``."""
-    names = [f.name for f in dataclasses.fields(node)]
-    if path[0] not in names:
-        raise ValueError(f"unknown setting '{key}'; choose one of {', '.join(names)}")
-    current = getattr(node, path[0])
-    if len(path) > 1:
-        if not dataclasses.is_dataclass(current):
-            raise ValueError(f"'{'.'.join(path[:1])}' of '{key}' has no fields")
-        value = _with_setting(current, path[1:], text, key)
-    else:
-        value = _parse_setting(text, current, key)
-    return dataclasses.replace(node, **{path[0]: value})
-
-
-def _parse_setting(text: str, current, key: str):
-    """``text`` as a value of the type of ``current`` (the default it replaces)."""
-    if isinstance(current, str):  # an option's name; its domain checks it
-        return text
-    if dataclasses.is_dataclass(current):
-        raise ValueError(f"'{key}' has fields: set one of them, e.g. {key}.<field>=...")
-    if isinstance(current, bool) and text.lower() in ("true", "false"):
-        return text.lower() == "true"  # the shell's spelling as well as Python's
-    try:
-        value = ast.literal_eval(text)
-    except (ValueError, SyntaxError):
-        raise ValueError(f"'{key}={text}': '{text}' is not a number, tuple or boolean") from None
-    if isinstance(current, bool) or current is None:
-        return value
-    if isinstance(current, tuple):
-        return tuple(value) if isinstance(value, (list, tuple)) else (value,)
-    if (
-        isinstance(current, float)
-        and isinstance(value, (int, float))
-        and not isinstance(value, bool)
-    ):
-        return float(value)
-    if isinstance(current, int) and isinstance(value, int) and not isinstance(value, bool):
-        return value
-    raise ValueError(f"'{key}' takes a value like its default {current!r}; got '{text}'")
+def _changed(node, changes: dict):
+    """``node`` (a layer) with ``changes``, a nested dict of new values by field (a dict for
+    a layer's own changes), each layer built once."""
+    fields = {}
+    for name, value in changes.items():
+        if isinstance(value, dict):
+            value = _changed(getattr(node, name), value)
+        fields[name] = value
+    return dataclasses.replace(node, **fields)
 
 
 def rollout_defaults(env_name: str, episode_length: int) -> dict:
