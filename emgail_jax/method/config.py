@@ -47,7 +47,7 @@ class RewardForm(enum.StrEnum):
 
 class DiscriminatorForm(enum.StrEnum):
     """``--set discriminator_form=...``: what the M-step's discriminator is
-    (:mod:`emgail_jax.method.discriminator`; AIRL's: :mod:`emgail_jax.method.airl`)."""
+    (:mod:`emgail_jax.method.discriminator`; AIRL's: :mod:`emgail_jax.variants.airl`)."""
 
     GAIL = "gail"  # D = sigmoid(f(s, a, i)), the paper's
     AIRL = "airl"  # D = exp f / (exp f + pi_i(a | s)), f = g_i(s) + gamma h_i(s') - h_i(s)
@@ -300,7 +300,7 @@ class EStepConfig(_Layer):
     posterior's full-batch Adam steps, and re-seeding of emptied intentions
     (:mod:`emgail_jax.method.reseeding`). ``trajectory_temper_iterations`` N > 0 tempers a
     trajectory E-step's evidence, from one pair's worth at iteration 0 to all of it at
-    iteration N (``posterior.evidence_temper``; 0: untempered, the default)."""
+    iteration N (``variants.tempering.evidence_temper``; 0: untempered, the default)."""
 
     PREFIX = ("method", "e_step")
     responsibilities: ResponsibilityMode = _option(ResponsibilityMode.TRAJECTORY)
@@ -327,10 +327,10 @@ class EStepConfig(_Layer):
 class MStepConfig(_Layer):
     """The M-step (:mod:`emgail_jax.method.discriminator`): full-batch Adam steps, the
     weight of a zero-centred gradient penalty on the logit (0: none), the iterations of past
-    policy samples replayed as further negatives (:mod:`emgail_jax.method.replay`; 0: none),
+    policy samples replayed as further negatives (:mod:`emgail_jax.variants.replay`; 0: none),
     the standard deviation of the noise that moves a copy of every negative off the run's
-    samples (:mod:`emgail_jax.method.support`; 0: none), and the discriminator's form (GAIL's,
-    or AIRL's: :mod:`emgail_jax.method.airl`)."""
+    samples (:mod:`emgail_jax.variants.support`; 0: none), and the discriminator's form (GAIL's,
+    or AIRL's: :mod:`emgail_jax.variants.airl`)."""
 
     PREFIX = ("method", "m_step")
     learning_rate: float = _setting(POSITIVE, 1e-3)
