@@ -357,19 +357,3 @@ def test_absorbing_reward_is_the_pseudo_reward_of_the_absorbing_pair(algo):
     logit = LN3 + (params if algorithm.conditional_discriminator else jnp.zeros(k))
     info = 0.5 * math.log(1 / k) if algo == "infogail" else 0.0  # a uniform posterior
     np.testing.assert_allclose(reward, jax.nn.softplus(logit) + info, rtol=1e-6)
-
-
-@pytest.mark.parametrize("jit", [False, True])
-def test_a_state_only_discriminator_reads_the_observation_and_no_action(jit):
-    from emgail_jax.method.discriminator import state_only
-
-    apply = state_only(toy_apply)
-    apply = jax.jit(apply) if jit else apply
-    params, condition = jnp.array([0.5]), jnp.ones((3, 1))
-    obs = jnp.array([[1.0], [2.0], [3.0]])
-    for actions in (jnp.zeros((3, 1)), jnp.full((3, 1), 7.0)):
-        np.testing.assert_allclose(apply(params, obs, actions, condition), [1.5, 2.5, 3.5])
-    # Without it the same actions move the logit: the wrapper is what removes them.
-    assert not np.allclose(
-        toy_apply(params, obs, jnp.full((3, 1), 7.0), condition), [1.5, 2.5, 3.5]
-    )
