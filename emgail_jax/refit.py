@@ -1,5 +1,7 @@
-"""Refit a run's rewards and save them: each seed's discriminator fitted again against every
-snapshot's policy (:mod:`emgail_jax.reward.refit`).
+"""Refit a run's rewards against every snapshot's policy, and save them for reoptimize and load.
+
+Each seed's discriminator is fitted again against the samples of every policy the run kept a
+snapshot of (:mod:`emgail_jax.reward.refit`).
 
     python -m emgail_jax.refit RUN_DIR [--seed S] [--snapshot ITER] [--set KEY=VALUE ...]
         [--overwrite] [--quiet]
@@ -39,14 +41,8 @@ def argument_parser() -> argparse.ArgumentParser:
         metavar="ITER",
         help="refit from this snapshot's networks (default: the run's final ones)",
     )
-    parser.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        dest="set",
-        help="a setting of the refit in place of the recipe's (repeatable): "
-        + recipe.settings_help(recipe.REFIT_SETTINGS),
+    recipe.add_settings_option(
+        parser, recipe.REFIT_SETTINGS, "a setting of the refit in place of the recipe's"
     )
     parser.add_argument(
         "--overwrite",
@@ -61,13 +57,8 @@ def argument_parser() -> argparse.ArgumentParser:
 def parse_args(argv=None, env: str | None = None) -> argparse.Namespace:
     """The command line, its ``--set`` settings typed and checked, on ``--refit``'s recipe for
     ``env``; exits 2 with one line on a setting it does not take."""
-    parser = argument_parser()
-    args = parser.parse_args(argv)
-    try:
-        settings = recipe.parsed_settings(args.set, recipe.REFIT_SETTINGS)
-    except ValueError as error:
-        parser.error(str(error))
-    return recipe.with_refit_recipe(argparse.Namespace(**vars(args), **settings, refit=True), env)
+    args = recipe.parsed_command_line(argument_parser(), argv, recipe.REFIT_SETTINGS)
+    return recipe.with_refit_recipe(argparse.Namespace(**vars(args), refit=True), env)
 
 
 def main(argv=None) -> int:

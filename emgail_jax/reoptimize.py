@@ -218,21 +218,13 @@ def argument_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="check the refit that re-optimises best where it was measured (python -m "
         "emgail_jax.refit, reused if saved): "
-        + " ".join(f"{key}={value:g}" for key, value in recipe.REFIT.items())
+        + recipe.spelled(recipe.REFIT)
         + ", read as log D unless the env's episodes end early (without "
         f"consolidate_absorbing); on hopper also {recipe.refit_extras('hopper')}, on "
         f"halfcheetah {recipe.refit_extras('halfcheetah')}; a --set or --iterations given "
         "with it replaces that one",
     )
-    parser.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        dest="set",
-        help="a setting of the check or its refit (repeatable): "
-        + recipe.settings_help(recipe.CHECK_SETTINGS),
-    )
+    recipe.add_settings_option(parser, recipe.CHECK_SETTINGS, "a setting of the check or its refit")
     parser.add_argument(
         "--no-baseline", dest="baseline", action="store_false", help="skip the true reward"
     )
@@ -264,13 +256,8 @@ def parse_args(argv=None, env: str | None = None) -> argparse.Namespace:
     """The command line, its ``--set`` settings typed and checked, with ``--refit``'s recipe
     for ``env`` filled in (:func:`~emgail_jax.reward.recipe.with_refit_recipe`); exits 2 with
     one line on a setting it does not take."""
-    parser = argument_parser()
-    args = parser.parse_args(argv)
-    try:
-        settings = recipe.parsed_settings(args.set, recipe.CHECK_SETTINGS)
-    except ValueError as error:
-        parser.error(str(error))
-    return recipe.with_refit_recipe(argparse.Namespace(**vars(args), **settings), env)
+    args = recipe.parsed_command_line(argument_parser(), argv, recipe.CHECK_SETTINGS)
+    return recipe.with_refit_recipe(args, env)
 
 
 def _check_options(args: argparse.Namespace) -> None:

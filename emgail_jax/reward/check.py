@@ -12,6 +12,7 @@ deployed in a variant of the env's dynamics. Beside them the true-reward baselin
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 
 import numpy as np
@@ -302,8 +303,6 @@ def reoptimize(
     :meth:`~emgail_jax.host.saved_run.SavedRun.reward_function` and
     :meth:`~emgail_jax.host.saved_run.SavedRun.absorbing_reward_function`); with ``partial``
     the training goes on from its save and is saved as it goes."""
-    import jax
-
     from emgail_jax.host.saved_run import stacked
 
     learned = reward_function or run.reward_function()
@@ -321,18 +320,10 @@ def reoptimize(
         partial=partial,
     )
     iteration = run.snapshot or run.iteration
-    per_seed = []
-    for row, seed in enumerate(seeds):
-        matching = run_matching(run, seed, iteration)
-        scores = scored(fresh.returns[row], matching, run, seed)
-        result = {"run_seed": run.seed_number(seed), **scores}
-        states = jax.tree.map(lambda x, r=row: x[r], fresh.states)
-        result["success"] = success(run.problem.env, trainer, states, matching)
-        result["learned_reward_per_step"] = {  # learned intentions' order
-            "fresh_policies": fresh.earned[row, -FINAL_WINDOW:].mean(0),
-            "demonstrations": demonstrations_reward(run, seed, per_seed_parameters[row], learned),
-        }
-        per_seed.append(result)
+    score = functools.partial(_seed_scores, run, fresh=fresh, trainer=trainer, learned=learned)
+    per_seed = [
+        score(seed, row, parameters=per_seed_parameters[row]) for row, seed in enumerate(seeds)
+    ]
     return {
         "iteration": iteration,
         "snapshot": run.snapshot,
@@ -347,6 +338,23 @@ def reoptimize(
         "compile_time_s": fresh.compile_s,
         "train_time_s": fresh.train_s,
     }
+
+
+def _seed_scores(run, seed: int, row: int, *, fresh: FreshAgents, trainer, learned, parameters):
+    """Run seed ``seed``'s fresh agents (row ``row`` of ``fresh``) scored: ERD under the run's
+    matching, the experts' bars, and the learned reward they and the demonstrations earn."""
+    import jax
+
+    matching = run_matching(run, seed, run.snapshot or run.iteration)
+    scores = scored(fresh.returns[row], matching, run, seed)
+    result = {"run_seed": run.seed_number(seed), **scores}
+    states = jax.tree.map(lambda x: x[row], fresh.states)
+    result["success"] = success(run.problem.env, trainer, states, matching)
+    result["learned_reward_per_step"] = {  # learned intentions' order
+        "fresh_policies": fresh.earned[row, -FINAL_WINDOW:].mean(0),
+        "demonstrations": demonstrations_reward(run, seed, parameters, learned),
+    }
+    return result
 
 
 def over_seeds(per_seed: list[dict]) -> dict:

@@ -78,9 +78,28 @@ CHECK_SETTINGS = {
 }  # fmt: skip
 
 
-def settings_help(table: dict[str, Setting]) -> str:
-    """The ``--set`` keys of ``table`` for a command's help."""
-    return "; ".join(f"{key}: {setting.help}" for key, setting in table.items())
+def add_settings_option(parser: argparse.ArgumentParser, table: dict[str, Setting], what: str):
+    """A command's repeatable ``--set KEY=VALUE`` of the keys of ``table``."""
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        dest="set",
+        help=f"{what} (repeatable): "
+        + "; ".join(f"{key}: {setting.help}" for key, setting in table.items()),
+    )
+
+
+def parsed_command_line(parser: argparse.ArgumentParser, argv, table: dict[str, Setting]):
+    """``argv`` parsed by ``parser``, with every key of ``table`` at its ``--set`` value or its
+    default; exits 2 with one line on a setting it does not take (``parser.error``)."""
+    args = parser.parse_args(argv)
+    try:
+        settings = parsed_settings(args.set, table)
+    except ValueError as error:
+        parser.error(str(error))
+    return argparse.Namespace(**vars(args), **settings)
 
 
 def parsed_settings(texts: list[str], table: dict[str, Setting]) -> dict:
@@ -153,13 +172,15 @@ REFIT_BY_ENV: dict[str, dict] = {
 OFF_UNLESS_GIVEN = {"consolidate_ranking": 0.0, "consolidate_absorbing": False}
 
 
+def spelled(settings: dict) -> str:
+    """``settings`` as ``--set`` takes them, ``KEY=VALUE`` after one another."""
+    as_text = lambda value: f"{value:g}" if isinstance(value, float) else str(value).lower()
+    return " ".join(f"{key}={as_text(value)}" for key, value in settings.items())
+
+
 def refit_extras(env: str) -> str:
     """``--refit``'s settings on ``env`` beyond :data:`REFIT`, spelled as ``--set`` takes them."""
-    words = []
-    for key, value in REFIT_BY_ENV.get(env, {}).items():
-        text = f"{value:g}" if isinstance(value, float) else str(value).lower()
-        words.append(f"{key}={text}")
-    return " ".join(words)
+    return spelled(REFIT_BY_ENV.get(env, {}))
 
 
 def with_refit_recipe(args: argparse.Namespace, env: str | None = None) -> argparse.Namespace:
@@ -204,31 +225,28 @@ def check_refit_settings(args: argparse.Namespace) -> None:
             raise RunError(f"consolidate_ranking_{level} goes with consolidate_ranking=WEIGHT")
 
 
+# How the name of a saved refit spells each setting that is on, in this order.
+_NAME_PARTS = (
+    ("consolidate", "consolidated-{}"),
+    ("consolidate_penalty", "penalty-{:g}"),
+    ("consolidate_fresh", "fresh"),
+    ("consolidate_noise", "noise-{:g}"),
+    ("consolidate_batch", "batch-{}"),
+    ("consolidate_ranking", "ranking-{:g}"),
+    ("consolidate_ranking_random", "random"),
+    ("consolidate_ranking_still", "still"),
+    ("consolidate_absorbing", "absorbing"),
+)
+
+
 def refit_parts(args) -> list[str]:
     """The snapshot and the refit's settings: with ``consolidate``, the name of the refitted
     reward it saves (``RUN/rewards/NAME``), whatever reward form reads it."""
-    parts = []
-    if args.snapshot is not None:
-        parts.append(f"snapshot-{args.snapshot}")
-    if args.consolidate:
-        parts.append(f"consolidated-{args.consolidate}")
-    if args.consolidate_penalty:
-        parts.append(f"penalty-{args.consolidate_penalty:g}")
-    if args.consolidate_fresh:
-        parts.append("fresh")
-    if args.consolidate_noise:
-        parts.append(f"noise-{args.consolidate_noise:g}")
-    if args.consolidate_batch:
-        parts.append(f"batch-{args.consolidate_batch}")
-    if args.consolidate_ranking:
-        parts.append(f"ranking-{args.consolidate_ranking:g}")
-    if args.consolidate_ranking_random:
-        parts.append("random")
-    if args.consolidate_ranking_still:
-        parts.append("still")
-    if args.consolidate_absorbing:
-        parts.append("absorbing")
-    return parts
+    parts = [] if args.snapshot is None else [f"snapshot-{args.snapshot}"]
+    if not args.consolidate:
+        return parts
+    given = [(form, getattr(args, key)) for key, form in _NAME_PARTS]
+    return parts + [form.format(value) for form, value in given if value]
 
 
 def refit_of(args) -> Refit:
