@@ -123,3 +123,12 @@ def test_help_lists_at_most_15_options(capsys):
         refit.main(["--help"])
     options = [line for line in capsys.readouterr().out.split("\n") if line.startswith("  -")]
     assert len(options) <= 15
+
+
+def test_the_console_script_is_the_command():
+    import pathlib
+    import tomllib
+
+    pyproject = pathlib.Path(__file__).resolve().parents[1] / "pyproject.toml"
+    scripts = tomllib.loads(pyproject.read_text())["project"]["scripts"]
+    assert scripts["emgail-refit"] == "emgail_jax.refit:main"
