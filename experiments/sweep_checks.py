@@ -32,7 +32,7 @@ class RewardCheck:
 
 # The paper's check (§5.2) of the run's own reward; then the reward refitted after the run with
 # the recipe measured best per env, each intention's best of 3 draws kept by the learned reward
-# (see docs/defaults.md, `refit`).
+# (docs/reward.md, "The refit").
 PAPER_CHECK = RewardCheck("reoptimize.json")
 REFIT_DRAWS = 3
 REFIT_CHECK = RewardCheck(

@@ -401,7 +401,7 @@ def across_seeds_reward(function: Callable) -> Callable:
     the mean over the run's seeds: ``parameters`` are :meth:`SavedRun.across_seeds_parameters`,
     seed t's reward read under its own name for each intention. Seeds that trained apart reach
     off the demonstrations in different ways, so the mean pays less where one seed's reward
-    alone pays by accident (see docs/defaults.md, `across_seeds`)."""
+    alone pays by accident."""
 
     def mean_reward(parameters, *inputs):
         *rest, intention = inputs

@@ -1,6 +1,6 @@
 """The refit's and the check's settings, by the keys ``--set KEY=VALUE`` gives them, typed and
 checked once here; and ``--refit``'s recipe, the settings of the refit that re-optimises best
-where it was measured (see docs/defaults.md, `refit`)."""
+where it was measured (docs/reward.md, "The refit")."""
 
 from __future__ import annotations
 
@@ -136,7 +136,7 @@ def _value(key: str, text: str, setting: Setting):
 
 
 # `--refit`: from new weights against every snapshot's policy and noisy copies of its samples
-# (see docs/defaults.md, `refit`).
+# (docs/reward.md, "The refit").
 REFIT = {
     "consolidate": 4000,
     "consolidate_penalty": 10.0,
@@ -151,7 +151,7 @@ REFIT = {
 # absorbing state at what random actions earn, not at its learned reward, whose price for a
 # fall kept agents standing; halfcheetah's agents are still closing on the experts' speed at
 # 400 TRPO iterations, and its logit of about +1 per step makes value targets of hundreds,
-# which the value baseline follows only standardised (see docs/defaults.md, `refit`).
+# which the value baseline follows only standardised (docs/reward.md, "The refit").
 REFIT_BY_ENV: dict[str, dict] = {
     "hopper": {
         "consolidate_ranking": 10.0,

@@ -10,7 +10,7 @@ after the run. Where a refit is saved and read again: :mod:`emgail_jax.reward.sa
 The refit may also start from fresh discriminator weights rather than the final ones, and see
 a noisy copy of every policy sample as a further negative: a reward learnt in one go against
 the run's whole history, with the smoothing training may not afford (a penalty strong enough to
-generalise the reward can cost the clustering; see docs/defaults.md, `consolidate_penalty`).
+generalise the reward can cost the clustering; docs/reward.md, "The refit").
 """
 
 from __future__ import annotations
@@ -152,7 +152,7 @@ ABSORBING_PRICE_KEY = 20260
 def random_actions_reward(run, parameters: dict, reward_function) -> np.ndarray:
     """``[K]``: the reward ``reward_function(parameters, obs, action, intention)`` pays per
     step, intention by intention, to uniformly random actions over one training rollout (a
-    fixed draw): the price of the absorbing state under ``--absorbing-reward random``. A fall
+    fixed draw): the price of the absorbing state under ``--set absorbing_reward=random``. A fall
     then costs what acting at random for the rest of the episode would earn, rather than the
     absorbing state's own learned reward, which the refit drives as low as its penalty lets
     it, no demonstration ever reaching that state."""
