@@ -21,19 +21,13 @@ import shutil
 import sys
 
 from emgail_jax.host import jax_setup
-from emgail_jax.host.command_line import ArgumentParser
+from emgail_jax.host.command_line import ArgumentParser, add_run_and_seed
 from emgail_jax.reward import recipe
 
 
 def argument_parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(prog="python -m emgail_jax.refit", description=__doc__.split("\n")[0])
-    parser.add_argument("run_dir")
-    parser.add_argument(
-        "--seed",
-        type=int,
-        default=None,
-        help="one run seed, as run --seed numbers it (default: all)",
-    )
+    add_run_and_seed(parser)
     parser.add_argument(
         "--snapshot",
         type=int,

@@ -54,7 +54,7 @@ import os
 import sys
 
 from emgail_jax.host import jax_setup
-from emgail_jax.host.command_line import ArgumentParser
+from emgail_jax.host.command_line import ArgumentParser, add_run_and_seed
 from emgail_jax.host.schedule import FINAL_WINDOW  # the iterations averaged, as training's
 from emgail_jax.reward import baseline, check, draws, progress, recipe
 
@@ -177,13 +177,7 @@ def argument_parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(
         prog="python -m emgail_jax.reoptimize", description=__doc__.split("\n")[0]
     )
-    parser.add_argument("run_dir")
-    parser.add_argument(
-        "--seed",
-        type=int,
-        default=None,
-        help="one run seed, as run --seed numbers it (default: all)",
-    )
+    add_run_and_seed(parser)
     parser.add_argument(
         "--rl-seed",
         type=int,
