@@ -94,21 +94,21 @@ def worker(args, first: str, rows: str, directory: str) -> int:
     import jax
     import numpy as np
 
-    from emgail_jax.host import reward_check
     from emgail_jax.host.problem import make_problem
     from emgail_jax.method.config import RunConfig
     from emgail_jax.method.rl import make_rl_train
+    from emgail_jax.reward import check as reward_check
 
     env = make_problem(args.env, args.intentions).env
     trainer = make_rl_train(RunConfig().method, env)
     row_keys = jax.random.split(jax.random.PRNGKey(0), int(first) + int(rows))[int(first) :]
     keys = np.stack([jax.random.split(key, env.num_intentions) for key in row_keys])
-    reward_check.train_fresh(trainer, keys, None, WARM_UP, "", False)
+    reward_check.train_fresh(trainer, keys, None, WARM_UP, label="", progress=False)
     warm = os.path.join(directory, f"warm-{first}")
     open(warm, "w").close()
     while not os.path.exists(os.path.join(directory, "go")):
         time.sleep(0.05)
-    fresh = reward_check.train_fresh(trainer, keys, None, args.iterations, "", False)
+    fresh = reward_check.train_fresh(trainer, keys, None, args.iterations, label="", progress=False)
     with open(warm, "w") as f:
         json.dump({"compile_s": fresh.compile_s}, f)
     return 0

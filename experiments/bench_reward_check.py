@@ -6,7 +6,7 @@ policies) and their ratio.
         [--iterations 100]
 
 The fresh agents are scored on evaluation episodes every 10th iteration and each of the last 10
-(:data:`emgail_jax.host.reward_check.CURVE_EVERY`), which changes neither their training nor
+(:data:`emgail_jax.reward.check.CURVE_EVERY`), which changes neither their training nor
 their final numbers; the evaluation episodes are as long as the training rollout, so scoring
 every iteration costs most of a rollout more. Both ways train TRPO on the env's true rewards
 (a learned reward adds one small MLP per step) from the same keys, on one device as
@@ -36,10 +36,10 @@ def main(argv=None) -> int:
     import jax
     import numpy as np
 
-    from emgail_jax.host import reward_check
     from emgail_jax.host.problem import make_problem
     from emgail_jax.method.config import RunConfig
     from emgail_jax.method.rl import make_rl_train
+    from emgail_jax.reward import check as reward_check
 
     env = make_problem(args.env, args.intentions).env
     trainer = make_rl_train(RunConfig().method, env)
@@ -50,7 +50,7 @@ def main(argv=None) -> int:
 
     def timed(curve_every: int):
         fresh = reward_check.train_fresh(
-            trainer, keys, None, args.iterations, "", False, curve_every=curve_every
+            trainer, keys, None, args.iterations, label="", progress=False, curve_every=curve_every
         )
         return fresh.train_s, fresh.compile_s, np.isfinite(fresh.returns[0, :, 0, 0]).sum()
 

@@ -4,7 +4,7 @@ check's file alone (nothing trained):
     python experiments/draw_choice.py RUN/reoptimize-refit.json [CHECK.json ...]
 
 - most: the check's default rule, per learned intention the agent that earns the most learned
-  reward per step (``reward_check.kept_draws``);
+  reward per step (``emgail_jax.reward.draws.kept_draws``);
 - nearest: ``reoptimize --keep-draw nearest``, the agent whose learned reward per step is
   nearest what the demonstrations earn, as one that out-earns them far may have found what the
   reward overpays;
@@ -24,24 +24,17 @@ import sys
 import numpy as np
 
 from emgail_jax.host.command_line import ArgumentParser
-from emgail_jax.host.reward_check import kept_draws, picked
+from emgail_jax.reward.draws import BY_TRUE_ERD, DRAW_RULES, kept_per_true_intention, picked
 
-
-def kept(rows: list[dict], rule: str) -> list[int]:
-    """Per true intention, the draw ``rule`` keeps among one seed's ``rows`` (one per draw)."""
-    if rule == "by true ERD":
-        return list(np.array([r["erd_per_intention"] for r in rows], float).argmin(0))
-    return list(kept_draws(rows, rule)[np.asarray(rows[0]["matching"])])
-
-
-RULES = ("most", "nearest", "by true ERD")
+RULES = (*DRAW_RULES, BY_TRUE_ERD)
 
 
 def rule_erds(check: dict) -> dict[int, dict[str, float]]:
     """Per run seed of ``check`` (a file of several draws), each rule's ERD."""
     found = {}
     for rows in zip(*(d["per_seed"] for d in check["draws"]), strict=True):
-        found[rows[0]["run_seed"]] = {rule: picked(rows, kept(rows, rule))["erd"] for rule in RULES}
+        kept = {rule: kept_per_true_intention(rows, rule) for rule in RULES}
+        found[rows[0]["run_seed"]] = {rule: picked(rows, kept[rule])["erd"] for rule in RULES}
     return found
 
 

@@ -36,8 +36,8 @@ def main(argv=None) -> int:
     jax_setup.setup(host_devices=1)
     import jax
 
-    from emgail_jax.host import reward_check as check
     from emgail_jax.host.saved_run import SavedRun, stacked
+    from emgail_jax.reward import check
 
     run = SavedRun.open(args.run_dir)
     env, k = run.problem.env, run.num_intentions
@@ -47,7 +47,7 @@ def main(argv=None) -> int:
     trainer = check.learned_reward_trainer(run, budget, learned)
     keys = check.fresh_keys(run, [seed], args.rl_seed)
     fresh = check.train_fresh(
-        trainer, keys, stacked([parameters]), budget.iterations, "fresh agents", True
+        trainer, keys, stacked([parameters]), budget.iterations, label="fresh agents"
     )
     env_step, reset = jax.jit(env.step), jax.jit(env.reset)
     for intention in range(k):

@@ -24,7 +24,7 @@ climb (docs/rewards-that-reoptimise.md, experiment 27).
 snapshot, beside their true returns (``metrics.csv``), with the rank correlation of the two
 (docs/rewards-that-reoptimise.md, experiment 41): a reward that rises with the true return
 along the run's own way from random actions to the experts has a slope a fresh agent could
-follow. ``--refit NAME`` scores a refitted reward that ``reoptimize --consolidate`` saved,
+follow. ``--refit NAME`` scores a refitted reward that ``python -m emgail_jax.refit`` saved,
 ``--reward-form`` reads the discriminator in another form, ``--snapshot ITER`` opens the run
 at that snapshot (its networks and policies; a refit ``reoptimize --snapshot ITER`` saved).
 """
@@ -85,35 +85,32 @@ def expert_actor(env, rows):
     return lambda state, _: policy(state.obs, grid(state))
 
 
-def matched_reward(run, seed: int, parameters, state_only: bool = False):
+def matched_reward(run, seed: int, parameters):
     """``(matching [K true], rows, learned, reward)``: the learned intention the run finally
-    matched to each true intention (as ``rows``, a device array), the run's reward function
-    (of the observation alone if ``state_only``: a state-only refit's), and it jitted on
-    ``parameters`` as ``reward(obs, action, intention)``."""
+    matched to each true intention (as ``rows``, a device array), the run's reward function,
+    and it jitted on ``parameters`` as ``reward(obs, action, intention)``."""
     import jax
     import jax.numpy as jnp
 
-    from emgail_jax.host import reward_check as check
+    from emgail_jax.reward import check
 
     matching = check.run_matching(run, seed, run.snapshot or run.iteration)  # true -> learned
-    learned = run.reward_function(state_only)
+    learned = run.reward_function()
     reward = jax.jit(lambda obs, action, i: learned(parameters, obs, action, i))
     return matching, jnp.asarray(matching), learned, reward
 
 
-def seed_columns(
-    run, seed: int, parameters, experts, keys, episodes: int, state_only: bool = False
-):
+def seed_columns(run, seed: int, parameters, experts, keys, episodes: int):
     """``([demonstrations, experts, joint policies, random, still] each [K true], matching)``
     for run ``seed``, scored by the reward of ``parameters``: true intention i by the learned
     intention ``matching[i]`` the run matched it to, whose policy also acts for it."""
     import numpy as np
 
-    from emgail_jax.host import reward_check as check
     from emgail_jax.method.rollout import still_policy, uniform_random_policy
+    from emgail_jax.reward import check
 
     env, k_true = run.problem.env, run.problem.true_intentions
-    matching, rows, learned, reward = matched_reward(run, seed, parameters, state_only)
+    matching, rows, learned, reward = matched_reward(run, seed, parameters)
     policy, random, still = run.policy(seed), uniform_random_policy(env), still_policy(env)
     actors = [
         experts,
@@ -132,9 +129,7 @@ def seed_columns(
     return [demonstrations, *fresh], [int(i) for i in matching]
 
 
-def along_training(
-    run, seed: int, parameters, every: int, episodes: int, key, state_only: bool = False
-):
+def along_training(run, seed: int, parameters, every: int, episodes: int, key):
     """``[(iteration, learned reward per step [K true], true return [K true])]``: the run's own
     policies of every ``every``-th snapshot of ``seed`` on fresh episodes, scored by the reward
     of ``parameters``; true intention i by the learned intention the run finally matched to it,
@@ -145,7 +140,7 @@ def along_training(
 
     from emgail_jax.host import checkpoints
 
-    _, rows, _, reward = matched_reward(run, seed, parameters, state_only)
+    _, rows, _, reward = matched_reward(run, seed, parameters)
     logged = np.asarray(run.history["eval/returns"][seed])  # [iterations, K true], NaN between
     evaluated = np.flatnonzero(np.isfinite(logged).all(1)) + 1  # the iterations evaluated
     held = run.snapshot or run.iteration
@@ -163,15 +158,13 @@ def along_training(
     return found
 
 
-def print_along_training(
-    run, seed: int, parameters, every: int, episodes: int, state_only: bool = False
-) -> None:
+def print_along_training(run, seed: int, parameters, every: int, episodes: int) -> None:
     import jax
     import numpy as np
     from scipy.stats import spearmanr
 
     key = jax.random.PRNGKey(2027)
-    found = along_training(run, seed, parameters, every, episodes, key, state_only)
+    found = along_training(run, seed, parameters, every, episodes, key)
     number = run.seed_number(seed)
     print(f"seed {number}: iteration, learned reward per step / true return per true intention")
     for iteration, earned, true in found:
@@ -204,26 +197,24 @@ def main(argv=None) -> int:
     import jax.numpy as jnp
 
     from emgail_jax.host.saved_run import SavedRun
+    from emgail_jax.reward.load import refitted_parameters, run_for_refit
 
     try:
         run = SavedRun.open(args.run_dir, snapshot=args.snapshot)
         if args.reward_form is not None:
             run = run.with_reward_form(args.reward_form)
         if args.refit:
-            run = run.for_refit(args.refit)  # an absorbing refit's network reads one input more
+            run = run_for_refit(run, args.refit)  # an absorbing refit reads one input more
         parameters = [
-            run.refitted_parameters(args.refit, s) if args.refit else run.reward_parameters(s)
+            refitted_parameters(run, args.refit, s) if args.refit else run.reward_parameters(s)
             for s in range(run.spec.seeds)
         ]
-        state_only = args.refit is not None and run.refit_is_state_only(args.refit)
     except ValueError as error:  # the run's, its checkpoint's, env's and demonstrations' errors
         print(f"error: {error}", file=sys.stderr)
         return 2
     if args.along_training:
         for seed in range(run.spec.seeds):
-            print_along_training(
-                run, seed, parameters[seed], args.along_training, args.episodes, state_only
-            )
+            print_along_training(run, seed, parameters[seed], args.along_training, args.episodes)
         return 0
     experts = expert_actor(run.problem.env, jnp.arange(run.problem.true_intentions))
     # Experts, joint policies, random: the keys they had before the still column came.
@@ -234,9 +225,7 @@ def main(argv=None) -> int:
         "actions held still):"
     )
     for seed in range(run.spec.seeds):
-        columns, matching = seed_columns(
-            run, seed, parameters[seed], experts, keys, args.episodes, state_only
-        )
+        columns, matching = seed_columns(run, seed, parameters[seed], experts, keys, args.episodes)
         for i, learned_intention in enumerate(matching):
             values = " / ".join(f"{column[i]:.3f}" for column in columns)
             label = f"seed {run.spec.first_seed + seed}, true intention {i}"

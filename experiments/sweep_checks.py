@@ -11,9 +11,10 @@ import sys
 
 import numpy as np
 
-from emgail_jax.host.reward_check import BUDGETS, Budget, baseline_prefix, env_budget
 from emgail_jax.reoptimize import given_budget
 from emgail_jax.reoptimize import parse_args as reoptimize_args
+from emgail_jax.reward.baseline import baseline_prefix
+from emgail_jax.reward.check import BUDGETS, Budget, env_budget
 from sweep_cells import Cell, summary_or_none
 
 BASELINES_DIR = "true-reward-baselines"  # under OUT, which every node of a Ray sweep sees
@@ -31,7 +32,7 @@ class RewardCheck:
 
 # The paper's check (§5.2) of the run's own reward; then the reward refitted after the run with
 # the recipe measured best per env, each intention's best of 3 draws kept by the learned reward
-# (docs/rewards-that-reoptimise.md, experiments 53 and 66).
+# (docs/reward.md, "The refit").
 PAPER_CHECK = RewardCheck("reoptimize.json")
 REFIT_DRAWS = 3
 REFIT_CHECK = RewardCheck(
@@ -161,7 +162,7 @@ def baseline_computers(
 def checks_draws_done(cell: Cell, run_dir: str, iterations: int) -> dict[RewardCheck, float]:
     """Per reward check of a trained cell, the draws a check stopped part-way has done; of one
     spread over processes, the mean of its seeds' parts (a part written: every draw)."""
-    from emgail_jax.host.check_progress import draws_done
+    from emgail_jax.reward.progress import draws_done
 
     done, numbers = {}, seed_numbers(summary_or_none(run_dir))
     for check in REWARD_CHECKS:

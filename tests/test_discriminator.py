@@ -259,19 +259,3 @@ def test_learned_reward_is_the_algorithms_pseudo_reward_of_the_own_condition(alg
         logit = logit + params[intention]
     expected = jax.nn.softplus(logit) + (0.5 * -0.7 if algo == "infogail" else 0.0)
     np.testing.assert_allclose(reward, expected, rtol=1e-6)
-
-
-@pytest.mark.parametrize("jit", [False, True])
-def test_a_state_only_discriminator_reads_the_observation_and_no_action(jit):
-    from emgail_jax.method.discriminator import state_only
-
-    apply = state_only(toy_apply)
-    apply = jax.jit(apply) if jit else apply
-    params, condition = jnp.array([0.5]), jnp.ones((3, 1))
-    obs = jnp.array([[1.0], [2.0], [3.0]])
-    for actions in (jnp.zeros((3, 1)), jnp.full((3, 1), 7.0)):
-        np.testing.assert_allclose(apply(params, obs, actions, condition), [1.5, 2.5, 3.5])
-    # Without it the same actions move the logit: the wrapper is what removes them.
-    assert not np.allclose(
-        toy_apply(params, obs, jnp.full((3, 1), 7.0), condition), [1.5, 2.5, 3.5]
-    )

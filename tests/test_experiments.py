@@ -313,14 +313,14 @@ def test_reward_generalisation_scores_the_runs_snapshots_along_training(tiny_run
 
 
 def test_reward_generalisation_matches_intentions_where_the_run_was_opened(tiny_run, monkeypatch):
-    from emgail_jax.host import reward_check
     from emgail_jax.host.saved_run import SavedRun
+    from emgail_jax.reward import check
 
     module = _load("reward_generalisation")
     asked = []
-    matching = reward_check.run_matching
+    matching = check.run_matching
     monkeypatch.setattr(
-        reward_check, "run_matching", lambda run, seed, i: asked.append(i) or matching(run, seed, i)
+        check, "run_matching", lambda run, seed, i: asked.append(i) or matching(run, seed, i)
     )
     for snapshot, iteration in ((2, 2), (None, 4)):
         run = SavedRun.open(str(tiny_run), snapshot=snapshot)
@@ -332,19 +332,20 @@ def test_reward_generalisation_scores_a_refit_with_absorbing_states(tiny_run, tm
 
     import jax
 
-    from emgail_jax.host import consolidation
     from emgail_jax.host.saved_run import SavedRun
+    from emgail_jax.reward import refit as refitting
+    from emgail_jax.reward import saved as store
 
     copy = tmp_path / "run"
     shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("rewards"))
     run = SavedRun.open(str(copy)).with_absorbing_states()
-    refit = consolidation.Refit(steps=3, fresh=True, absorbing=True)
+    refit = refitting.Refit(steps=3, fresh=True, absorbing=True)
     for seed in range(2):
-        parameters, losses = consolidation.consolidated_parameters(
+        parameters, losses = refitting.consolidated_parameters(
             run, seed, refit, jax.random.PRNGKey(seed)
         )
-        description = consolidation.refit_description(refit, None, run.iteration)
-        consolidation.save_refitted(
+        description = store.refit_description(refit, None, run.iteration)
+        store.save_refitted(
             str(copy), "falls", seed, parameters["discriminator"], description, losses
         )
     module = _load("reward_generalisation")

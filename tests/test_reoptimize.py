@@ -1,5 +1,5 @@
 """python -m emgail_jax.reoptimize on a tiny run: every seed, the true-reward baseline (cached),
-one matching, the success measures, snapshots."""
+one matching, the success measures, snapshots, --refit's recipe and the --set settings."""
 
 import dataclasses
 import json
@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from emgail_jax import reoptimize
-from emgail_jax.host import reward_check
-from emgail_jax.host.consolidation import Refit
 from emgail_jax.method.metrics import reward_difference
+from emgail_jax.reward import check, draws, recipe
+from emgail_jax.reward import saved as store
+from emgail_jax.reward.refit import Refit
 
 pytestmark = pytest.mark.heavy
 
@@ -113,14 +114,14 @@ def test_checks_of_one_seed_each_merge_into_the_check_of_every_seed(
     np.testing.assert_allclose(first["erd"], whole["erd"], rtol=1e-4)
     from emgail_jax.host.records import to_json_value
 
-    again = to_json_value(reward_check.chosen_by_learned_reward(merged["draws"]))
+    again = to_json_value(draws.chosen_by_learned_reward(merged["draws"]))
     assert {name: merged[name] for name in again} == again
     # The rule that keeps a draw trains nothing: the same parts merge under the other rule.
     nearest = tmp_path / "nearest.json"
     merge_nearest = [*merge[:-2], str(nearest), "--keep-draw", "nearest", "--merge", *parts]
     assert reoptimize.main(merge_nearest) == 0
     kept = json.loads(nearest.read_text())
-    again = to_json_value(reward_check.chosen_by_learned_reward(merged["draws"], "nearest"))
+    again = to_json_value(draws.chosen_by_learned_reward(merged["draws"], "nearest"))
     assert kept["draw_rule"] == "nearest" and {name: kept[name] for name in again} == again
     assert merged["baseline"]["cache"] and merged["check"]["options"]["seed"] is None
     # The same seed twice, a part checked with other options, or of every seed, is refused.
@@ -159,7 +160,7 @@ def test_gails_one_reward_is_reoptimised_like_emgails(tmp_path):
 @pytest.mark.slow  # a tiny run with absorbing states and two re-optimisations: three compiles
 def test_a_run_with_absorbing_states_is_reoptimised_with_them(tmp_path):
     """The fresh agents are paid the learned reward of the absorbing state the run's own
-    B-step was (the one its last iteration logged), a single reward or an ensemble's."""
+    B-step was (the one its last iteration logged)."""
     from emgail_jax import run
     from emgail_jax.host.saved_run import SavedRun
 
@@ -173,16 +174,10 @@ def test_a_run_with_absorbing_states_is_reoptimised_with_them(tmp_path):
         every = [absorbing(saved.reward_parameters(seed), i) for i in range(2)]
         logged = saved.history["train/absorbing_reward"][seed, -1]
         assert float(np.mean(every)) == pytest.approx(float(logged), rel=1e-5)
-    parameters, _ = reward_check.ensemble_parameters(saved, [0], 2)
-    earlier = SavedRun.open(str(out), snapshot=2).reward_parameters(0)
-    mean = reward_check.ensemble_reward(absorbing)(parameters[0], 1)
-    expected = (absorbing(earlier, 1) + absorbing(saved.reward_parameters(0), 1)) / 2
-    assert float(mean) == pytest.approx(float(expected), rel=1e-5)
-    for extra in ([], ["--ensemble", "2"]):
-        again = [str(out), "--iterations", "2", "--no-baseline", "--quiet", *extra]
-        assert reoptimize.main([*again, "--out", str(tmp_path / "r.json")]) == 0
-        result = json.loads((tmp_path / "r.json").read_text())
-        assert result["absorbing_state"] is True and len(result["erd"]) == 2
+    again = [str(out), "--iterations", "2", "--no-baseline", "--quiet"]
+    assert reoptimize.main([*again, "--out", str(tmp_path / "r.json")]) == 0
+    result = json.loads((tmp_path / "r.json").read_text())
+    assert result["absorbing_state"] is True and len(result["erd"]) == 2
 
 
 def test_a_snapshot_is_reoptimised_on_its_own_networks(tiny_run, reoptimized):
@@ -201,51 +196,38 @@ def test_a_snapshot_is_reoptimised_on_its_own_networks(tiny_run, reoptimized):
     [
         (["--snapshot", "3"], "no snapshot of iteration 3"),
         (["--seed", "5"], "the run has seeds 0..1"),
-        (["--gamma", "0"], "--gamma must be in (0, 1]"),
-        (["--gae-lambda", "1.5"], "--gae-lambda must be in [0, 1]"),
         (["--iterations", "0"], "--iterations must be at least 1"),
         (["--rl-seed", "-1"], "--rl-seed must be 0 or more"),
-        (["--consolidate", "-1"], "--consolidate must be 0 (none) or more steps"),
-        (["--consolidate-fresh"], "--consolidate-fresh goes with --consolidate STEPS"),
-        (["--consolidate", "5", "--consolidate-noise", "-1"], "--consolidate-noise is a"),
-        (["--consolidate-noise", "1"], "deviation >= 0 and goes with --consolidate"),
-        (["--consolidate-batch", "100"], "--consolidate-batch is a number of samples >= 0"),
+        (["--set", "consolidate_fresh=true"], "--set consolidate_fresh goes with a refit"),
+        (["--set", "consolidate_noise=1"], "--set consolidate_noise goes with a refit"),
+        (["--set", "consolidate_batch=100"], "--set consolidate_batch goes with a refit"),
         (
-            ["--consolidate", "5", "--consolidate-ranking-random"],
-            "--consolidate-ranking-random goes with --consolidate-ranking WEIGHT",
+            ["--set", "consolidate=5", "--set", "consolidate_ranking_random=true"],
+            "consolidate_ranking_random goes with consolidate_ranking=WEIGHT",
         ),
         (
-            ["--consolidate", "5", "--consolidate-ranking-still"],
-            "--consolidate-ranking-still goes with --consolidate-ranking WEIGHT",
+            ["--set", "consolidate=5", "--set", "consolidate_ranking_still=true"],
+            "consolidate_ranking_still goes with consolidate_ranking=WEIGHT",
+        ),
+        (["--set", "consolidate_absorbing=true"], "--set consolidate_absorbing goes with a refit"),
+        (
+            ["--set", "consolidate=5", "--set", "consolidate_absorbing=true"],
+            "consolidate_absorbing needs consolidate_fresh=true",
         ),
         (
-            ["--consolidate", "5", "--consolidate-agents", "1"],
-            "--consolidate-agents is a number of rounds >= 0 and goes with --consolidate-batch M",
+            ["--set", "across_seeds=true", "--set", "consolidate=5"],
+            "across_seeds averages the run's own rewards: not with a refit",
         ),
-        (["--consolidate-state-only"], "--consolidate-state-only goes with --consolidate"),
-        (["--consolidate-absorbing"], "--consolidate-absorbing goes with --consolidate"),
-        (
-            ["--consolidate", "5", "--consolidate-absorbing"],
-            "--consolidate-absorbing needs --consolidate-fresh",
-        ),
-        (["--ensemble", "3"], "--ensemble 3 needs 3 snapshots up to iteration 4;"),
-        (
-            ["--ensemble", "2", "--snapshot", "2"],
-            "--ensemble 2 needs 2 snapshots up to iteration 2;",
-        ),
-        (["--ensemble", "2", "--consolidate", "5"], "not with --consolidate"),
-        (["--across-seeds", "--ensemble", "2"], "--across-seeds averages the run's own"),
         (["--env-set", "gravity=2"], "--env-set: env 'driver' has no option 'dynamics'"),
         (["--env-set", "gravity=2", "--no-baseline"], "drop --no-baseline"),
-        (["--reference-draws", "0"], "--reference-draws must be at least 1"),
         (["--draws", "0"], "--draws must be at least 1"),
         (["--keep-draw", "nearest"], "--keep-draw chooses among draws: give --draws N"),
         (["--merge", "a.json", "--seed", "0"], "--merge joins checks of one seed each: drop"),
         (["--merge", "missing.json"], "--merge: cannot read 'missing.json'"),
-        (["--absorbing-reward", "random"], "--absorbing-reward prices an absorbing state, and"),
+        (["--set", "absorbing_reward=random"], "absorbing_reward prices an absorbing state, and"),
         (
-            ["--absorbing-reward", "random", "--ensemble", "2"],
-            "--absorbing-reward random prices one seed's reward: not with --ensemble",
+            ["--set", "absorbing_reward=random", "--set", "across_seeds=true"],
+            "absorbing_reward=random prices one seed's reward: not with across_seeds",
         ),
     ],
 )
@@ -274,21 +256,11 @@ def test_another_rl_seed_trains_other_fresh_agents_on_the_same_rewards(tiny_run,
         assert mine["fresh_policies"] != theirs["fresh_policies"]
 
 
-@pytest.mark.slow  # an ensemble's re-optimisation (the plain one runs always)
-def test_an_ensemble_reward_is_reoptimised(tiny_run, reoptimized):
-    first, _ = reoptimized
-    args = [str(tiny_run), "--iterations", "2", "--ensemble", "2", "--no-baseline", "--quiet"]
-    assert reoptimize.main(args) == 0
-    result = json.loads((tiny_run / "reoptimize-it-2-ensemble-2.json").read_text())
-    assert result["ensemble"] == [2, 4] and result["consolidation"] is None
-    earned = [r["learned_reward_per_step"]["demonstrations"] for r in result["per_seed"]]
-    assert earned != [r["learned_reward_per_step"]["demonstrations"] for r in first["per_seed"]]
-
-
 @pytest.mark.slow  # a re-optimisation across seeds (the plain one runs always)
 def test_a_reward_across_seeds_is_reoptimised(tiny_run, reoptimized, saved):
     first, _ = reoptimized
-    args = [str(tiny_run), "--iterations", "2", "--across-seeds", "--no-baseline", "--quiet"]
+    args = [str(tiny_run), "--iterations", "2", "--set", "across_seeds=true", "--no-baseline"]
+    args.append("--quiet")
     assert reoptimize.main(args) == 0
     result = json.loads((tiny_run / "reoptimize-it-2-across-seeds.json").read_text())
     assert result["across_seeds"] == [saved.aligned_intentions(s).tolist() for s in (0, 1)]
@@ -299,7 +271,8 @@ def test_a_reward_across_seeds_is_reoptimised(tiny_run, reoptimized, saved):
 @pytest.mark.slow  # consolidation, then a fresh re-optimisation (the plain one runs always)
 def test_a_consolidated_reward_in_the_logit_form(tiny_run, reoptimized):
     first, _ = reoptimized
-    args = [str(tiny_run), "--iterations", "2", "--consolidate", "5", "--reward-form", "logit"]
+    args = [str(tiny_run), "--iterations", "2", "--set", "consolidate=5"]
+    args += ["--set", "reward_form=logit"]
     assert reoptimize.main([*args, "--no-baseline", "--quiet"]) == 0
     result = json.loads((tiny_run / "reoptimize-it-2-consolidated-5-logit.json").read_text())
     assert result["reward_form"] == "logit" and first["reward_form"] == "gail"
@@ -323,7 +296,7 @@ def test_a_variant_is_scored_against_its_own_true_reward_agent(tmp_path):
     options = [*tiny, "--eval-every", "1", "--random-episodes", "2", "--quiet"]
     assert run.main(["--env", "swimmer", "--intentions", "2", *options, "--out", str(out)]) == 0
     args = [str(out), "--iterations", "2", "--cache", str(cache), "--quiet"]
-    variant = ["--env-set", "viscosity=2", "mass.mid=1.5", "--reference-draws", "2"]
+    variant = ["--env-set", "viscosity=2", "mass.mid=1.5", "--set", "reference_draws=2"]
     assert reoptimize.main([*args, *variant]) == 0
     result = json.loads((out / "reoptimize-it-2-env-viscosity=2-mass.mid=1.5.json").read_text())
     assert result["variant"]["dynamics"] == ["viscosity=2", "mass.mid=1.5"]
@@ -352,7 +325,7 @@ def test_the_default_file_names_what_was_checked():
     args = reoptimize.parse_args(["RUN"])
     assert reoptimize.default_name(args) == "reoptimize.json"
     args = reoptimize.parse_args(
-        ["RUN", "--seed", "1", "--reward-form", "log-d", "--snapshot", "20"]
+        ["RUN", "--seed", "1", "--set", "reward_form=log-d", "--snapshot", "20"]
     )
     assert reoptimize.default_name(args) == "reoptimize-seed-1-snapshot-20-log-d.json"
     args = reoptimize.parse_args(["RUN", "--rl-seed", "2"])
@@ -361,83 +334,92 @@ def test_the_default_file_names_what_was_checked():
     assert reoptimize.default_name(args) == "reoptimize-rl-2-draws-3.json"
     args = reoptimize.parse_args(["RUN", "--draws", "3", "--keep-draw", "nearest"])
     assert reoptimize.default_name(args) == "reoptimize-draws-3-keep-nearest.json"
-    args = reoptimize.parse_args(["RUN", "--iterations", "1000", "--gamma", "0.999"])
+    args = reoptimize.parse_args(["RUN", "--iterations", "1000", "--set", "gamma=0.999"])
     assert reoptimize.default_name(args) == "reoptimize-it-1000-gamma-0.999.json"
-    args = reoptimize.parse_args(["RUN", "--gae-lambda", "0.995"])
+    args = reoptimize.parse_args(["RUN", "--set", "gae_lambda=0.995"])
     assert reoptimize.default_name(args) == "reoptimize-lambda-0.995.json"
-    args = reoptimize.parse_args(["RUN", "--value-target-scaling"])
+    args = reoptimize.parse_args(["RUN", "--set", "value_target_scaling=true"])
     assert reoptimize.default_name(args) == "reoptimize-scaled-values.json"
-    args = reoptimize.parse_args(["RUN", "--no-value-target-scaling"])
+    args = reoptimize.parse_args(["RUN", "--set", "value_target_scaling=false"])
     assert reoptimize.default_name(args) == "reoptimize-no-scaled-values.json"
-    args = reoptimize.parse_args(["RUN", "--across-seeds", "--rl-seed", "1"])
+    args = reoptimize.parse_args(["RUN", "--set", "across_seeds=true", "--rl-seed", "1"])
     assert reoptimize.default_name(args) == "reoptimize-rl-1-across-seeds.json"
-    refit = ["--consolidate", "4000", "--consolidate-penalty", "10", "--consolidate-fresh"]
-    args = reoptimize.parse_args(["RUN", *refit, "--consolidate-noise", "1"])
+    refit = [
+        "--set",
+        "consolidate=4000",
+        "--set",
+        "consolidate_penalty=10",
+        "--set",
+        "consolidate_fresh=true",
+    ]
+    args = reoptimize.parse_args(["RUN", *refit, "--set", "consolidate_noise=1"])
     assert reoptimize.default_name(args) == (
         "reoptimize-consolidated-4000-penalty-10-fresh-noise-1.json"
     )
-    assert reoptimize.refit_of(args) == Refit(
-        4000, gradient_penalty=10, fresh=True, support_noise=1
-    )
-    args = reoptimize.parse_args(["RUN", *refit, "--consolidate-batch", "2500"])
+    assert recipe.refit_of(args) == Refit(4000, gradient_penalty=10, fresh=True, support_noise=1)
+    args = reoptimize.parse_args(["RUN", *refit, "--set", "consolidate_batch=2500"])
     name = "reoptimize-consolidated-4000-penalty-10-fresh-batch-2500.json"
-    assert reoptimize.default_name(args) == name and reoptimize.refit_of(args).batch == 2500
-    ranked = ["--consolidate-ranking", "10", "--consolidate-ranking-random"]
+    assert reoptimize.default_name(args) == name and recipe.refit_of(args).batch == 2500
+    ranked = ["--set", "consolidate_ranking=10", "--set", "consolidate_ranking_random=true"]
     args = reoptimize.parse_args(["RUN", *refit, *ranked])
     name = "reoptimize-consolidated-4000-penalty-10-fresh-ranking-10-random.json"
     assert reoptimize.default_name(args) == name
-    assert reoptimize.refit_of(args) == Refit(
+    assert recipe.refit_of(args) == Refit(
         4000, gradient_penalty=10, fresh=True, ranking=10, ranking_random=True
     )
-    args = reoptimize.parse_args(["RUN", *refit, *ranked, "--consolidate-ranking-still"])
+    args = reoptimize.parse_args(
+        ["RUN", *refit, *ranked, "--set", "consolidate_ranking_still=true"]
+    )
     name = "reoptimize-consolidated-4000-penalty-10-fresh-ranking-10-random-still.json"
     assert reoptimize.default_name(args) == name
-    assert reoptimize.refit_of(args) == Refit(
+    assert recipe.refit_of(args) == Refit(
         4000, gradient_penalty=10, fresh=True, ranking=10, ranking_random=True, ranking_still=True
     )
-    args = reoptimize.parse_args(
-        ["RUN", *refit, "--consolidate-batch", "50", "--consolidate-agents", "2"]
-    )
-    name = "reoptimize-consolidated-4000-penalty-10-fresh-batch-50-agents-2.json"
-    assert reoptimize.default_name(args) == name
-    assert reoptimize.refit_of(args).agent_rounds == 2
     # The saved refit is named by the refit alone: any reward form reads the same one.
-    args = reoptimize.parse_args(["RUN", *refit, "--reward-form", "log-d", "--snapshot", "20"])
-    assert reoptimize.refit_parts(args) == [
+    args = reoptimize.parse_args(["RUN", *refit, "--set", "reward_form=log-d", "--snapshot", "20"])
+    assert recipe.refit_parts(args) == [
         "snapshot-20",
         *("consolidated-4000", "penalty-10", "fresh"),
     ]
 
 
 def test_refit_is_the_measured_recipe_and_any_option_given_replaces_its_own():
-    recipe = ["--consolidate", "4000", "--consolidate-fresh", "--consolidate-penalty", "10"]
-    recipe += ["--consolidate-noise", "1", "--consolidate-batch", "5000"]
+    written = ["--set", "consolidate=4000", "--set", "consolidate_fresh=true"]
+    written += ["--set", "consolidate_penalty=10", "--set", "consolidate_noise=1"]
+    written += ["--set", "consolidate_batch=5000"]
     spelled, preset = (
-        reoptimize.parse_args(["RUN", *recipe]),
+        reoptimize.parse_args(["RUN", *written]),
         reoptimize.parse_args(["RUN", "--refit"]),
     )
-    assert reoptimize.refit_of(preset) == reoptimize.refit_of(spelled)
+    assert recipe.refit_of(preset) == recipe.refit_of(spelled)
     # So it reads (and saves) the same refit as the spelled-out command.
-    assert reoptimize.refit_parts(preset) == reoptimize.refit_parts(spelled)
-    changed = reoptimize.parse_args(["RUN", "--refit", "--consolidate-penalty", "3"])
-    assert reoptimize.refit_of(changed) == dataclasses.replace(
-        reoptimize.refit_of(spelled), gradient_penalty=3
+    assert recipe.refit_parts(preset) == recipe.refit_parts(spelled)
+    changed = reoptimize.parse_args(["RUN", "--refit", "--set", "consolidate_penalty=3"])
+    assert recipe.refit_of(changed) == dataclasses.replace(
+        recipe.refit_of(spelled), gradient_penalty=3
     )
     # Without it nothing is refitted, as before the option.
-    assert reoptimize.refit_of(reoptimize.parse_args(["RUN"])) == Refit(0)
+    assert recipe.refit_of(reoptimize.parse_args(["RUN"])) == Refit(0)
 
 
 def test_refit_adds_the_envs_own_recipe_and_any_option_given_replaces_its_part():
     driver = reoptimize.parse_args(["RUN", "--refit"], env="driver")
     assert driver == reoptimize.parse_args(["RUN", "--refit"])  # the common recipe alone
     hopper = reoptimize.parse_args(["RUN", "--refit"], env="hopper")
-    assert reoptimize.refit_of(hopper) == dataclasses.replace(
-        reoptimize.refit_of(driver), ranking=10, absorbing=True
+    assert recipe.refit_of(hopper) == dataclasses.replace(
+        recipe.refit_of(driver), ranking=10, absorbing=True
     )
     assert hopper.reward_form == "logit" and hopper.absorbing_reward == "random"
     # Named as the spelled-out command, so the refit it saves is the one that command reads.
-    spelled = ["--consolidate-ranking", "10", "--consolidate-absorbing", "--reward-form", "logit"]
-    spelled += ["--absorbing-reward", "random"]
+    spelled = [
+        "--set",
+        "consolidate_ranking=10",
+        "--set",
+        "consolidate_absorbing=true",
+        "--set",
+        "reward_form=logit",
+    ]
+    spelled += ["--set", "absorbing_reward=random"]
     assert reoptimize.default_name(hopper) == reoptimize.default_name(
         reoptimize.parse_args(["RUN", "--refit", *spelled])
     )
@@ -449,42 +431,51 @@ def test_refit_adds_the_envs_own_recipe_and_any_option_given_replaces_its_part()
     assert reoptimize.parse_args(["RUN"], env="halfcheetah").iterations is None
     # Halfcheetah's recipe scales the value targets, unless told not to; no other env's does.
     assert cheetah.value_target_scaling is True
-    raw = ["RUN", "--refit", "--no-value-target-scaling"]
+    raw = ["RUN", "--refit", "--set", "value_target_scaling=false"]
     assert reoptimize.parse_args(raw, env="halfcheetah").value_target_scaling is False
     assert reoptimize.parse_args(["RUN", "--refit"], env="hopper").value_target_scaling is None
     assert reoptimize.parse_args(["RUN"], env="halfcheetah").value_target_scaling is None
     # Each part of the env's recipe can be replaced or turned off alone.
-    options = ["--consolidate-ranking", "0", "--no-consolidate-absorbing", "--reward-form", "log-d"]
+    options = [
+        "--set",
+        "consolidate_ranking=0",
+        "--set",
+        "consolidate_absorbing=false",
+        "--set",
+        "reward_form=log-d",
+    ]
     plain = reoptimize.parse_args(["RUN", "--refit", *options], env="hopper")
-    assert reoptimize.refit_of(plain) == reoptimize.refit_of(driver)
+    assert recipe.refit_of(plain) == recipe.refit_of(driver)
     assert plain.reward_form == "log-d" and plain.absorbing_reward is None
-    learned = reoptimize.parse_args(["RUN", "--refit", "--absorbing-reward", "learned"], "hopper")
+    learned = reoptimize.parse_args(
+        ["RUN", "--refit", "--set", "absorbing_reward=learned"], "hopper"
+    )
     assert learned.absorbing_reward == "learned" and "absorbing-random" not in (
         reoptimize.reward_parts(learned)
     )
-    assert reoptimize.refit_of(learned) == reoptimize.refit_of(hopper)
+    assert recipe.refit_of(learned) == recipe.refit_of(hopper)
     # Without --refit the env adds nothing.
-    assert reoptimize.refit_of(reoptimize.parse_args(["RUN"], env="hopper")) == Refit(0)
+    assert recipe.refit_of(reoptimize.parse_args(["RUN"], env="hopper")) == Refit(0)
     assert reoptimize.parse_args(["RUN"], env="hopper").reward_form is None
     assert reoptimize.parse_args(["RUN"], env="hopper").absorbing_reward is None
-    assert reoptimize.refit_extras("hopper") == (
-        "--consolidate-ranking 10 --consolidate-absorbing --reward-form logit "
-        "--absorbing-reward random"
+    assert recipe.refit_extras("hopper") == (
+        "consolidate_ranking=10 consolidate_absorbing=true reward_form=logit "
+        "absorbing_reward=random"
     )
-    assert reoptimize.refit_extras("halfcheetah") == (
-        "--consolidate-ranking 30 --reward-form logit --iterations 1000 --value-target-scaling"
+    assert recipe.refit_extras("halfcheetah") == (
+        "consolidate_ranking=30 reward_form=logit iterations=1000 value_target_scaling=true"
     )
-    assert reoptimize.refit_extras("reacher") == ""
+    assert recipe.refit_extras("reacher") == ""
 
 
 def test_refit_reads_log_d_unless_episodes_end_early():
-    form = reoptimize.refit_reward_form
+    form = recipe.refit_reward_form
     assert form(reoptimize.parse_args(["RUN", "--refit"]), terminates=False) == "log-d"
     assert form(reoptimize.parse_args(["RUN", "--refit"]), terminates=True) is None
-    given = reoptimize.parse_args(["RUN", "--refit", "--reward-form", "logit"])
+    given = reoptimize.parse_args(["RUN", "--refit", "--set", "reward_form=logit"])
     assert form(given, terminates=False) == "logit"
     # With an absorbing state a fall is priced, so log D no longer pays for it.
-    absorbing = reoptimize.parse_args(["RUN", "--refit", "--consolidate-absorbing"])
+    absorbing = reoptimize.parse_args(["RUN", "--refit", "--set", "consolidate_absorbing=true"])
     assert form(absorbing, terminates=True) == "log-d"
     assert form(reoptimize.parse_args(["RUN"]), terminates=False) is None
 
@@ -496,7 +487,7 @@ def test_refit_names_its_check_as_the_spelled_out_command(tiny_run, monkeypatch)
     monkeypatch.setattr(
         reoptimize, "_reoptimized", lambda args, *opened: captured.update(args=args) or 0
     )
-    monkeypatch.setattr(reward_check, "consolidated", lambda *a, **k: (None, []))
+    monkeypatch.setattr(store, "saved_or_refitted", lambda *a, **k: (None, []))
     assert reoptimize.main([str(tiny_run), "--refit"]) == 0
     name = "reoptimize-consolidated-4000-penalty-10-fresh-noise-1-batch-5000-log-d.json"
     assert reoptimize.default_name(captured["args"]) == name
@@ -527,33 +518,16 @@ def test_refit_takes_the_recipe_of_the_runs_env(tiny_run, tmp_path, monkeypatch)
     assert [args.reward_form for args in seen] == ["logit", None]
 
 
-def test_a_state_only_refit_is_named_so_and_pays_every_action_alike(tiny_run, tmp_path):
-    import shutil
-
-    copy = tmp_path / "run"
-    shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("rewards"))
-    args = reoptimize.parse_args([str(copy), "--consolidate", "3", "--consolidate-state-only"])
-    assert reoptimize.refit_parts(args) == ["consolidated-3", "state-only"]
-    assert reoptimize.refit_of(args) == Refit(steps=3, state_only=True)
-    _, run, _, chosen = reoptimize._opened(args)
-    pairs = run.demonstration_pairs
-    obs, actions = pairs.observations[:20], pairs.actions[:20]
-    paid = lambda actions: chosen.function(chosen.parameters[1], obs, actions, 1)
-    np.testing.assert_array_equal(paid(actions), paid(-actions))
-    # The fresh agents of a refit that reads actions are paid by the run's own function.
-    plain = reoptimize.parse_args([str(copy), "--consolidate", "3"])
-    assert reoptimize._opened(plain)[3].function is None
-
-
 def test_an_absorbing_refit_is_named_so_and_prices_the_fresh_agents_falls(tiny_run, tmp_path):
     import shutil
 
     copy = tmp_path / "run"
     shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("rewards"))
-    options = ["--consolidate", "3", "--consolidate-fresh", "--consolidate-absorbing"]
+    options = ["--set", "consolidate=3", "--set", "consolidate_fresh=true"]
+    options += ["--set", "consolidate_absorbing=true"]
     args = reoptimize.parse_args([str(copy), *options])
-    assert reoptimize.refit_parts(args) == ["consolidated-3", "fresh", "absorbing"]
-    assert reoptimize.refit_of(args) == Refit(steps=3, fresh=True, absorbing=True)
+    assert recipe.refit_parts(args) == ["consolidated-3", "fresh", "absorbing"]
+    assert recipe.refit_of(args) == Refit(steps=3, fresh=True, absorbing=True)
     _, run, _, chosen = reoptimize._opened(args)
     # The fresh agents read the refit's network, and their falls its absorbing state's reward.
     assert run.networks.discriminator.absorbing
@@ -563,7 +537,9 @@ def test_an_absorbing_refit_is_named_so_and_prices_the_fresh_agents_falls(tiny_r
     assert run.reward_function()(
         chosen.parameters[0], pairs.observations[:5], pairs.actions[:5], 0
     ).shape == (5,)
-    plain = reoptimize.parse_args([str(copy), "--consolidate", "3", "--consolidate-fresh"])
+    plain = reoptimize.parse_args(
+        [str(copy), "--set", "consolidate=3", "--set", "consolidate_fresh=true"]
+    )
     assert reoptimize._opened(plain)[1].absorbing_reward_function() is None
 
 
@@ -573,12 +549,13 @@ def test_absorbing_reward_random_pays_a_fall_what_random_actions_earn(tiny_run, 
     import jax
     import jax.numpy as jnp
 
-    from emgail_jax.host import consolidation
+    from emgail_jax.reward.refit import random_actions_reward
 
     copy = tmp_path / "run"
     shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("rewards"))
-    refit = ["--consolidate", "3", "--consolidate-fresh", "--consolidate-absorbing"]
-    args = reoptimize.parse_args([str(copy), *refit, "--absorbing-reward", "random"])
+    refit = ["--set", "consolidate=3", "--set", "consolidate_fresh=true"]
+    refit += ["--set", "consolidate_absorbing=true"]
+    args = reoptimize.parse_args([str(copy), *refit, "--set", "absorbing_reward=random"])
     assert reoptimize.reward_parts(args)[-1] == "absorbing-random"
     _, run, seeds, chosen = reoptimize._opened(args)
     _, _, _, learned = reoptimize._opened(reoptimize.parse_args([str(copy), *refit]))
@@ -588,7 +565,7 @@ def test_absorbing_reward_random_pays_a_fall_what_random_actions_earn(tiny_run, 
         # The same refit (read back from disk), its absorbing state priced anew.
         equal = jax.tree.map(np.array_equal, priced["discriminator"], own["discriminator"])
         assert all(jax.tree.leaves(equal))
-        expected = consolidation.random_actions_reward(run, own, reward)
+        expected = random_actions_reward(run, own, reward)
         np.testing.assert_array_equal(priced["absorbing_price"], expected)
         for intention in range(2):
             assert float(chosen.absorbing(priced, jnp.int32(intention))) == expected[intention]
@@ -605,8 +582,9 @@ def test_a_check_at_random_actions_price_records_both_prices(tiny_run, tmp_path,
 
     copy = tmp_path / "run"
     shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("rewards"))
-    refit = ["--consolidate", "3", "--consolidate-fresh", "--consolidate-absorbing"]
-    command = [str(copy), *refit, "--absorbing-reward", "random", "--iterations", "2"]
+    refit = ["--set", "consolidate=3", "--set", "consolidate_fresh=true"]
+    refit += ["--set", "consolidate_absorbing=true"]
+    command = [str(copy), *refit, "--set", "absorbing_reward=random", "--iterations", "2"]
     assert reoptimize.main([*command, "--seed", "1", "--no-baseline"]) == 0
     name = "reoptimize-seed-1-it-2-consolidated-3-fresh-absorbing-absorbing-random.json"
     result = json.loads((copy / name).read_text())
@@ -626,7 +604,7 @@ def test_draws_are_trained_and_the_learned_reward_keeps_one_per_intention(tiny_r
     result = json.loads((tiny_run / "reoptimize-draws-2-it-2.json").read_text())
     assert result["rl_seeds"] == [0, 1] and [d["rl_seed"] for d in result["draws"]] == [0, 1]
     assert result["draws"][0]["erd"] == reoptimized[0]["erd"]  # draw 0 is the plain check
-    again = reward_check.chosen_by_learned_reward(result["draws"])
+    again = draws.chosen_by_learned_reward(result["draws"])
     assert again["erd"] == result["erd"]
     assert len(result["baseline"]["draw"]) == 2 and len(result["baseline"]["cache"]) == 2
 
@@ -651,7 +629,7 @@ def test_a_check_of_several_draws_goes_on_from_its_last_finished_draw(
         trained.append(rl_seed)
         return {**one_draw, "rl_seed": rl_seed, "train_time_s": float(rl_seed)}
 
-    monkeypatch.setattr(reward_check, "reoptimize", draw)
+    monkeypatch.setattr(check, "reoptimize", draw)
     out = tmp_path / "check.json"
     args = [str(tiny_run), "--iterations", "2", "--draws", "3", "--no-baseline", "--quiet"]
     with pytest.raises(Stopped):
@@ -669,7 +647,7 @@ def test_a_check_of_several_draws_goes_on_from_its_last_finished_draw(
     # Read back or trained, a draw gives the same check.
     from emgail_jax.host.records import to_json_value
 
-    again = to_json_value(reward_check.chosen_by_learned_reward(result["draws"]))
+    again = to_json_value(draws.chosen_by_learned_reward(result["draws"]))
     assert {name: result[name] for name in again} == again
     # Draws kept for other options are trained again.
     kept.mkdir()
@@ -677,3 +655,74 @@ def test_a_check_of_several_draws_goes_on_from_its_last_finished_draw(
     trained.clear()
     assert reoptimize.main([*args, "--iterations", "3", "--out", str(out)]) == 0
     assert trained == [0, 1, 2]
+
+
+def test_a_check_not_given_scaling_keeps_the_identity_it_had_before_the_option():
+    import types
+
+    from emgail_jax import reoptimize
+
+    run = types.SimpleNamespace(snapshot=None, iteration=4)
+    identity = reoptimize.check_identity(reoptimize.parse_args(["RUN"]), run)
+    assert "value_target_scaling" not in identity["options"]
+    given = reoptimize.parse_args(["RUN", "--set", "value_target_scaling=false"])
+    assert reoptimize.check_identity(given, run)["options"]["value_target_scaling"] is False
+
+
+def test_a_check_records_the_options_it_depends_on_as_before():
+    """Every option and setting a check's draws depend on, and the deleted ones at the one value
+    they still have: a check stopped part-way before, or a part to merge, reads as before."""
+    import types
+
+    run = types.SimpleNamespace(snapshot=None, iteration=4)
+    options = reoptimize.check_identity(reoptimize.parse_args(["RUN", "--refit"]), run)["options"]
+    assert set(options) == {
+        *reoptimize.IDENTITY_FLAGS,
+        *recipe.CHECK_SETTINGS,
+        "ensemble",
+        "consolidate_agents",
+        "consolidate_state_only",
+    } - {"value_target_scaling"}
+    assert options["consolidate"] == 4000 and options["ensemble"] == 0
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--set", "colour=red"], "--set: unknown key 'colour'; the keys: consolidate, "),
+        (["--set", "gamma"], "--set takes KEY=VALUE, e.g. gamma=...; got 'gamma'"),
+        (["--set", "gamma=0"], "--set gamma=0: gamma takes a number in (0, 1]"),
+        (["--set", "gae_lambda=1.5"], "gae_lambda takes a number in [0, 1]"),
+        (["--set", "consolidate=-1"], "consolidate takes a number of steps >= 0"),
+        (["--set", "consolidate_batch=2.5"], "consolidate_batch takes a number of samples >= 0"),
+        (["--set", "consolidate_fresh=yes"], "consolidate_fresh takes true or false"),
+        (["--set", "reward_form=sqrt"], "reward_form takes one of gail, "),
+        (["--set", "reference_draws=0"], "reference_draws takes a number >= 1"),
+        (["--ensemble", "2"], "unrecognized arguments: --ensemble"),
+        (["--consolidate-agents", "1"], "unrecognized arguments: --consolidate-agents"),
+        (["--consolidate-state-only"], "unrecognized arguments: --consolidate-state-only"),
+    ],
+)
+def test_a_setting_or_option_it_does_not_take_is_one_line_and_exit_code_2(
+    tmp_path, capsys, extra, message
+):
+    """Refused before the run is read, as the parser refuses any other option."""
+    with pytest.raises(SystemExit) as exited:
+        reoptimize.main([str(tmp_path), *extra])
+    assert exited.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and message in err and err.count("\n") == 1
+
+
+def test_the_settings_are_typed_and_the_last_given_wins():
+    args = reoptimize.parse_args(["RUN", "--set", "gamma=0.9", "--set", "gamma=0.99"])
+    assert args.gamma == 0.99 and isinstance(args.gamma, float)
+    args = reoptimize.parse_args(["RUN", "--set", "consolidate=5", "--set", "across_seeds=True"])
+    assert args.consolidate == 5 and args.across_seeds is True
+
+
+def test_help_lists_at_most_15_options(capsys):
+    with pytest.raises(SystemExit):
+        reoptimize.main(["--help"])
+    options = [line for line in capsys.readouterr().out.split("\n") if line.startswith("  -")]
+    assert len(options) <= 15

@@ -233,7 +233,7 @@ def test_an_airl_runs_reward_is_its_state_only_g(airl_run):
         np.testing.assert_allclose(got, g, rtol=1e-5)
         np.testing.assert_allclose(saved.reward(1)(obs, -actions, intention), got, rtol=1e-5)
     assert np.all(np.isfinite(saved.history["discriminator/loss"]))
-    assert reoptimize.main([str(airl_run), "--reward-form", "logit"]) == 2
+    assert reoptimize.main([str(airl_run), "--set", "reward_form=logit"]) == 2
 
 
 @pytest.mark.slow  # a fresh agent compiled and trained on the AIRL run's reward

@@ -15,7 +15,7 @@ import pytest
 import sweep
 import sweep_cells
 import sweep_checks
-from emgail_jax.host.check_progress import FinishedDraws
+from emgail_jax.reward.progress import FinishedDraws
 
 pytestmark = pytest.mark.heavy
 

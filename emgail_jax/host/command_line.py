@@ -11,3 +11,14 @@ class ArgumentParser(argparse.ArgumentParser):
 
     def error(self, message: str):
         self.exit(2, f"error: {message} (usage: {self.prog} --help)\n")
+
+
+def add_run_and_seed(parser: argparse.ArgumentParser) -> None:
+    """The run directory and ``--seed`` of a command that reads a run's rewards."""
+    parser.add_argument("run_dir")
+    parser.add_argument(
+        "--seed",
+        type=int,
+        default=None,
+        help="one run seed, as run --seed numbers it (default: all)",
+    )

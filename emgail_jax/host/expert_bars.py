@@ -1,7 +1,7 @@
 """The experts' bars: what each shipped expert must do (velocity, upright, pitch turn, ball
 reached) over 10 deterministic episodes, and the measures a policy is held to them by. The
 experts are trained to them (:mod:`emgail_jax.experts`) and the reward check's fresh agents
-are scored by them (:mod:`emgail_jax.host.reward_check`)."""
+are scored by them (:mod:`emgail_jax.reward.check`)."""
 
 from __future__ import annotations
 

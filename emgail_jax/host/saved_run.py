@@ -2,15 +2,15 @@
 
 >>> import emgail_jax
 >>> policy = emgail_jax.load_policy("runs/driver-emgail")   # pi(s, i), jittable
->>> reward = emgail_jax.load_reward("runs/driver-emgail")   # R_i(s, a), jittable
->>> shared = emgail_jax.load_reward("runs/driver-emgail", across_seeds=True)  # every seed's
+>>> run = emgail_jax.SavedRun.open("runs/driver-emgail")
 >>> action = policy(obs, 1)
->>> r = reward(obs, action, 1)
+>>> r = run.reward(0)(obs, action, 1)                        # R_i(s, a) of seed 0, jittable
 
 Intentions are the *learned* ones, numbered as the learner numbered them; ``evaluate`` prints
 which true intention each one matches. ``across_seeds`` averages every run seed's reward, each
 seed's intentions renamed to the asked seed's by the demonstrations they hold
-(:meth:`SavedRun.aligned_intentions`; no hidden labels read).
+(:meth:`SavedRun.aligned_intentions`; no hidden labels read). The reward to take away, a
+refit included: :func:`emgail_jax.reward.load.load_reward`.
 """
 
 from __future__ import annotations
@@ -35,7 +35,6 @@ from emgail_jax.method.batches import DemonstrationPairs
 from emgail_jax.method.choosing import demonstrations_held
 from emgail_jax.method.config import RunConfig
 from emgail_jax.method.discriminator import learned_reward
-from emgail_jax.method.discriminator import state_only as state_only_discriminator
 from emgail_jax.method.networks import policy_action
 from emgail_jax.method.posterior import (
     Responsibilities,
@@ -216,7 +215,7 @@ class SavedRun:
         """This run with a discriminator network that reads the absorbing-state indicator
         (DAC) and a reward that pays its absorbing state
         (:meth:`absorbing_reward_function`): how a refit with absorbing states
-        (``reoptimize --consolidate-absorbing``) is made and read. The run's own discriminator
+        (``--set consolidate_absorbing=true``) is made and read. The run's own discriminator
         weights fit it only if the run trained with absorbing states."""
         if self.config.method.reward.absorbing_state:
             return self
@@ -224,42 +223,8 @@ class SavedRun:
         networks = make_networks(config.method, self.problem.env, hooks_for(config.method))
         return dataclasses.replace(self, config=config, networks=networks)
 
-    def for_refit(self, name: str) -> SavedRun:
-        """This run as its saved refitted reward ``name`` is read: with absorbing states if
-        the refit learnt them."""
-        from emgail_jax.host import consolidation
-
-        absorbing = consolidation.read_description(self.run_dir, name)["refit"]["absorbing"]
-        return self.with_absorbing_states() if absorbing else self
-
-    def refitted_parameters(self, name: str, seed: int = 0) -> dict:
-        """:meth:`reward_parameters` of ``seed`` with the discriminator of the saved refitted
-        reward ``name`` (``reoptimize --consolidate``, :mod:`~emgail_jax.host.consolidation`).
-
-        Raises:
-          RunError: the refit was made from another snapshot, or not for ``seed``.
-          CheckpointError: no saved reward ``name``, one that does not fit, or one refitted
-            from the networks of another iteration (the run resumed since).
-        """
-        from emgail_jax.host import consolidation
-
-        description = consolidation.read_description(self.run_dir, name)
-        if description["snapshot"] != self.snapshot:
-            raise RunError(
-                f"the reward '{name}' was refitted from snapshot {description['snapshot']}; "
-                f"this run was opened at {self.snapshot}"
-            )
-        parameters = consolidation.saved_parameters(self, name, seed)
-        if parameters is None:
-            number = self.seed_number(seed)
-            raise RunError(
-                f"seed {number} of '{self.run_dir}' has no refitted reward '{name}': "
-                f"reoptimize it with --seed {number} and the same --consolidate options"
-            )
-        return parameters
-
     def reward(
-        self, seed: int = 0, across_seeds: bool = False, refit: str | None = None
+        self, seed: int = 0, across_seeds: bool = False
     ) -> Callable[[jax.Array, jax.Array, jax.Array], jax.Array]:
         """The learned pseudo-reward ``R_i(obs [..., D], action [..., A], i [...]) -> [...]``:
         -log(1 - D(s, a, i)) for EM-GAIL (eq. 20), plus lambda log P(i | s, a) for
@@ -269,48 +234,14 @@ class SavedRun:
         g_i(s) (g(s) for GAIL), the action unread: the reward AIRL claims transfers, not the
         f - log pi its own policies were trained on (which needs s' and the policy).
         ``across_seeds``: the mean of every seed's reward, in ``seed``'s intentions
-        (:func:`across_seeds_reward`). ``refit``: the name of a saved refitted reward
-        (:meth:`refitted_parameters`) in place of the run's own."""
-        if refit is not None:
-            if across_seeds:
-                raise RunError("across_seeds averages the run's own rewards, not a refitted one")
-            run = self.for_refit(refit)
-            parameters = run.refitted_parameters(refit, seed)
-            reward = run.reward_function(run.refit_is_state_only(refit))
-        elif across_seeds:
+        (:func:`across_seeds_reward`)."""
+        if across_seeds:
             parameters = self.across_seeds_parameters(seed)
             reward = across_seeds_reward(self.reward_function())
         else:
             parameters = self.reward_parameters(seed)
             reward = self.reward_function()
         return lambda obs, action, intention: reward(parameters, obs, action, intention)
-
-    def absorbing_reward(
-        self, seed: int = 0, refit: str | None = None, price: str = "learned"
-    ) -> Callable[[jax.Array], jax.Array] | None:
-        """What :meth:`reward` (of ``seed`` and ``refit``) pays a termination for every step
-        left to the time limit, as the fresh agents of ``reoptimize`` are paid it:
-        ``R_abs(intention [...]) -> [...]``, the absorbing state's learned reward, or with
-        ``price="random"`` what uniformly random actions earn per step under that reward
-        (``reoptimize --absorbing-reward random``); None for a reward without an absorbing
-        state, whose episodes simply end."""
-        run = self.for_refit(refit) if refit is not None else self
-        learned = run.absorbing_reward_function()
-        if learned is None:
-            return None
-        if refit is None:
-            parameters, reward = run.reward_parameters(seed), run.reward_function()
-        else:
-            parameters = run.refitted_parameters(refit, seed)
-            reward = run.reward_function(run.refit_is_state_only(refit))
-        if price == "learned":
-            return lambda intention: learned(parameters, intention)
-        if price != "random":
-            raise ValueError(f"unknown absorbing price '{price}': learned or random")
-        from emgail_jax.host import consolidation
-
-        priced = {"absorbing_price": consolidation.random_actions_reward(run, parameters, reward)}
-        return lambda intention: consolidation.priced_absorbing_reward(priced, intention)
 
     def reward_parameters(self, seed: int = 0) -> dict:
         """What :meth:`reward_function` reads of ``seed``: its discriminator's and posterior's
@@ -348,18 +279,10 @@ class SavedRun:
             "intentions": self.aligned_intentions(seed),
         }
 
-    def refit_is_state_only(self, name: str) -> bool:
-        """Whether the saved refitted reward ``name`` is D(s, i) of the observation alone."""
-        from emgail_jax.host import consolidation
-
-        return consolidation.read_description(self.run_dir, name)["refit"]["state_only"]
-
-    def reward_function(self, state_only: bool = False) -> Callable:
+    def reward_function(self) -> Callable:
         """:meth:`reward` as ``R(parameters, obs, action, intention)``, the parameters
         (:meth:`reward_parameters` of a seed) an argument, so that one compiled program
-        serves every seed's reward. ``state_only``: the discriminator reads every action as
-        zeros (a refit of D(s, i), :func:`~emgail_jax.method.discriminator.state_only`); the
-        posterior of Info/IntentionGAIL still reads the action."""
+        serves every seed's reward."""
         k, algorithm, clip = (
             self.num_intentions,
             self.algorithm,
@@ -381,11 +304,8 @@ class SavedRun:
                 if algorithm.learns_posterior
                 else jnp.zeros(intention.shape)
             )
-            discriminator = networks.discriminator.apply
-            if state_only:
-                discriminator = state_only_discriminator(discriminator)
             return learned_reward(
-                discriminator,
+                networks.discriminator.apply,
                 parameters["discriminator"],
                 algorithm,
                 k,
@@ -473,52 +393,6 @@ def load_policy(run_dir: str, seed: int | None = None):
     return run.policy(run.seed_index(seed))
 
 
-def load_reward(
-    run_dir: str,
-    seed: int | None = None,
-    across_seeds: bool = False,
-    refit: str | None = None,
-    reward_form: str | None = None,
-):
-    """The learned reward of a run: jittable ``R(obs, action, intention) -> reward`` of its
-    ``seed``, as ``run --seed`` numbered it (None: the run's first); with
-    ``across_seeds``, the mean of every run seed's, named as ``seed``'s intentions; with
-    ``refit``, the refitted reward of that name that ``reoptimize --consolidate`` saved under
-    ``RUN/rewards/`` (``emgail_jax.host.consolidation.saved_refits`` lists them);
-    ``reward_form`` reads the discriminator as another of ``REWARD_FORMS`` than the run's
-    (``log-d``: below 0 wherever D < 1, as ``reoptimize --reward-form log-d``). Where
-    episodes end early, what a fall is worth: :func:`load_absorbing_reward`."""
-    run = _opened_for(run_dir, refit, reward_form)
-    return run.reward(run.seed_index(seed), across_seeds, refit)
-
-
-def load_absorbing_reward(
-    run_dir: str,
-    seed: int | None = None,
-    refit: str | None = None,
-    reward_form: str | None = None,
-    price: str = "learned",
-):
-    """What a fall is worth under the reward :func:`load_reward` gives for the same arguments:
-    jittable ``R_abs(intention) -> reward``, paid for every step left to the time limit
-    when an episode ends early (:meth:`SavedRun.absorbing_reward`); None when that reward has
-    no absorbing state. An agent trained on the reward alone, its falls worth nothing, is not
-    trained on what ``reoptimize`` checked."""
-    run = _opened_for(run_dir, refit, reward_form)
-    return run.absorbing_reward(run.seed_index(seed), refit, price)
-
-
-def _opened_for(run_dir: str, refit: str | None, reward_form: str | None) -> SavedRun:
-    """The run as its reward (``refit``, read as ``reward_form``) is read."""
-    snapshot = None
-    if refit is not None:
-        from emgail_jax.host.consolidation import read_description
-
-        snapshot = read_description(run_dir, refit)["snapshot"]
-    run = SavedRun.open(run_dir, snapshot=snapshot)
-    return run if reward_form is None else run.with_reward_form(reward_form)
-
-
 def stacked(trees: list):
     """The pytrees ``trees`` (of equal structure) as one, a new leading axis on every leaf."""
     return jax.tree.map(lambda *x: np.stack(x), *trees)
@@ -529,7 +403,7 @@ def across_seeds_reward(function: Callable) -> Callable:
     the mean over the run's seeds: ``parameters`` are :meth:`SavedRun.across_seeds_parameters`,
     seed t's reward read under its own name for each intention. Seeds that trained apart reach
     off the demonstrations in different ways, so the mean pays less where one seed's reward
-    alone pays by accident (docs/rewards-that-reoptimise.md, experiment 20)."""
+    alone pays by accident."""
 
     def mean_reward(parameters, *inputs):
         *rest, intention = inputs

@@ -209,17 +209,6 @@ def make_m_step(apply: Callable, optimizer: optax.GradientTransformation, config
     return m_step
 
 
-def state_only(apply: Callable) -> Callable:
-    """``apply`` with every action read as zeros: D(s, i) of the observation alone, for a
-    refitted reward that no choice of action can raise (``reoptimize
-    --consolidate-state-only``)."""
-
-    def of_state(params, obs, action, condition, **kwargs):
-        return apply(params, obs, jnp.zeros_like(action), condition, **kwargs)
-
-    return of_state
-
-
 def learned_reward(
     apply: Callable,
     params,

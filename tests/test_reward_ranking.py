@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from emgail_jax.method.ranking import drawn_by_weight, ranked_levels, ranking_loss
+from emgail_jax.reward.ranking import drawn_by_weight, ranked_levels, ranking_loss
 
 K, S, M, N = 2, 5, 16, 12
 

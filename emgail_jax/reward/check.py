@@ -2,25 +2,23 @@
 
 Fresh TRPO policies trained from scratch on a run's frozen learned reward, one per learned
 intention and run seed in one vmapped program, scored under the env's true rewards: ERD with
-the run's own matching of intentions and the experts' success bars. Beside them the
-true-reward baseline, the same TRPO and budget on the true rewards; several RL draws kept by
-the learned reward alone; the rewards a check may read instead of the run's own (a refit,
-the mean over snapshots); the references of a variant of the env's dynamics.
-``python -m emgail_jax.reoptimize`` (:mod:`emgail_jax.reoptimize`) is its command line.
+the run's own matching of intentions and the experts' success bars, and the run's own policies
+deployed in a variant of the env's dynamics. Beside them the true-reward baseline
+(:mod:`~emgail_jax.reward.baseline`); several RL draws kept by the learned reward alone
+(:mod:`~emgail_jax.reward.draws`). ``python -m emgail_jax.reoptimize``
+(:mod:`emgail_jax.reoptimize`) is its command line.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
-import os
+import functools
 import time
 
 import numpy as np
 
-from emgail_jax.host.check_progress import PartialTraining
 from emgail_jax.host.schedule import FINAL_WINDOW, evaluation_plan
+from emgail_jax.reward.progress import PartialTraining
 
 # The fresh agents are scored on evaluation episodes every CURVE_EVERY-th iteration and each of
 # the last FINAL_WINDOW (their final numbers), as training scores its policies.
@@ -41,25 +39,8 @@ class Budget:
 # What envs whose experts needed more than an IRL run's budget get in place of the run's
 # (emgail_jax.experts.SPECS): the swimmer's gait pays off over many steps, and TRPO on its
 # true reward finds the fast gait on most draws only when GAE's lambda carries the credit that
-# far (docs/rewards-that-reoptimise.md, experiment 73).
+# far.
 BUDGETS: dict[str, dict] = {"swimmer": {"iterations": 1500, "gamma": 0.9999, "gae_lambda": 0.995}}
-
-
-# The fields of a run's config that shape TRPO on a given reward (the baseline's cache key).
-RL_FIELDS = (
-    "num_envs",
-    "rollout_length",
-    "hidden",
-    "init_log_std",
-    "obs_clip",
-    "gamma",
-    "gae_lambda",
-    "trpo",
-    "value_learning_rate",
-    "value_epochs",
-    "value_minibatches",
-    "value_target_scaling",
-)
 
 
 SUCCESS_EPISODES = 10  # the experts' bars are defined over 10 deterministic episodes
@@ -93,11 +74,6 @@ def default_budget(run) -> Budget:
     )
 
 
-def default_cache() -> str:
-    root = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return os.path.join(root, "emgail-jax", "true-reward-baselines")
-
-
 @dataclasses.dataclass
 class FreshAgents:
     """What training fresh policies on a reward left: per reward row ``S`` and policy ``K``."""
@@ -114,8 +90,9 @@ def train_fresh(
     keys,
     reward_data,
     iterations: int,
+    *,
     label: str,
-    progress: bool,
+    progress: bool = True,
     partial: PartialTraining | None = None,
     curve_every: int = CURVE_EVERY,
 ):
@@ -192,7 +169,7 @@ def success(env, trainer, states, matching) -> list[dict]:
     return expert_bars.quality(env, policy, key_quality, SUCCESS_EPISODES)[:k_true]
 
 
-def _fresh_trainer(run, budget: Budget, reward_fn=None, absorbing_reward=None):
+def fresh_trainer(run, budget: Budget, reward_fn=None, absorbing_reward=None):
     from emgail_jax.method.rl import make_rl_train, true_reward
 
     # A fresh agent learns no discriminator: its rollouts need no AIRL successors.
@@ -219,7 +196,7 @@ def learned_reward_trainer(run, budget: Budget, learned, absorbing_function=None
     absorbing_fn = None
     if absorbing is not None:
         absorbing_fn = lambda intention, parameters: absorbing(parameters, intention)
-    return _fresh_trainer(run, budget, reward_fn, absorbing_fn)
+    return fresh_trainer(run, budget, reward_fn, absorbing_fn)
 
 
 def fresh_keys(run, seeds: list[int], rl_seed: int = 0) -> np.ndarray:
@@ -310,6 +287,7 @@ def reoptimize(
     run,
     seeds: list[int],
     budget: Budget,
+    *,
     progress: bool = True,
     parameters=None,
     reward_function=None,
@@ -325,8 +303,6 @@ def reoptimize(
     :meth:`~emgail_jax.host.saved_run.SavedRun.reward_function` and
     :meth:`~emgail_jax.host.saved_run.SavedRun.absorbing_reward_function`); with ``partial``
     the training goes on from its save and is saved as it goes."""
-    import jax
-
     from emgail_jax.host.saved_run import stacked
 
     learned = reward_function or run.reward_function()
@@ -334,21 +310,20 @@ def reoptimize(
     per_seed_parameters = parameters or [run.reward_parameters(seed) for seed in seeds]
     parameters = stacked(per_seed_parameters)
     keys = fresh_keys(run, seeds, rl_seed)
-    label = "re-optimising"
-    fresh = train_fresh(trainer, keys, parameters, budget.iterations, label, progress, partial)
+    fresh = train_fresh(
+        trainer,
+        keys,
+        parameters,
+        budget.iterations,
+        label="re-optimising",
+        progress=progress,
+        partial=partial,
+    )
     iteration = run.snapshot or run.iteration
-    per_seed = []
-    for row, seed in enumerate(seeds):
-        matching = run_matching(run, seed, iteration)
-        scores = scored(fresh.returns[row], matching, run, seed)
-        result = {"run_seed": run.seed_number(seed), **scores}
-        states = jax.tree.map(lambda x, r=row: x[r], fresh.states)
-        result["success"] = success(run.problem.env, trainer, states, matching)
-        result["learned_reward_per_step"] = {  # learned intentions' order
-            "fresh_policies": fresh.earned[row, -FINAL_WINDOW:].mean(0),
-            "demonstrations": demonstrations_reward(run, seed, per_seed_parameters[row], learned),
-        }
-        per_seed.append(result)
+    score = functools.partial(_seed_scores, run, fresh=fresh, trainer=trainer, learned=learned)
+    per_seed = [
+        score(seed, row, parameters=per_seed_parameters[row]) for row, seed in enumerate(seeds)
+    ]
     return {
         "iteration": iteration,
         "snapshot": run.snapshot,
@@ -363,6 +338,23 @@ def reoptimize(
         "compile_time_s": fresh.compile_s,
         "train_time_s": fresh.train_s,
     }
+
+
+def _seed_scores(run, seed: int, row: int, *, fresh: FreshAgents, trainer, learned, parameters):
+    """Run seed ``seed``'s fresh agents (row ``row`` of ``fresh``) scored: ERD under the run's
+    matching, the experts' bars, and the learned reward they and the demonstrations earn."""
+    import jax
+
+    matching = run_matching(run, seed, run.snapshot or run.iteration)
+    scores = scored(fresh.returns[row], matching, run, seed)
+    result = {"run_seed": run.seed_number(seed), **scores}
+    states = jax.tree.map(lambda x: x[row], fresh.states)
+    result["success"] = success(run.problem.env, trainer, states, matching)
+    result["learned_reward_per_step"] = {  # learned intentions' order
+        "fresh_policies": fresh.earned[row, -FINAL_WINDOW:].mean(0),
+        "demonstrations": demonstrations_reward(run, seed, parameters, learned),
+    }
+    return result
 
 
 def over_seeds(per_seed: list[dict]) -> dict:
@@ -405,171 +397,6 @@ def joined_seeds(parts: list[dict]) -> dict:
         **over_seeds(per_seed),
         "compile_time_s": sum(part["compile_time_s"] for part in parts),
         "train_time_s": sum(part["train_time_s"] for part in parts),
-    }
-
-
-def picked(draws: list[dict], pick) -> dict:
-    """One :func:`scored` result (with its ``success``) whose true intention i is the agent of
-    draw ``pick[i]`` of ``draws``, scores of agents trained alike under one matching."""
-    pick = [int(d) for d in pick]
-    # float64: a draw read back from its file has null where its agents were not scored.
-    column = lambda name: [
-        np.asarray(draws[d][name], np.float64)[..., i] for i, d in enumerate(pick)
-    ]
-    result = {"matching": draws[0]["matching"], "returns": np.array(column("returns"))}
-    known = draws[0]["erd"] is not None  # as scored: one draw picks itself alike
-    result.update(erd_summary(np.stack(column("erd_curve_per_intention"), -1) if known else None))
-    if "success" in draws[0]:
-        result["success"] = [draws[d]["success"][i] for i, d in enumerate(pick)]
-    return {**result, "draw": pick}
-
-
-DRAW_RULES = ("most", "nearest")
-
-
-def kept_draws(rows: list[dict], rule: str = "most") -> np.ndarray:
-    """Per learned intention, the draw ``rule`` keeps among one seed's ``rows`` (one per draw),
-    by the learned reward per step each agent earned over the last iterations: ``most``, the
-    agent that earned the most; ``nearest``, the one nearest what the demonstrations earn (one
-    that out-earns them far may have found what the reward overpays off their support)."""
-    earned = np.array([r["learned_reward_per_step"]["fresh_policies"] for r in rows], float)
-    if rule == "most":
-        return earned.argmax(0)
-    if rule == "nearest":
-        demonstrations = np.asarray(rows[0]["learned_reward_per_step"]["demonstrations"], float)
-        return np.abs(earned - demonstrations).argmin(0)
-    raise ValueError(f"no draw rule {rule!r}: one of {', '.join(DRAW_RULES)}")
-
-
-def chosen_by_learned_reward(draws: list[dict], rule: str = "most") -> dict:
-    """Several draws of fresh agents on the same rewards (:func:`reoptimize` results of the same
-    seeds, one per RL seed) as one check: per run seed and learned intention, the agent
-    :func:`kept_draws` keeps by ``rule`` (a fall paid the absorbing state's reward for every
-    step left, :func:`~emgail_jax.method.rl.reward_per_step`), a choice a user without the true
-    reward can make. Each seed's ``draw`` says which draw acts each true intention."""
-    per_seed = []
-    for rows in zip(*(d["per_seed"] for d in draws), strict=True):
-        earned = np.array([r["learned_reward_per_step"]["fresh_policies"] for r in rows])
-        best = kept_draws(rows, rule)  # [K learned]
-        chosen = picked(rows, best[np.asarray(rows[0]["matching"])])
-        chosen["learned_reward_per_step"] = {
-            "fresh_policies": earned[best, np.arange(len(best))],
-            "demonstrations": rows[0]["learned_reward_per_step"]["demonstrations"],
-        }
-        per_seed.append(
-            {"run_seed": rows[0]["run_seed"], **chosen, "draws_erd": [r["erd"] for r in rows]}
-        )
-    shared = (*DRAW_SHARED[:-1], "seeds")
-    return {
-        **{name: draws[0][name] for name in shared},
-        "rl_seeds": [d["rl_seed"] for d in draws],
-        "draw_rule": rule,
-        **over_seeds(per_seed),
-        "draws_erd_mean": [d["erd_mean"] for d in draws],
-        "draws": draws,
-        "compile_time_s": sum(d["compile_time_s"] for d in draws),
-        "train_time_s": sum(d["train_time_s"] for d in draws),
-    }
-
-
-def best_baseline(baselines: list[dict]) -> dict:
-    """Several true-reward baselines' draws (:func:`true_reward_baseline`) as one: per true
-    intention the agent with the highest true return, each agent kept by the reward it trained
-    on as :func:`chosen_by_learned_reward` keeps the learned reward's. Each draw's ERD per
-    intention is kept beside it: an agent that outruns its expert has the most true return and
-    a worse ERD than a draw nearer the expert, which a reader may prefer as the floor."""
-    best = np.array([b["returns"] for b in baselines]).argmax(0)  # [K true]
-    result = picked(baselines, best)
-    return {
-        **result,
-        "meets_bar": [q["meets_bar"] for q in result["success"]],
-        "draws_erd": [b["erd"] for b in baselines],
-        "draws_erd_per_intention": [b["erd_per_intention"] for b in baselines],
-        "cache": [b["cache"] for b in baselines],
-    }
-
-
-def baseline_key(run, budget: Budget, rl_seed: int = 0) -> str:
-    """What the true-reward baseline depends on: the env, its options and K, the budget, the
-    TRPO settings and the RL seed, as a file name (another RL seed's does not begin with
-    :func:`baseline_prefix`: the sweep's checks read RL seed 0's)."""
-    # Lambda and scaling enter as the TRPO settings they override, so a budget that keeps the
-    # run's names the baseline it named before they were part of the budget; scaling off is
-    # left out of the key as it was before the setting existed.
-    config = run.config.with_values(
-        gae_lambda=budget.gae_lambda, value_target_scaling=budget.value_target_scaling
-    ).to_dict()
-    if not config["value_target_scaling"]:
-        del config["value_target_scaling"]
-    env = run.problem.env
-    described = {
-        "env": env.name,
-        "options": env.options(),
-        "intentions": env.num_intentions,
-        "budget": {"iterations": budget.iterations, "gamma": budget.gamma},
-        "config": {name: config[name] for name in RL_FIELDS if name in config and name != "gamma"},
-    }
-    text = json.dumps(described, sort_keys=True, default=str)
-    digest = hashlib.sha256(text.encode()).hexdigest()[:12]
-    prefix = baseline_prefix(env.name, env.num_intentions, budget.iterations)
-    return (f"rl{rl_seed}-" if rl_seed else "") + f"{prefix}g{budget.gamma}-{digest}"
-
-
-def baseline_prefix(env_name: str, intentions: int, iterations: int) -> str:
-    """How the :func:`baseline_key` of every baseline of an env, K and budget iterations
-    begins, whatever its gamma and settings (the sweep looks for one it need not compute)."""
-    return f"{env_name}-k{intentions}-{iterations}it-"
-
-
-def true_reward_baseline(
-    run, budget: Budget, cache: str | None, progress: bool = True, rl_seed: int = 0
-) -> dict:
-    """TRPO on the env's true rewards with the fresh policies' settings and budget, policy i on
-    intention i (one RL seed, ``rl_seed``'s draw), scored like them; read from ``cache`` when
-    computed before."""
-    import jax
-
-    from emgail_jax.host import records
-
-    key = baseline_key(run, budget, rl_seed)
-    path = None if cache is None else os.path.join(cache, key + ".json")
-    k_true = run.problem.true_intentions
-    identity = np.arange(k_true)
-    if path is not None and os.path.exists(path):
-        with open(path) as f:
-            stored = json.load(f)
-        returns = np.asarray(stored["returns"], np.float64)  # null where not scored
-        found = stored["success"]
-    else:
-        trainer = _fresh_trainer(run, budget)
-        keys = jax.random.split(drawn(jax.random.PRNGKey(1000), rl_seed), run.num_intentions)[None]
-        # Its key names everything it depends on; saved part-way only where it is cached.
-        partial = None if path is None else PartialTraining(path + ".partial.npz", {"key": key})
-        label = "true reward"
-        fresh = train_fresh(trainer, keys, None, budget.iterations, label, progress, partial)
-        returns = fresh.returns[0]
-        states = jax.tree.map(lambda x: x[0], fresh.states)
-        found = records.to_json_value(success(run.problem.env, trainer, states, identity))
-        if path is not None:
-            os.makedirs(cache, exist_ok=True)
-            records.write_json(path, {"returns": returns, "success": found})
-            partial.remove()
-    result = scored(returns, identity, run, None)
-    return {**result, "success": found, "meets_bar": [q["meets_bar"] for q in found], "cache": path}
-
-
-def variant_reference(run, budget: Budget, cache: str | None, draws: int, progress: bool) -> dict:
-    """ERD's 0 in a variant: per true intention the highest true return of ``draws`` true-reward
-    baselines (RL seeds 0 .. draws - 1, each cached), and what each draw scored against the
-    original experts."""
-    found = [true_reward_baseline(run, budget, cache, progress, r) for r in range(draws)]
-    best = best_baseline(found)
-    return {
-        "returns": best["returns"],
-        "draw": best["draw"],
-        "draws_returns": np.array([b["returns"] for b in found], np.float64),  # [draws, K true]
-        "original_experts_erd": best["draws_erd"],
-        "meets_bar": best["meets_bar"],
     }
 
 
@@ -618,139 +445,3 @@ def with_expert_returns(problem, returns):
     """``problem`` with ``returns [K true]`` as ERD's expert reference (0)."""
     demos = dataclasses.replace(problem.demos, expert_returns=np.asarray(returns, np.float64))
     return dataclasses.replace(problem, demos=demos)
-
-
-def ensemble_parameters(run, seeds: list[int], size: int) -> tuple[list, list[int]]:
-    """Each seed's reward parameters of the last ``size`` snapshots up to the networks ``run``
-    holds, stacked ``[size, ...]``, and those snapshots' iterations."""
-    from emgail_jax.host import checkpoints
-    from emgail_jax.host.saved_run import stacked
-
-    last = run.snapshot or run.iteration
-    kept = [i for i in checkpoints.snapshot_iterations(run.run_dir) if i <= last]
-    if len(kept) < size:
-        raise checkpoints.CheckpointError(
-            f"--ensemble {size} needs {size} snapshots up to iteration {last}; "
-            f"'{run.run_dir}' kept {len(kept)} (run --snapshot-every)"
-        )
-    iterations = kept[-size:]
-    runs = [
-        dataclasses.replace(run, state=checkpoints.restore_snapshot(run.run_dir, i, run.state))
-        for i in iterations
-    ]
-    return [stacked([r.reward_parameters(seed) for r in runs]) for seed in seeds], iterations
-
-
-def ensemble_reward(reward_function):
-    """``reward_function(parameters, *inputs)`` (a reward, or the absorbing state's)
-    averaged over ``parameters`` stacked ``[N, ...]`` (:func:`ensemble_parameters`)."""
-    import jax
-
-    def mean_reward(parameters, *inputs):
-        every = jax.vmap(lambda one: reward_function(one, *inputs))(parameters)
-        return every.mean(0)
-
-    return mean_reward
-
-
-def consolidated(
-    run, seeds: list[int], refit, name: str, budget: Budget | None = None, progress: bool = True
-):
-    """Every seed's consolidated reward parameters and the refit's losses; each seed's refit is
-    read from the run's saved reward ``name`` when it was made before, and saved there when
-    not (:mod:`~emgail_jax.host.consolidation`). A refit against fresh agents trains them with
-    ``budget`` (default the env's) on the run's reward form, which its saved description
-    records."""
-    import jax
-
-    from emgail_jax.host import consolidation
-    from emgail_jax.host.run_spec import RunError
-
-    description = consolidation.refit_description(
-        refit, run.snapshot, run.snapshot or run.iteration
-    )
-    budget = budget or default_budget(run)
-    if refit.agent_rounds:
-        agents = {"reward_form": run.algorithm.reward_form, "budget": dataclasses.asdict(budget)}
-        description["agents"] = agents
-    saved_before = name in consolidation.saved_refits(run.run_dir)
-    if saved_before:
-        consolidation.check_refitted_from(run, name)
-    if saved_before and consolidation.read_description(run.run_dir, name) != description:
-        raise RunError(
-            f"the saved reward '{name}' of '{run.run_dir}' was refitted otherwise: "
-            "delete its directory under rewards/ to refit it"
-        )
-    parameters, metrics = [], []
-    for seed in seeds:
-        number = run.seed_number(seed)
-        found = consolidation.saved_parameters(run, name, seed)
-        if found is not None:
-            losses = consolidation.read_losses(run.run_dir, name, number)
-            if progress:
-                print(f"seed {number}: the refitted reward '{name}' saved before, reused")
-        else:
-            started = time.monotonic()
-            key = jax.random.PRNGKey(number + 2000)
-            samples = consolidation.snapshot_policy_samples(run, seed, key)
-            found, losses = consolidation.consolidated_parameters(
-                run, seed, refit, key, samples=samples
-            )
-            if refit.agent_rounds:
-                found, losses = refitted_against_agents(
-                    run, seed, refit, key, budget, found, samples, progress
-                )
-            # What this seed's refit cost, compiles included: the sweep's estimate reads it.
-            losses = {**losses, "seconds": time.monotonic() - started}
-            consolidation.save_refitted(
-                run.run_dir, name, number, found["discriminator"], description, losses
-            )
-        parameters.append(found)
-        metrics.append({"run_seed": number, **dataclasses.asdict(refit), **losses})
-    return parameters, metrics
-
-
-# The fresh agents a refit is fitted against are RL draws from this one on (round r's is
-# AGENT_DRAWS + r), never one that ``--rl-seed`` checks the refit with.
-AGENT_DRAWS = 1000
-
-
-def refitted_against_agents(
-    run, seed: int, refit, key, budget: Budget, first, samples, progress: bool
-):
-    """``(reward parameters, losses)``: ``refit.agent_rounds`` rounds, each training fresh
-    agents on the last refit ``first`` onwards with ``budget``, one training rollout of them
-    (with exploration) added to every earlier round's, and the refit made again from the same
-    start against those rollouts too (and the snapshots' ``samples`` the first refit saw,
-    not collected again); the losses are the last refit's, with each round's
-    agents' ERD, true returns and learned reward per step (``agent_rounds``)."""
-    import jax
-
-    from emgail_jax.host import consolidation
-    from emgail_jax.host.saved_run import stacked
-
-    trainer = learned_reward_trainer(run, budget, run.reward_function(refit.state_only))
-    acting = lambda state: trainer.policy(state, deterministic=False)
-    matching = run_matching(run, seed, run.snapshot or run.iteration)
-    found, rollouts, rounds = first, [], []
-    for number in range(1, refit.agent_rounds + 1):
-        keys = fresh_keys(run, [seed], AGENT_DRAWS + number)
-        label = f"refit's agents, round {number}"
-        fresh = train_fresh(trainer, keys, stacked([found]), budget.iterations, label, progress)
-        states = jax.tree.map(lambda x: x[0], fresh.states)
-        policy = consolidation.agents_policy(acting, states)
-        rollout_key = jax.random.fold_in(key, AGENT_DRAWS + number)
-        rollouts.append(consolidation.fixed_policy_samples(run, policy, rollout_key))
-        agents = tuple(np.concatenate(parts, 1) for parts in zip(*rollouts, strict=True))
-        scores = scored(fresh.returns[0], matching, run, seed)
-        rounds.append(
-            {
-                "erd": scores["erd"],
-                "returns": scores["returns"],
-                "learned_reward_per_step": fresh.earned[0, -FINAL_WINDOW:].mean(0),
-            }
-        )
-        found, losses = consolidation.consolidated_parameters(
-            run, seed, refit, key, agents, samples
-        )
-    return found, {**losses, "agent_rounds": rounds}

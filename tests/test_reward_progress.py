@@ -7,7 +7,7 @@ import jax
 import numpy as np
 import pytest
 
-from emgail_jax.host.check_progress import FinishedDraws, PartialTraining, draws_done
+from emgail_jax.reward.progress import FinishedDraws, PartialTraining, draws_done
 
 
 @jax.tree_util.register_dataclass

@@ -1,39 +1,31 @@
-"""A reward consolidated at the end of a run: each seed's discriminator refitted on its
-gamma-weighted demonstrations against the samples of every policy the run kept a snapshot of.
+"""The refit: each seed's discriminator fitted again, after the run, on its gamma-weighted
+demonstrations against the samples of every policy the run kept a snapshot of.
 
 During training the discriminator only ever tells the expert from the *latest* policy, so
 behaviour the policies left behind long ago (and any a fresh agent may find) can be paid more
 than the demonstrations. Refitting against all the run's policies at once is one way to take
-that away (the issue's "consolidated reward"); it changes nothing in training: it reads the
-snapshots (``run --snapshot-every``) after the run.
-
-A refitted reward is saved in the run directory, ``RUN/rewards/NAME/seed-S.msgpack`` (the
-discriminator's parameters) beside ``reward.json`` (the refit's options), so that
-``load_reward(RUN, refit=NAME)`` returns it and a later check (another RL seed, reward form or
-changed env) reuses it rather than refitting.
+that away; it changes nothing in training: it reads the snapshots (``run --snapshot-every``)
+after the run. Where a refit is saved and read again: :mod:`emgail_jax.reward.saved`.
 
 The refit may also start from fresh discriminator weights rather than the final ones, and see
 a noisy copy of every policy sample as a further negative: a reward learnt in one go against
 the run's whole history, with the smoothing training may not afford (a penalty strong enough to
-generalise the reward can cost the clustering; docs/rewards-that-reoptimise.md).
+generalise the reward can cost the clustering; docs/reward.md, "The refit").
 """
 
 from __future__ import annotations
 
-import json
-import os
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from emgail_jax.host import checkpoints, records
+from emgail_jax.host import checkpoints
 from emgail_jax.method import normalizer as obs_norm
 from emgail_jax.method.batches import NormalizedBatch
-from emgail_jax.method.discriminator import Read, discriminator_loss, state_only
+from emgail_jax.method.discriminator import Read, discriminator_loss
 from emgail_jax.method.optim import Learner, minimize
-from emgail_jax.method.ranking import ranking_loss
 from emgail_jax.method.rollout import (
     batch_reset,
     intention_major,
@@ -49,8 +41,9 @@ from emgail_jax.method.training import (
     seed_state,
     training_env,
 )
+from emgail_jax.reward.ranking import ranking_loss
 from emgail_jax.variants.assembly import VariantLoss
-from emgail_jax.variants.extras import attached, extras_of, more_samples
+from emgail_jax.variants.extras import attached, extras_of
 from emgail_jax.variants.support import with_support_negatives
 
 
@@ -65,16 +58,11 @@ class Refit:
     of the noisy copies) or, with ``batch`` > 0, that many samples per intention drawn anew
     from the snapshots' pool (and their noisy copies), as training's M-step sees one
     iteration's batch; the demonstrations are whole in every step. ``ranking`` > 0 adds that
-    weight times :func:`~emgail_jax.method.ranking.ranking_loss`: the snapshots ranked by
+    weight times :func:`~emgail_jax.reward.ranking.ranking_loss`: the snapshots ranked by
     iteration and the demonstrations above them, ``RANKED_PAIRS`` pairs of ``RANKED_SAMPLES``
     samples per intention drawn anew in every step; below the oldest snapshot rank, lowest
     first, one rollout of uniformly random actions (``ranking_random``) and one of actions held
-    still (``ranking_still``), each a ranking level only. ``agent_rounds`` > 0 refits that many
-    times more, each time against fresh agents trained on the last refit too
-    (:func:`emgail_jax.host.reward_check.consolidated`): every step's negatives are then ``batch``
-    samples of the snapshots and ``batch`` of those agents' rollouts (a GAIL negative only, not
-    a ranking level). ``state_only`` refits D(s, i), every action read as zeros
-    (:func:`~emgail_jax.method.discriminator.state_only`), here and wherever the reward is read.
+    still (``ranking_still``), each a ranking level only.
     ``absorbing`` refits with termination as an absorbing state (DAC,
     :mod:`~emgail_jax.method.discriminator`): every sample whose transition ended its episode
     early brings one absorbing negative, and a fresh agent's fall is paid the absorbing state's
@@ -89,8 +77,6 @@ class Refit:
     ranking: float = 0.0
     ranking_random: bool = False
     ranking_still: bool = False
-    agent_rounds: int = 0
-    state_only: bool = False
     absorbing: bool = False
 
 
@@ -148,19 +134,6 @@ def snapshot_policy_samples(run, seed: int, key: jax.Array, iterations=None):
     return tuple(np.concatenate(parts, 1) for parts in zip(*rollouts, strict=True))
 
 
-def agents_policy(policy_of, states):
-    """The policy of one training rollout of fresh agents ``states [K]``: agent k acts on
-    intention k's row of the ``[K, B, D]`` observations with ``policy_of(state)``, which
-    takes one agent's ``[1, B, D]`` as it trained on."""
-
-    def policy(obs, key):
-        keys = jax.random.split(key, obs.shape[0])
-        act = lambda state, row, key: policy_of(state)(row[None], key)[0]
-        return jax.vmap(act)(states, obs, keys)
-
-    return policy
-
-
 def fixed_policy_samples(run, policy, key: jax.Array):
     """``(obs [K, M, D] raw, executed [K, M, A], terminal [K, M])``: one training rollout per
     intention of ``policy`` (acting on raw observations), of the shape of one snapshot's in
@@ -181,7 +154,7 @@ ABSORBING_PRICE_KEY = 20260
 def random_actions_reward(run, parameters: dict, reward_function) -> np.ndarray:
     """``[K]``: the reward ``reward_function(parameters, obs, action, intention)`` pays per
     step, intention by intention, to uniformly random actions over one training rollout (a
-    fixed draw): the price of the absorbing state under ``--absorbing-reward random``. A fall
+    fixed draw): the price of the absorbing state under ``--set absorbing_reward=random``. A fall
     then costs what acting at random for the rest of the episode would earn, rather than the
     absorbing state's own learned reward, which the refit drives as low as its penalty lets
     it, no demonstration ever reaching that state."""
@@ -202,16 +175,14 @@ def still_action_samples(run, key: jax.Array):
 
 
 def consolidated_parameters(
-    run, seed: int, refit: Refit, key: jax.Array, agents=None, samples=None
+    run, seed: int, refit: Refit, key: jax.Array, samples=None
 ) -> tuple[dict, dict]:
     """``(reward parameters, metrics)``: :meth:`SavedRun.reward_parameters` of ``seed`` with
     its discriminator refitted as ``refit`` says on the expert pairs weighted by the final
-    responsibilities against the policy samples of every snapshot and, if given, ``agents``
-    (``(obs [K, M', D] raw, executed [K, M', A], terminal [K, M'])``: fresh agents' rollouts,
-    as many negatives per step as the snapshots'); ``samples`` are the snapshots' (default
-    :func:`snapshot_policy_samples` of ``seed`` and ``key``, collected here). The metrics are
-    those of the M-step's loss before (on the first step's batch) and after (on every
-    sample). A refit with absorbing states needs ``run`` opened
+    responsibilities against the policy samples of every snapshot; ``samples`` are the
+    snapshots' (default :func:`snapshot_policy_samples` of ``seed`` and ``key``, collected
+    here). The metrics are those of the M-step's loss before (on the first step's batch) and
+    after (on every sample). A refit with absorbing states needs ``run`` opened
     :meth:`~emgail_jax.host.saved_run.SavedRun.with_absorbing_states`.
 
     Raises:
@@ -224,16 +195,31 @@ def consolidated_parameters(
     )
     parameters = run.reward_parameters(seed)
     state = run.seed_state(seed)
-    algorithm, config, k = run.algorithm, run.config, run.num_intentions
     if refit.absorbing:
         _check_absorbing(run, refit)
+    samples = snapshot_policy_samples(run, seed, key) if samples is None else samples
+    clip = run.config.method.networks.obs_clip
+    normalize = lambda x: obs_norm.normalize(state.normalizer, x, clip)
+    pool = _refit_pool(run, refit, state.normalizer, normalize, samples)
+    floor = _ranking_floor(run, refit, normalize, key_random, key_still)
+    optimizer = make_optimizers(run.config.method).discriminator
+    gamma = _responsibilities(run, seed)
+    refitted = _refit_program(run, refit, gamma, optimizer, (key_noise, key_draws))
+    start = state.discriminator
+    if refit.fresh:
+        start = Learner.create(new_discriminator_weights(run, key_init), optimizer)
+    trained, before, after = refitted(start, pool, floor)
+    metrics = {"before": jax.device_get(before), "after": jax.device_get(after)}
+    return {**parameters, "discriminator": trained.params}, metrics
+
+
+def _refit_pool(run, refit: Refit, normalizer, normalize, samples) -> NormalizedBatch:
+    """The snapshots' ``samples`` and the demonstration pairs as the refit sees them, with
+    their terminations where it learns an absorbing state."""
     pairs = run.demonstration_pairs
-    obs, executed, terminal = (
-        snapshot_policy_samples(run, seed, key) if samples is None else samples
-    )
-    normalize = lambda x: obs_norm.normalize(state.normalizer, x, config.method.networks.obs_clip)
+    obs, executed, terminal = samples
     pool = NormalizedBatch(
-        normalizer=state.normalizer,
+        normalizer=normalizer,
         obs=normalize(obs),
         executed=executed,
         expert_obs=normalize(pairs.observations),
@@ -244,10 +230,13 @@ def consolidated_parameters(
         pool = attached(
             pool, terminal=terminal, expert_terminal=pairs.terminations(episode_length)
         ).check()
-    met_agents = None
-    if agents is not None:
-        met_agents = (normalize(agents[0]), agents[1], agents[2] if refit.absorbing else None)
-    # ([K, F, M, D], [K, F, M, A]): the ranking's levels below every snapshot, lowest first.
+    return pool
+
+
+def _ranking_floor(run, refit: Refit, normalize, key_random, key_still):
+    """``(obs [K, F, M, D], actions [K, F, M, A])``: the ranking's levels below every
+    snapshot, lowest first (random actions, then actions held still, as ``refit`` asks);
+    None without them."""
     below = [
         sampled(run, level_key)
         for wanted, sampled, level_key in (
@@ -256,25 +245,39 @@ def consolidated_parameters(
         )
         if wanted
     ]
-    floor = None
-    if below:
-        # A ranking level is a behaviour, not a negative: its terminations bring no absorbing pair.
-        obs_below, actions_below, _ = (np.stack(levels, 1) for levels in zip(*below, strict=True))
-        floor = (normalize(obs_below), actions_below)
+    if not below:
+        return None
+    # A ranking level is a behaviour, not a negative: its terminations bring no absorbing pair.
+    obs_below, actions_below, _ = (np.stack(levels, 1) for levels in zip(*below, strict=True))
+    return normalize(obs_below), actions_below
+
+
+def _responsibilities(run, seed: int) -> np.ndarray:
+    """``[N, K]`` how much each demonstration pair belongs to each intention (every pair alike
+    without a posterior)."""
+    if run.algorithm.learns_posterior:
+        return np.asarray(run.responsibilities(seed).gamma)
+    return np.ones((run.demonstration_pairs.observations.shape[0], run.num_intentions))
+
+
+def _refit_program(run, refit: Refit, gamma: np.ndarray, optimizer, keys):
+    """The jitted refit ``(learner, pool, floor) -> (learner, metrics before, metrics
+    after)`` of the M-step's loss (and the ranking's, if asked) over the ``pool`` of samples,
+    the demonstrations weighted by ``gamma [N, K]``; ``keys``: the noisy copies' and the
+    draws'."""
+    algorithm, k = run.algorithm, run.num_intentions
+    key_noise, key_draws = keys
+    rollout = run.config.method.rollout
 
     def ranked_levels(pool: NormalizedBatch, floor):
         """``(obs [K, L, M, D], actions [K, L, M, A])``: the ranking's levels below the
         demonstrations, lowest first (``floor``, if any, then the snapshots)."""
+        snapshots = pool.obs.shape[1] // (rollout.num_envs * rollout.rollout_length)
         by_snapshot = lambda x: x.reshape(k, snapshots, -1, x.shape[-1])
         obs, actions = by_snapshot(pool.obs), by_snapshot(pool.executed)
         if floor is None:
             return obs, actions
         return jnp.concatenate([floor[0], obs], 1), jnp.concatenate([floor[1], actions], 1)
-
-    if algorithm.learns_posterior:
-        gamma = np.asarray(run.responsibilities(seed).gamma)
-    else:
-        gamma = np.ones((pairs.observations.shape[0], k))
 
     def with_noise(seen: NormalizedBatch, key: jax.Array) -> NormalizedBatch:
         if not refit.support_noise:
@@ -295,27 +298,17 @@ def consolidated_parameters(
             hook=hook,
         )
 
-    def drawn(pool: NormalizedBatch, agents, key: jax.Array) -> NormalizedBatch:
-        """``refit.batch`` samples of each intention, drawn uniformly from the pool, and as
-        many from ``agents`` (if any) after them."""
+    def drawn(pool: NormalizedBatch, key: jax.Array) -> NormalizedBatch:
+        """``refit.batch`` samples of each intention, drawn uniformly from the pool."""
         key_draw, key_moved = jax.random.split(key)
         take = lambda x, rows: None if x is None else x[:, rows]
         rows = jax.random.randint(key_draw, (refit.batch,), 0, pool.obs.shape[1])
         seen = pool.replace(obs=take(pool.obs, rows), executed=take(pool.executed, rows))
         if pool.extra is not None:
             seen = attached(seen, terminal=take(extras_of(pool).terminal, rows))
-        if agents is not None:
-            key_agents = jax.random.fold_in(key, 1)
-            rows = jax.random.randint(key_agents, (refit.batch,), 0, agents[0].shape[1])
-            seen = more_samples(seen, *(take(x, rows) for x in agents))
         return with_noise(seen, key_moved)
 
     apply = run.networks.discriminator.apply
-    if refit.state_only:
-        apply = state_only(apply)
-    optimizer = make_optimizers(config.method).discriminator
-    rollout = config.method.rollout
-    snapshots = obs.shape[1] // (rollout.num_envs * rollout.rollout_length)
 
     def loss(params, seen: NormalizedBatch, levels, key: jax.Array):
         value, metrics = discriminator_loss(apply, params, **loss_inputs(seen))
@@ -343,15 +336,12 @@ def consolidated_parameters(
     # The pool is an argument, not a constant the compiler would fold into the program; the
     # loss after the refit is measured in the same program, compiled once.
     @jax.jit
-    def refitted(
-        learner: Learner, pool: NormalizedBatch, floor, agents
-    ) -> tuple[Learner, dict, dict]:
-        whole = pool if agents is None else more_samples(pool, *agents)
-        whole = with_noise(whole, key_noise)
+    def refitted(learner: Learner, pool: NormalizedBatch, floor) -> tuple[Learner, dict, dict]:
+        whole = with_noise(pool, key_noise)
         levels = ranked_levels(pool, floor) if refit.ranking else None
         if refit.batch or refit.ranking:
             # Every step draws anew: its batch, its ranked pairs, or both.
-            seen = lambda key: drawn(pool, agents, key) if refit.batch else whole
+            seen = lambda key: drawn(pool, key) if refit.batch else whole
             step = lambda learner, key: fit(learner, 1, seen(key), levels, key)
             keys = jax.random.split(key_draws, refit.steps)
             learner, metrics = jax.lax.scan(step, learner, keys)
@@ -361,12 +351,7 @@ def consolidated_parameters(
         _, after = fit(learner, 1, whole, levels, key_draws)
         return learner, before, after
 
-    start = state.discriminator
-    if refit.fresh:
-        start = Learner.create(new_discriminator_weights(run, key_init), optimizer)
-    trained, before, after = refitted(start, pool, floor, met_agents)
-    metrics = {"before": jax.device_get(before), "after": jax.device_get(after)}
-    return {**parameters, "discriminator": trained.params}, metrics
+    return refitted
 
 
 def new_discriminator_weights(run, key: jax.Array) -> dict:
@@ -387,109 +372,3 @@ def _check_absorbing(run, refit: Refit) -> None:
         raise ValueError(
             "the run's discriminator was trained without absorbing states: refit it fresh"
         )
-
-
-def rewards_directory(run_dir: str) -> str:
-    return os.path.join(os.path.abspath(run_dir), "rewards")
-
-
-def saved_refits(run_dir: str) -> list[str]:
-    """The names of the refitted rewards saved in ``run_dir``, in order."""
-    root = rewards_directory(run_dir)
-    if not os.path.isdir(root):
-        return []
-    names = os.listdir(root)
-    return sorted(n for n in names if os.path.exists(os.path.join(root, n, "reward.json")))
-
-
-def _seed_path(run_dir: str, name: str, number: int) -> str:
-    """The file of the run's seed ``number`` (as ``run --seed`` numbered it)."""
-    return os.path.join(rewards_directory(run_dir), name, f"seed-{number}.msgpack")
-
-
-def save_refitted(
-    run_dir: str, name: str, number: int, discriminator, description: dict, losses: dict
-) -> None:
-    """Writes the refitted discriminator parameters of the run's seed ``number`` (as ``run
-    --seed`` numbered it) as the saved reward ``name``, with
-    ``description`` (``reward.json``: :func:`refit_description`) and
-    the refit's ``losses`` (``seed-S.json``); each file renamed into place once written."""
-    directory = os.path.join(rewards_directory(run_dir), name)
-    os.makedirs(directory, exist_ok=True)
-    path = _seed_path(run_dir, name, number)
-    checkpoints.write_tree(path, jax.device_get(discriminator))
-    records.write_json(path.removesuffix(".msgpack") + ".json", losses)
-    records.write_json(os.path.join(directory, "reward.json"), description)
-
-
-def read_losses(run_dir: str, name: str, number: int) -> dict:
-    """The refit's losses of the run's seed ``number`` saved with the reward ``name`` (empty
-    if none)."""
-    path = _seed_path(run_dir, name, number).removesuffix(".msgpack") + ".json"
-    if not os.path.exists(path):
-        return {}
-    with open(path) as f:
-        return json.load(f)
-
-
-def refit_description(refit: Refit, snapshot: int | None, iteration: int) -> dict:
-    """What ``reward.json`` says of a saved refit: its options, the snapshot whose networks
-    (observation statistics, posterior) the reward reads beside the refit (None: the final
-    ones), and the iteration of those networks, so that a run resumed since is not read with
-    the refit of its earlier networks."""
-    return {"refit": asdict(refit), "snapshot": snapshot, "iteration": iteration}
-
-
-def read_description(run_dir: str, name: str) -> dict:
-    """The ``reward.json`` of the saved reward ``name``, its refit's options completed with the
-    defaults of those added since it was saved.
-
-    Raises:
-      CheckpointError: ``run_dir`` saved no reward of that name (the message lists those it did).
-    """
-    path = os.path.join(rewards_directory(run_dir), name, "reward.json")
-    if not os.path.exists(path):
-        saved = ", ".join(saved_refits(run_dir)) or "none; reoptimize --consolidate saves one"
-        raise checkpoints.CheckpointError(
-            f"'{run_dir}' saved no refitted reward '{name}' (saved: {saved})"
-        )
-    with open(path) as f:
-        description = json.load(f)
-    # Refits saved before the iteration was recorded: a snapshot's is its iteration, the final
-    # networks' is unknown (None).
-    iteration = description.get("iteration", description["snapshot"])
-    return {**description, "refit": asdict(Refit(**description["refit"])), "iteration": iteration}
-
-
-def check_refitted_from(run, name: str) -> None:
-    """Raises CheckpointError unless the saved reward ``name`` was refitted from the networks
-    ``run`` holds (a run resumed since has others)."""
-    refitted_from = read_description(run.run_dir, name)["iteration"]
-    networks = run.snapshot or run.iteration
-    if refitted_from != networks:
-        of = "an unrecorded iteration" if refitted_from is None else f"iteration {refitted_from}"
-        raise checkpoints.CheckpointError(
-            f"the saved reward '{name}' of '{run.run_dir}' was refitted from the networks of "
-            f"{of}, not those of iteration {networks}: delete "
-            f"{os.path.join(rewards_directory(run.run_dir), name)} to refit it"
-        )
-
-
-def saved_parameters(run, name: str, seed: int) -> dict | None:
-    """:meth:`SavedRun.reward_parameters` of ``seed`` with the discriminator of the saved
-    refitted reward ``name``; None when that seed was not refitted under that name.
-
-    Raises:
-      CheckpointError: a file that cannot be read or does not fit the run's discriminator,
-        or one refitted from the networks of another iteration than ``run``'s.
-    """
-    path = _seed_path(run.run_dir, name, run.seed_number(seed))
-    if not os.path.exists(path):
-        return None
-    check_refitted_from(run, name)
-    # The network's shapes, not the run's own weights: a refit with absorbing states reads
-    # one input more than a run trained without them.
-    shapes = jax.eval_shape(lambda key: new_discriminator_weights(run, key), jax.random.PRNGKey(0))
-    template = jax.tree.map(lambda x: np.zeros(x.shape, x.dtype), shapes)
-    saved = checkpoints.read_tree(path, template, "the reward")
-    return {**run.reward_parameters(seed), "discriminator": saved}
