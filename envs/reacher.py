@@ -30,8 +30,8 @@ resolve it badly (docs/environments.md).
 
 from __future__ import annotations
 
+import functools
 import math
-from collections.abc import Sequence
 
 import jax
 import jax.numpy as jnp
@@ -62,15 +62,9 @@ class ReacherEnv(MjxEnv):
     reset_qpos_noise = 0.1
     reset_qvel_noise = 0.005
 
-    def __init__(
-        self,
-        intentions: int | None = None,
-        solver_iterations: int | None = None,
-        ls_iterations: int | None = None,
-        dynamics: Sequence[str] = (),
-    ):
-        super().__init__(intentions, solver_iterations, ls_iterations, dynamics)
-        self.fingertip_id = self.mj_model.body("fingertip").id
+    @functools.cached_property
+    def fingertip_id(self) -> int:
+        return self.mj_model.body("fingertip").id
 
     def edit_spec(self, spec: mujoco.MjSpec) -> None:
         spec.delete(spec.body("target"))

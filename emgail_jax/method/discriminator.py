@@ -149,6 +149,30 @@ def discriminator_loss(
     return loss, metrics
 
 
+def loss_batch(
+    batch: NormalizedBatch,
+    gamma: jax.Array,
+    algorithm: Algorithm,
+    read: Read | None = None,
+    hook: LossHook | None = None,
+) -> dict:
+    """:func:`discriminator_loss`'s keyword inputs for ``batch``: its expert pairs weighted by
+    ``gamma [N, K]`` under every condition, its samples under their own intention, each side
+    read as ``read`` says (the paper's executed actions if None)."""
+    k = batch.obs.shape[0]
+    read = Read.of(batch) if read is None else read
+    return dict(
+        expert_obs=batch.expert_obs,
+        expert_actions=read.experts,
+        expert_weights=algorithm.expert_weights(gamma),
+        conditions=algorithm.discriminator_conditions(k),
+        policy_obs=batch.obs,
+        policy_actions=read.samples,
+        policy_conditions=algorithm.discriminator_condition(batch.own_intention(), k),
+        hook=hook,
+    )
+
+
 def discriminator_update(
     apply: Callable,
     optimizer: optax.GradientTransformation,
@@ -188,21 +212,9 @@ def make_m_step(apply: Callable, optimizer: optax.GradientTransformation, config
     ) -> MStep:
         k = batch.obs.shape[0]
         chex.assert_shape(gamma, (batch.expert_obs.shape[0], k))
-        own_intention = batch.own_intention()
-        read = Read.of(batch) if read is None else read
+        inputs = loss_batch(batch, gamma, algorithm, read=read, hook=hook)
         trained, metrics = discriminator_update(
-            apply,
-            optimizer,
-            discriminator,
-            config.steps,
-            expert_obs=batch.expert_obs,
-            expert_actions=read.experts,
-            expert_weights=algorithm.expert_weights(gamma),
-            conditions=algorithm.discriminator_conditions(k),
-            policy_obs=batch.obs,
-            policy_actions=read.samples,
-            policy_conditions=algorithm.discriminator_condition(own_intention, k),
-            hook=hook,
+            apply, optimizer, discriminator, config.steps, **inputs
         )
         return MStep(trained, metrics)
 

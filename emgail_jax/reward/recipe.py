@@ -225,17 +225,18 @@ def check_refit_settings(args: argparse.Namespace) -> None:
             raise RunError(f"consolidate_ranking_{level} goes with consolidate_ranking=WEIGHT")
 
 
-# How the name of a saved refit spells each setting that is on, in this order.
-_NAME_PARTS = (
-    ("consolidate", "consolidated-{}"),
-    ("consolidate_penalty", "penalty-{:g}"),
-    ("consolidate_fresh", "fresh"),
-    ("consolidate_noise", "noise-{:g}"),
-    ("consolidate_batch", "batch-{}"),
-    ("consolidate_ranking", "ranking-{:g}"),
-    ("consolidate_ranking_random", "random"),
-    ("consolidate_ranking_still", "still"),
-    ("consolidate_absorbing", "absorbing"),
+# Each refit setting: its Refit field, and how the name of a saved refit spells it when it is
+# on (in this order).
+_REFIT_FIELDS = (
+    ("consolidate", "steps", "consolidated-{}"),
+    ("consolidate_penalty", "gradient_penalty", "penalty-{:g}"),
+    ("consolidate_fresh", "fresh", "fresh"),
+    ("consolidate_noise", "support_noise", "noise-{:g}"),
+    ("consolidate_batch", "batch", "batch-{}"),
+    ("consolidate_ranking", "ranking", "ranking-{:g}"),
+    ("consolidate_ranking_random", "ranking_random", "random"),
+    ("consolidate_ranking_still", "ranking_still", "still"),
+    ("consolidate_absorbing", "absorbing", "absorbing"),
 )
 
 
@@ -245,20 +246,10 @@ def refit_parts(args) -> list[str]:
     parts = [] if args.snapshot is None else [f"snapshot-{args.snapshot}"]
     if not args.consolidate:
         return parts
-    given = [(form, getattr(args, key)) for key, form in _NAME_PARTS]
+    given = [(form, getattr(args, key)) for key, _, form in _REFIT_FIELDS]
     return parts + [form.format(value) for form, value in given if value]
 
 
 def refit_of(args) -> Refit:
     """The :class:`~emgail_jax.reward.refit.Refit` the ``consolidate*`` settings ask for."""
-    return Refit(
-        steps=args.consolidate,
-        gradient_penalty=args.consolidate_penalty,
-        fresh=args.consolidate_fresh,
-        support_noise=args.consolidate_noise,
-        batch=args.consolidate_batch,
-        ranking=args.consolidate_ranking,
-        ranking_random=args.consolidate_ranking_random,
-        ranking_still=args.consolidate_ranking_still,
-        absorbing=args.consolidate_absorbing,
-    )
+    return Refit(**{field: getattr(args, key) for key, field, _ in _REFIT_FIELDS})

@@ -24,7 +24,7 @@ import numpy as np
 from emgail_jax.host import checkpoints
 from emgail_jax.method import normalizer as obs_norm
 from emgail_jax.method.batches import NormalizedBatch
-from emgail_jax.method.discriminator import Read, discriminator_loss
+from emgail_jax.method.discriminator import Read, discriminator_loss, loss_batch
 from emgail_jax.method.optim import Learner, minimize
 from emgail_jax.method.rollout import (
     batch_reset,
@@ -287,16 +287,7 @@ def _refit_program(run, refit: Refit, gamma: np.ndarray, optimizer, keys):
     def loss_inputs(seen: NormalizedBatch) -> dict:
         absorbing = extras_of(seen).terminal is not None
         hook = VariantLoss(absorbing, refit.gradient_penalty)(seen, Read.of(seen), gamma, algorithm)
-        return dict(
-            expert_obs=seen.expert_obs,
-            expert_actions=seen.expert_actions,
-            expert_weights=algorithm.expert_weights(gamma),
-            conditions=algorithm.discriminator_conditions(k),
-            policy_obs=seen.obs,
-            policy_actions=seen.executed,
-            policy_conditions=algorithm.discriminator_condition(seen.own_intention(), k),
-            hook=hook,
-        )
+        return loss_batch(seen, gamma, algorithm, hook=hook)
 
     def drawn(pool: NormalizedBatch, key: jax.Array) -> NormalizedBatch:
         """``refit.batch`` samples of each intention, drawn uniformly from the pool."""
