@@ -102,7 +102,7 @@ def matched_reward(run, seed: int, parameters, state_only: bool = False):
 
 
 def seed_columns(
-    run, seed: int, parameters, experts, keys, episodes: int, state_only: bool = False
+    run, seed: int, parameters, experts, keys, episodes: int, *, state_only: bool = False
 ):
     """``([demonstrations, experts, joint policies, random, still] each [K true], matching)``
     for run ``seed``, scored by the reward of ``parameters``: true intention i by the learned
@@ -133,7 +133,7 @@ def seed_columns(
 
 
 def along_training(
-    run, seed: int, parameters, every: int, episodes: int, key, state_only: bool = False
+    run, seed: int, parameters, every: int, episodes: int, key, *, state_only: bool = False
 ):
     """``[(iteration, learned reward per step [K true], true return [K true])]``: the run's own
     policies of every ``every``-th snapshot of ``seed`` on fresh episodes, scored by the reward
@@ -171,7 +171,7 @@ def print_along_training(
     from scipy.stats import spearmanr
 
     key = jax.random.PRNGKey(2027)
-    found = along_training(run, seed, parameters, every, episodes, key, state_only)
+    found = along_training(run, seed, parameters, every, episodes, key, state_only=state_only)
     number = run.seed_number(seed)
     print(f"seed {number}: iteration, learned reward per step / true return per true intention")
     for iteration, earned, true in found:
@@ -235,7 +235,7 @@ def main(argv=None) -> int:
     )
     for seed in range(run.spec.seeds):
         columns, matching = seed_columns(
-            run, seed, parameters[seed], experts, keys, args.episodes, state_only
+            run, seed, parameters[seed], experts, keys, args.episodes, state_only=state_only
         )
         for i, learned_intention in enumerate(matching):
             values = " / ".join(f"{column[i]:.3f}" for column in columns)
