@@ -104,12 +104,16 @@ def test_hundred_random_steps_stay_finite(compiled, name):
 
 
 @pytest.mark.parametrize("name", MJX_ENVS)
-def test_step_keeps_info_it_does_not_own(name):
-    env = envs.make(name)
+def test_step_keeps_info_it_does_not_own_and_k_sets_the_reward_shape(name):
+    """One trace of reset and step each (an MJX step traces in seconds): the info the step does
+    not own passes through, and K = 1 selects one reward."""
+    env = envs.make(name, intentions=1)
     state = jax.eval_shape(env.reset, jax.random.PRNGKey(0))
+    assert state.reward.shape == (1,)
     state = state.replace(info={"steps": jnp.zeros((), jnp.int32), "mine": jnp.zeros((3,))})
     out = jax.eval_shape(env.step, state, jnp.zeros(env.action_size))
     assert set(out.info) == {"steps", "mine"} and out.info["mine"].shape == (3,)
+    assert out.reward.shape == (1,)
 
 
 # ---- reward semantics -----------------------------------------------------------------------
@@ -227,12 +231,7 @@ def test_reacher_observation_layout(compiled):
 # ---- K selects the first K intentions -------------------------------------------------------
 
 
-@pytest.mark.parametrize("name", MJX_ENVS)
-def test_k_sets_the_reward_shape(name):
-    env = envs.make(name, intentions=1)
-    state = jax.eval_shape(env.reset, jax.random.PRNGKey(0))
-    assert state.reward.shape == (1,)
-    assert jax.eval_shape(env.step, state, jnp.zeros(env.action_size)).reward.shape == (1,)
+# (K = 1's reward shape: test_step_keeps_info_it_does_not_own_and_k_sets_the_reward_shape)
 
 
 @pytest.mark.slow  # a compile of the reacher with K = 2: 20-25 s

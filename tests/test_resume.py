@@ -28,6 +28,15 @@ TINY = [
     "--quiet",
 ]  # fmt: skip
 
+# The child processes' environment: the tests' compilation cache, which holds the programs this
+# process compiled for the same runs.
+_CACHED = {
+    **os.environ,
+    "JAX_COMPILATION_CACHE_DIR": os.path.join(
+        os.path.dirname(os.path.dirname(__file__)), ".cache", "jax"
+    ),
+}
+
 
 @pytest.fixture(scope="module")
 def straight_and_resumed(tmp_path_factory):
@@ -134,7 +143,7 @@ def test_corrupt_checkpoint_is_one_line_on_stderr_to_the_processs_end(
     straight, _ = straight_and_resumed
     broken = _with_a_damaged_checkpoint(straight, tmp_path)
     command = [sys.executable, "-m", "emgail_jax.run", "--resume", str(broken), "--quiet"]
-    done = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    done = subprocess.run(command, capture_output=True, text=True, timeout=300, env=_CACHED)
     assert done.returncode == 2
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and "cannot be read" in lines[0], done.stderr
@@ -152,9 +161,7 @@ def test_sigterm_leaves_a_valid_checkpoint_and_an_interrupted_summary(tmp_path):
         "--out",
         str(out),
     ]
-    cache = os.path.join(os.path.dirname(os.path.dirname(__file__)), ".cache", "jax")
-    env = {**os.environ, "JAX_COMPILATION_CACHE_DIR": cache}
-    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=_CACHED)
     deadline = time.time() + 240
     while checkpoints.latest_iteration(str(out)) is None and time.time() < deadline:
         time.sleep(0.5)
@@ -257,8 +264,7 @@ def _kill_and_resume(straight, out, kills: int, seed: int):
     moments of its life (start-up, compiles, chunks, checkpoint writes), each time continuing
     with --resume (or the first command again, if the kill came before the run wrote its
     summary), then lets it finish."""
-    cache = os.path.join(os.path.dirname(os.path.dirname(__file__)), ".cache", "jax")
-    env = {**os.environ, "JAX_COMPILATION_CACHE_DIR": cache}
+    env = _CACHED
     python = [sys.executable, "-m", "emgail_jax.run"]
     first = [*python, *TINY, "--iterations", str(ITERATIONS), "--out", str(out)]
     # How long one uninterrupted child takes, to draw the moments from.
