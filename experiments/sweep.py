@@ -315,6 +315,7 @@ def check_seconds(
     iterations: int,
     timings: Timings,
     with_baseline: bool,
+    *,
     check: RewardCheck = PAPER_CHECK,
     processes: int = 1,
 ) -> float:
@@ -340,6 +341,7 @@ def estimate_seconds(
     seeds: int,
     iterations: int,
     timings: Timings,
+    *,
     computing_baselines: tuple[RewardCheck, ...] = REWARD_CHECKS,
     checks: tuple[RewardCheck, ...] = REWARD_CHECKS,
     draws_done: dict[RewardCheck, float] | None = None,
@@ -353,7 +355,7 @@ def estimate_seconds(
         with_baseline = check in computing_baselines
         left = 1.0 - (draws_done or {}).get(check, 0.0) / check.draws
         seconds += left * check_seconds(
-            cell, seeds, iterations, timings, with_baseline, check, check_processes
+            cell, seeds, iterations, timings, with_baseline, check=check, processes=check_processes
         )
     return seconds
 

@@ -22,7 +22,10 @@ for _variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 # optimisation level halves a cold compile (the tiny driver run: 45-48 s -> 22-25 s), and
 # the child processes some tests start inherit it.
 jax_setup.add_xla_flags("--xla_backend_optimization_level=0")
-jax_setup.setup(host_devices=2, cache_dir=str(_REPO / ".cache" / "jax"))
+# The tests' own compilation cache, for the child processes some tests start too: they reuse
+# what the workers compiled for the same runs, and never read or fill the user's cache.
+os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(_REPO / ".cache" / "jax"))
+jax_setup.setup(host_devices=2, cache_dir=os.environ["JAX_COMPILATION_CACHE_DIR"])
 
 
 def pytest_collection_modifyitems(items):

@@ -38,10 +38,9 @@ def _free_port() -> int:
 def _environment() -> dict:
     """This process's environment without the conftest's device count: each process splits the
     CPU as jax_setup does for a user (one device per core, here 2 for each of 2 processes)."""
-    cache = os.path.join(os.path.dirname(os.path.dirname(__file__)), ".cache", "jax")
     count = "--xla_force_host_platform_device_count"
     inherited = [f for f in os.environ.get("XLA_FLAGS", "").split() if not f.startswith(count)]
-    return {**os.environ, "XLA_FLAGS": " ".join(inherited), "JAX_COMPILATION_CACHE_DIR": cache}
+    return {**os.environ, "XLA_FLAGS": " ".join(inherited)}
 
 
 def _start_two(out, *options) -> list[subprocess.Popen]:

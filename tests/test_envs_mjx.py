@@ -104,12 +104,16 @@ def test_hundred_random_steps_stay_finite(compiled, name):
 
 
 @pytest.mark.parametrize("name", MJX_ENVS)
-def test_step_keeps_info_it_does_not_own(name):
-    env = envs.make(name)
+def test_step_keeps_info_it_does_not_own_and_k_sets_the_reward_shape(name):
+    """One trace of reset and step each (an MJX step traces in seconds): the info the step does
+    not own passes through, and K = 1 selects one reward."""
+    env = envs.make(name, intentions=1)
     state = jax.eval_shape(env.reset, jax.random.PRNGKey(0))
+    assert state.reward.shape == (1,)
     state = state.replace(info={"steps": jnp.zeros((), jnp.int32), "mine": jnp.zeros((3,))})
     out = jax.eval_shape(env.step, state, jnp.zeros(env.action_size))
     assert set(out.info) == {"steps", "mine"} and out.info["mine"].shape == (3,)
+    assert out.reward.shape == (1,)
 
 
 # ---- reward semantics -----------------------------------------------------------------------
@@ -227,12 +231,7 @@ def test_reacher_observation_layout(compiled):
 # ---- K selects the first K intentions -------------------------------------------------------
 
 
-@pytest.mark.parametrize("name", MJX_ENVS)
-def test_k_sets_the_reward_shape(name):
-    env = envs.make(name, intentions=1)
-    state = jax.eval_shape(env.reset, jax.random.PRNGKey(0))
-    assert state.reward.shape == (1,)
-    assert jax.eval_shape(env.step, state, jnp.zeros(env.action_size)).reward.shape == (1,)
+# (K = 1's reward shape: test_step_keeps_info_it_does_not_own_and_k_sets_the_reward_shape)
 
 
 @pytest.mark.slow  # a compile of the reacher with K = 2: 20-25 s
@@ -354,11 +353,13 @@ def test_dynamics_keep_a_total_mass_the_model_sets():
     assert model.body_mass.sum() == pytest.approx(plain.body_mass.sum() + plain.body_mass[torso])
 
 
-def test_the_swimmers_viscosity_changes_its_motion():
-    plain, thick = envs.make("swimmer"), envs.make("swimmer", dynamics=["viscosity=3"])
-    assert thick.mj_model.opt.viscosity == pytest.approx(3 * plain.mj_model.opt.viscosity)
-    key, action = jax.random.PRNGKey(0), jnp.ones(plain.action_size)
-    states = [env.step(env.reset(key), action) for env in (plain, thick)]
+def test_the_swimmers_viscosity_changes_its_motion(compiled):
+    plain, thick = compiled("swimmer"), envs.make("swimmer", dynamics=["viscosity=3"])
+    assert thick.mj_model.opt.viscosity == pytest.approx(3 * plain.env.mj_model.opt.viscosity)
+    # One step from the same start (the viscosity plays no part in the reset); the plain
+    # swimmer's programs are the module's, the thick one's step its one compile.
+    start, action = plain.reset(jax.random.PRNGKey(0)), jnp.ones(thick.action_size)
+    states = [plain.step(start, action), jax.jit(thick.step)(start, action)]
     assert not np.allclose(states[0].obs, states[1].obs)
 
 

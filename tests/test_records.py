@@ -285,9 +285,11 @@ def _offline_run(wandb_dir):
     return project, history, config, summary
 
 
-DRIVER_3 = [
-    *("--env", "driver", "--seeds", "2", "--iterations", "3", "--num-envs", "2"),
-    *("--rollout-length", "20", "--chunk-size", "1", "--quiet"),
+# The sizes and chunk of the other tiny driver runs (conftest's tiny_run): their compiled
+# programs serve through the persistent compilation cache.
+DRIVER_TINY = [
+    *("--env", "driver", "--seeds", "2", "--iterations", "4", "--num-envs", "2"),
+    *("--rollout-length", "20", "--chunk-size", "2", "--quiet"),
 ]
 
 
@@ -298,7 +300,7 @@ def test_a_wandb_offline_run_holds_the_metrics_config_and_summary_of_a_run(tmp_p
     monkeypatch.setenv("WANDB_DIR", str(tmp_path))
     monkeypatch.setenv("WANDB_SILENT", "true")
     out = tmp_path / "run"
-    assert run.main([*DRIVER_3, "--out", str(out), "--wandb", "emgail-test"]) == 0
+    assert run.main([*DRIVER_TINY, "--out", str(out), "--wandb", "emgail-test"]) == 0
     import wandb
 
     wandb.teardown()  # W&B's service writes the log after finish(); at the latest as it stops
@@ -312,7 +314,7 @@ def test_a_wandb_offline_run_holds_the_metrics_config_and_summary_of_a_run(tmp_p
         for name, cell in row.items():
             if cell:
                 expected.setdefault(step, {})[f"seed_{seed}/{name}"] = float(cell)
-    assert sorted(history) == [1, 2, 3] == sorted(expected)
+    assert sorted(history) == [1, 2, 3, 4] == sorted(expected)
     for step, values in expected.items():
         assert sorted(history[step]) == sorted(values)  # the finite metrics, as TensorBoard
         for key, value in values.items():  # metrics.csv keeps 6 significant digits
@@ -334,7 +336,7 @@ def test_wandb_missing_is_a_one_line_error_before_anything_is_written(
 
     monkeypatch.setitem(sys.modules, "wandb", None)  # import wandb raises ImportError
     out = tmp_path / "run"
-    assert run.main([*DRIVER_3, "--out", str(out), "--wandb", "emgail-test"]) == 2
+    assert run.main([*DRIVER_TINY, "--out", str(out), "--wandb", "emgail-test"]) == 2
     err = capsys.readouterr().err.strip()
     assert err == "error: --wandb needs the wandb package: pip install 'emgail-jax[wandb]'"
     assert not out.exists()

@@ -152,9 +152,7 @@ def test_sigterm_leaves_a_valid_checkpoint_and_an_interrupted_summary(tmp_path):
         "--out",
         str(out),
     ]
-    cache = os.path.join(os.path.dirname(os.path.dirname(__file__)), ".cache", "jax")
-    env = {**os.environ, "JAX_COMPILATION_CACHE_DIR": cache}
-    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.time() + 240
     while checkpoints.latest_iteration(str(out)) is None and time.time() < deadline:
         time.sleep(0.5)
@@ -257,20 +255,18 @@ def _kill_and_resume(straight, out, kills: int, seed: int):
     moments of its life (start-up, compiles, chunks, checkpoint writes), each time continuing
     with --resume (or the first command again, if the kill came before the run wrote its
     summary), then lets it finish."""
-    cache = os.path.join(os.path.dirname(os.path.dirname(__file__)), ".cache", "jax")
-    env = {**os.environ, "JAX_COMPILATION_CACHE_DIR": cache}
     python = [sys.executable, "-m", "emgail_jax.run"]
     first = [*python, *TINY, "--iterations", str(ITERATIONS), "--out", str(out)]
     # How long one uninterrupted child takes, to draw the moments from.
     start = time.monotonic()
-    subprocess.run([*first[:-1], str(out) + "-timing"], env=env, check=True, timeout=600)
+    subprocess.run([*first[:-1], str(out) + "-timing"], check=True, timeout=600)
     lifetime = time.monotonic() - start
     rng = random.Random(seed)
     killed = 0
     while True:
         resumable = (out / "summary.json").exists()
         command = [*python, "--resume", str(out), "--quiet"] if resumable else first
-        child = subprocess.Popen(command, env=env, stderr=subprocess.PIPE, text=True)
+        child = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
         if killed < kills:
             try:
                 child.wait(timeout=rng.uniform(0.5, lifetime))

@@ -194,9 +194,16 @@ def test_sweep_estimates_every_seeds_check_and_each_baseline_once(hopper_cells):
     refit = 2 * refit_s + 3 * check
     paper_only = (sweep_checks.PAPER_CHECK,)
     both = sweep_checks.REWARD_CHECKS
-    assert sweep.estimate_seconds(infogail, Status.CHECK, 2, 4, timings, both, paper_only) == check
+    assert (
+        sweep.estimate_seconds(
+            infogail, Status.CHECK, 2, 4, timings, computing_baselines=both, checks=paper_only
+        )
+        == check
+    )
     assert sweep.estimate_seconds(infogail, Status.CHECK, 2, 4, timings) == check + refit
-    without_baseline = sweep.estimate_seconds(infogail, Status.CHECK, 2, 4, timings, ())
+    without_baseline = sweep.estimate_seconds(
+        infogail, Status.CHECK, 2, 4, timings, computing_baselines=()
+    )
     assert without_baseline == 5.0 + 2 * 4 * 2 + 2 * refit_s + 3 * (5.0 + 2 * 4 * 2)
     trained = 10.0 + 1.0 * 2 * 4 * 2
     assert sweep.estimate_seconds(infogail, Status.NEW, 2, 4, timings) == trained + check + refit
@@ -229,7 +236,9 @@ def test_sweep_estimates_every_seeds_check_and_each_baseline_once(hopper_cells):
     ) == pytest.approx(check + refit / 2)
     per_unit, compile_s = sweep.MEASURED_SECONDS["swimmer"]  # no swimmer cell finished
     check = 2 * compile_s + per_unit * 3 * 1500 * 2  # the swimmer's experts' budget
-    estimate = sweep.estimate_seconds(swimmer, Status.CHECK, 2, 4, timings, both, paper_only)
+    estimate = sweep.estimate_seconds(
+        swimmer, Status.CHECK, 2, 4, timings, computing_baselines=both, checks=paper_only
+    )
     assert estimate == pytest.approx(check)
     # Halfcheetah's refit check trains its fresh agents 1000 iterations, as its recipe says.
     cheetah = Cell("halfcheetah", 2, "emgail")
@@ -237,7 +246,13 @@ def test_sweep_estimates_every_seeds_check_and_each_baseline_once(hopper_cells):
     assert sweep_checks.check_iterations("halfcheetah", 4, sweep_checks.REFIT_CHECK) == 1000
     per_unit, compile_s = sweep.MEASURED_SECONDS["halfcheetah"]
     refit_check = sweep.estimate_seconds(
-        cheetah, Status.CHECK, 2, 4, timings, (), (sweep_checks.REFIT_CHECK,)
+        cheetah,
+        Status.CHECK,
+        2,
+        4,
+        timings,
+        computing_baselines=(),
+        checks=(sweep_checks.REFIT_CHECK,),
     )
     assert refit_check == pytest.approx(
         2 * sweep.REFIT_SECONDS_PER_SEED + 3 * (compile_s + per_unit * 2 * 1000 * 2)
