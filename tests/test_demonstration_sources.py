@@ -65,6 +65,7 @@ def summary(out):
     return json.loads((out / "summary.json").read_text())
 
 
+@pytest.mark.slow  # end to end (make test-slow); cheaper tests cover its parts
 def test_the_exported_minari_datasets_train_to_the_same_bytes_as_the_npz(runs):
     npz, exported = (runs[name] / "metrics.csv" for name in ("npz", "exported"))
     assert npz.read_bytes() == exported.read_bytes()

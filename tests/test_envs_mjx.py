@@ -295,6 +295,7 @@ def test_wrapped_hopper_falls_and_starts_a_new_episode():
 # ---- replaying recorded pairs ---------------------------------------------------------------
 
 
+@pytest.mark.slow  # end to end (make test-slow); cheaper tests cover its parts
 def test_hopper_replay_gives_back_an_episodes_steps(compiled):
     """An episode stepped by the env (its root far from 0, its foot spinning beyond the
     observation's clip all along), then replayed pair by pair from its observations alone:
@@ -353,6 +354,7 @@ def test_dynamics_keep_a_total_mass_the_model_sets():
     assert model.body_mass.sum() == pytest.approx(plain.body_mass.sum() + plain.body_mass[torso])
 
 
+@pytest.mark.slow  # end to end (make test-slow); cheaper tests cover its parts
 def test_the_swimmers_viscosity_changes_its_motion(compiled):
     plain, thick = compiled("swimmer"), envs.make("swimmer", dynamics=["viscosity=3"])
     assert thick.mj_model.opt.viscosity == pytest.approx(3 * plain.env.mj_model.opt.viscosity)

@@ -73,6 +73,7 @@ def auto_run(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow  # end to end (make test-slow); cheaper tests cover its parts
 def test_auto_run_learns_more_intentions_than_it_scores(auto_run):
     summary = json.loads((auto_run / "summary.json").read_text())
     assert summary["intentions"] == 3 and summary["demonstrations"]["intentions"] == 2

@@ -115,6 +115,7 @@ def test_the_reward_check_benchmark_refuses_no_iterations(capsys):
     assert "give positive numbers" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # end to end (make test-slow); cheaper tests cover its parts
 def test_driver_separability_writes_its_table(tmp_path, capsys):
     module = _load("driver_separability")
     assert module.main(["--radii", "4", "20", "--out", str(tmp_path)]) == 0
@@ -173,6 +174,7 @@ def test_posterior_ceiling_scores_the_demonstrations_by_step(capsys):
     assert all(0.0 <= v <= 1.0 for v in values)
 
 
+@pytest.mark.slow  # end to end (make test-slow); cheaper tests cover its parts
 def test_intention_signals_describe_every_demonstration_of_every_seed(tiny_run, capsys):
     module = _load("intention_signals")
     from emgail_jax.host.saved_run import SavedRun
@@ -271,6 +273,7 @@ def test_fresh_agent_drive_traces_each_learned_intentions_episode(tiny_run, caps
     assert out.count("  learned reward per step: own actions ") == 2
 
 
+@pytest.mark.slow  # end to end (make test-slow); cheaper tests cover its parts
 def test_reward_generalisation_scores_every_seed_and_true_intention(tiny_run, capsys):
     module = _load("reward_generalisation")
     assert module.main([str(tiny_run), "--episodes", "2"]) == 0
@@ -328,6 +331,7 @@ def test_reward_generalisation_matches_intentions_where_the_run_was_opened(tiny_
         assert asked[-1] == iteration
 
 
+@pytest.mark.slow  # end to end (make test-slow); cheaper tests cover its parts
 def test_reward_generalisation_scores_a_refit_with_absorbing_states(tiny_run, tmp_path, capsys):
 
     import jax

@@ -31,6 +31,7 @@ def driver_experts(tmp_path_factory):
     return env, trained, own_returns, root
 
 
+@pytest.mark.slow  # end to end (make test-slow); cheaper tests cover its parts
 def test_training_keeps_the_best_seed_of_every_intention(driver_experts):
     _, trained, own_returns, _ = driver_experts
     assert own_returns.shape == (2, TINY.iterations, 4)  # [seeds, iterations, K]
@@ -149,6 +150,7 @@ def _swimmer_file(directory, scale_returns: float = 1.0):
     return path, first
 
 
+@pytest.mark.slow  # end to end (make test-slow); cheaper tests cover its parts
 def test_added_rewards_are_the_recorded_ones(tmp_path, capsys):
     """Swimmer demonstrations carry their recorded rewards and final observations: stripped of
     them, ``--add-rewards`` gives them back from a replay, every other array as it was; a

@@ -93,6 +93,7 @@ def test_the_baseline_is_read_from_the_cache_the_second_time(tiny_run, reoptimiz
     assert again["erd"] == first["erd"]  # the same keys: the same fresh policies
 
 
+@pytest.mark.slow  # end to end (make test-slow); cheaper tests cover its parts
 def test_checks_of_one_seed_each_merge_into_the_check_of_every_seed(
     tiny_run, reoptimized, tmp_path, capsys
 ):
@@ -518,6 +519,7 @@ def test_refit_takes_the_recipe_of_the_runs_env(tiny_run, tmp_path, monkeypatch)
     assert [args.reward_form for args in seen] == ["logit", None]
 
 
+@pytest.mark.slow  # end to end (make test-slow); cheaper tests cover its parts
 def test_an_absorbing_refit_is_named_so_and_prices_the_fresh_agents_falls(tiny_run, tmp_path):
     import shutil
 
@@ -543,6 +545,7 @@ def test_an_absorbing_refit_is_named_so_and_prices_the_fresh_agents_falls(tiny_r
     assert reoptimize._opened(plain)[1].absorbing_reward_function() is None
 
 
+@pytest.mark.slow  # end to end (make test-slow); cheaper tests cover its parts
 def test_absorbing_reward_random_pays_a_fall_what_random_actions_earn(tiny_run, tmp_path):
     import shutil
 

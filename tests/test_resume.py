@@ -140,6 +140,7 @@ def test_corrupt_checkpoint_is_one_line_on_stderr_to_the_processs_end(
     assert len(lines) == 1 and "cannot be read" in lines[0], done.stderr
 
 
+@pytest.mark.slow  # end to end (make test-slow); cheaper tests cover its parts
 def test_sigterm_leaves_a_valid_checkpoint_and_an_interrupted_summary(tmp_path):
     out = tmp_path / "interrupted"
     command = [

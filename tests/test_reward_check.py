@@ -39,6 +39,7 @@ def test_demonstrations_reward_weights_pairs_by_their_responsibilities(saved):
         np.testing.assert_allclose(earned[i], expected, rtol=1e-5)
 
 
+@pytest.mark.slow  # end to end (make test-slow); cheaper tests cover its parts
 def test_a_stopped_training_goes_on_from_its_save_as_if_never_stopped(saved, tmp_path):
     """Fresh agents stopped after a save and started again with it end bit-identical to agents
     trained at once."""
@@ -76,6 +77,7 @@ def test_a_stopped_training_goes_on_from_its_save_as_if_never_stopped(saved, tmp
     assert resumed.returns.shape == (1, 20, 2, 2)
 
 
+@pytest.mark.slow  # end to end (make test-slow); cheaper tests cover its parts
 def test_fresh_agents_scored_on_the_schedule_train_as_if_scored_every_iteration(saved):
     """Evaluation episodes every 10th iteration and each of the last 10 only: the agents, the
     reward they earn and the returns where scored are those of agents scored every iteration;

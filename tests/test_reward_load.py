@@ -69,6 +69,7 @@ def test_a_saved_refit_refuses_what_it_cannot_give(copied_run):
         load.reward_of(run, 0, refit="mine")
 
 
+@pytest.mark.slow  # end to end (make test-slow); cheaper tests cover its parts
 def test_a_saved_absorbing_refit_is_read_with_its_absorbing_state(copied_run):
     import emgail_jax
 

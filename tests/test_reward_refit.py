@@ -112,6 +112,7 @@ def test_a_ranking_refit_learns_to_order_the_snapshots(saved):
     assert after["ranking/expert_accuracy"] == 1.0
 
 
+@pytest.mark.slow  # end to end (make test-slow); cheaper tests cover its parts
 def test_random_and_still_actions_are_one_snapshot_of_samples_below_the_ranked_ones(saved):
     obs, executed, _ = refitting.random_action_samples(saved, jax.random.PRNGKey(0))
     rollout = saved.config.method.rollout

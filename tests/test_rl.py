@@ -72,7 +72,7 @@ def test_an_iteration_not_evaluating_trains_the_same_and_leaves_its_returns_nan(
     assert np.isnan(seen_some["eval/own_return"][1]).all()
 
 
-@pytest.mark.parametrize("jitted", [False, True])
+@pytest.mark.parametrize("jitted", [pytest.param(False, marks=pytest.mark.slow), True])
 def test_one_update_scores_the_new_policy_only_when_evaluating(trainer, jitted):
     update = jax.jit(trainer.update) if jitted else trainer.update
     state = trainer.init(jax.random.PRNGKey(0))

@@ -83,6 +83,7 @@ def test_summary_follows_the_run_contract(runs, algo):
         assert len(final["reseedings"]) == SEEDS and all(n >= 0 for n in final["reseedings"])
 
 
+@pytest.mark.slow  # a whole update of its own (make test-slow); cheaper tests cover its parts
 def test_runs_differing_only_in_data_share_one_program(runs, tmp_path):
     """After the fixture's radius-20 EM-GAIL run, a radius-10 run of this process reuses its
     compiled programs (no program is added) and gives what a run compiling afresh gives."""
@@ -245,6 +246,7 @@ def test_a_failed_write_is_a_one_line_error(tmp_path, capsys, monkeypatch):
     assert "No space left on device" in err and "summary.json" in err
 
 
+@pytest.mark.slow  # end to end (make test-slow); cheaper tests cover its parts
 def test_demonstrations_without_labels_or_returns(tmp_path, capsys):
     path = _driver_demonstrations_file(tmp_path / "unlabelled.npz")
     code, out = _run(tmp_path, "unlabelled", "--demos", str(path))

@@ -212,6 +212,7 @@ def airl_run(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow  # end to end (make test-slow); cheaper tests cover its parts
 def test_an_airl_runs_reward_is_its_state_only_g(airl_run):
     """``reoptimize``'s reward of an AIRL run: g_i(s) of the normalised observation, whatever
     the action; no absorbing reward; the GAIL discriminator's readings refused."""

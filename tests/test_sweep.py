@@ -276,6 +276,7 @@ def test_sweep_estimates_every_seeds_check_and_each_baseline_once(hopper_cells):
     }
 
 
+@pytest.mark.slow  # end to end (make test-slow); cheaper tests cover its parts
 def test_sweep_runs_skips_and_reports_driver_cells(tmp_path, capsys):
     """End to end on two tiny driver cells (the sizes of the other tiny driver runs): trained in
     this process, the second radius on the first one's compiled programs, reported, then

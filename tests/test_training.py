@@ -360,6 +360,7 @@ def test_update_without_jit_equals_the_jitted_update(env, expert, gail):
         np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
 
 
+@pytest.mark.slow  # a whole update of its own (make test-slow); cheaper tests cover its parts
 def test_unlabelled_demos_give_nan_erd_and_accuracy(env, demos):
     bare = Demonstrations(demos.observations, demos.actions, demos.episode_starts)
     expert = DemonstrationPairs.create(bare, RANDOM_RETURNS, K)
@@ -402,12 +403,14 @@ def test_runs_that_differ_only_in_data_share_one_program(expert):
     assert lowered(20.0, 1.0) == lowered(5.0, 0.3)
 
 
+@pytest.mark.slow  # a whole update of its own (make test-slow); cheaper tests cover its parts
 def test_pair_mode_logs_no_trajectory_accuracy(emgail_pair):
     _, [(_, metrics)], _ = emgail_pair
     assert "eval/trajectory_cluster_accuracy" not in metrics
     assert 0.0 <= float(metrics["eval/cluster_accuracy"]) <= 1.0
 
 
+@pytest.mark.slow  # a whole update of its own (make test-slow); cheaper tests cover its parts
 def test_reward_from_previous_changes_only_which_networks_score_the_reward(env, expert, emgail):
     """The M-step is the same either way; only the B-step's reward (and so the policy) differs:
     it comes from the discriminator and posterior before this iteration's E- and M-step."""
@@ -423,6 +426,7 @@ def test_reward_from_previous_changes_only_which_networks_score_the_reward(env, 
     assert not np.array_equal(_leaves(state_updated.policy)[0], _leaves(state_previous.policy)[0])
 
 
+@pytest.mark.slow  # end to end (make test-slow); cheaper tests cover its parts
 def test_the_mixture_prior_carries_its_weights_from_one_e_step_to_the_next(env, expert, emgail):
     """Under the uniform prior the weights stay 1/K and are not logged; under the mixture prior
     each iteration's E-step re-estimates them and the next one starts from them."""
@@ -463,7 +467,14 @@ def test_an_intention_emptied_by_the_posterior_is_re_seeded(env, expert):
     assert int(state.reseeding.taken.sum()) == 2  # half of intention 0's demonstrations
 
 
-@pytest.mark.parametrize("algo", ["emgail", "infogail", "gail"])
+@pytest.mark.parametrize(
+    "algo",
+    [
+        "emgail",
+        pytest.param("infogail", marks=pytest.mark.slow),
+        pytest.param("gail", marks=pytest.mark.slow),
+    ],
+)
 def test_a_replay_changes_only_the_m_steps_negatives(env, expert, emgail, gail, algo):
     """With ``discriminator_replay`` the state carries the rollouts of the last R iterations
     (raw, intention-major) and the M-step sees more negatives; the E-step and every key are
@@ -487,6 +498,7 @@ def test_a_replay_changes_only_the_m_steps_negatives(env, expert, emgail, gail, 
     assert metrics["discriminator/loss"] != plain_metrics["discriminator/loss"]
 
 
+@pytest.mark.slow  # a whole update of its own (make test-slow); cheaper tests cover its parts
 @pytest.mark.parametrize("algo", ["emgail", "gail"])
 def test_support_noise_changes_only_the_m_steps_negatives(env, expert, emgail, gail, algo):
     """With ``discriminator_support_noise`` the M-step sees noisy copies of its negatives too:
@@ -534,6 +546,7 @@ def test_absorbing_states_add_only_the_indicators_weights_and_the_replays_flags(
         assert on_shapes[path] == (K, 10 + 1 + 1, 8) and off_shapes[path] == (K, 10 + 1, 8)
 
 
+@pytest.mark.slow  # end to end (make test-slow); cheaper tests cover its parts
 def test_an_absorbing_run_learns_the_absorbing_states_reward(env, expert):
     """One iteration with absorbing states (and a replay): the M-step reports D of the
     absorbing state and the reward stage its reward. The driver never terminates, so every
@@ -547,6 +560,7 @@ def test_an_absorbing_run_learns_the_absorbing_states_reward(env, expert):
     assert all(np.all(np.isfinite(leaf)) for leaf in _leaves(state))
 
 
+@pytest.mark.slow  # end to end (make test-slow); cheaper tests cover its parts
 def test_a_tempered_e_step_weighs_the_evidence_by_the_iteration(env, expert, emgail):
     """``trajectory_temper_iterations``: the E-step of update n tempers by the beta of iteration
     n (``state.iteration`` before the update), and ``responsibilities_of`` the state after it
@@ -570,6 +584,7 @@ def test_a_tempered_e_step_weighs_the_evidence_by_the_iteration(env, expert, emg
     )
 
 
+@pytest.mark.slow  # a whole update of its own (make test-slow); cheaper tests cover its parts
 @pytest.mark.parametrize("algo", ["emgail", "gail"])
 def test_airl_discriminator_trains_with_its_successors_and_log_densities(env, expert, algo):
     """``discriminator_form=airl``: g and h state-only networks, finite updates with the
