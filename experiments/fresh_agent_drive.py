@@ -7,7 +7,7 @@ Trains the fresh TRPO agents of ``python -m emgail_jax.reoptimize RUN_DIR --seed
 episode from the env's first reset: the true returns under every true intention, the learned
 reward per step it earns there, and the env's trace (the driver's x, y) every N steps. A
 failing agent's trace shows what the learned reward pays off the demonstrations
-(docs/rewards-that-reoptimise.md, experiment 18). Then where the episode sits in the
+(docs/notebook/rewards-that-reoptimise.md, experiment 18). Then where the episode sits in the
 discriminator's input box: each observation dimension the normalisation clips (with the share
 of steps at the clip and the mean |z|), the mean |action| against the demonstrations', and the
 learned reward per step with the agent's own actions against zero actions in the same states

@@ -12,7 +12,7 @@ pairs), three per-demonstration signals averaged over its pairs:
 - ``agree``: the share of the pairs whose per-pair posterior argmax is the holder.
 
 An intention that holds two experts' demonstrations while its policy follows one of them
-would show it as two groups apart in one of these (docs/no-empty-intention.md, reacher-3).
+would show it as two groups apart in one of these (docs/notebook/no-empty-intention.md, reacher-3).
 """
 
 from __future__ import annotations

@@ -18,11 +18,11 @@ intention the run matched it to) earned by:
 A reward that stands for the task pays the experts' fresh episodes about what it pays the
 demonstrations. One that pays them what it pays random actions has learned which episodes
 were demonstrated, not what the experts did, and a fresh agent trained on it has nothing to
-climb (docs/rewards-that-reoptimise.md, experiment 27).
+climb (docs/notebook/rewards-that-reoptimise.md, experiment 27).
 
 ``--along-training EVERY``: the same reward earned by the run's own policies of every EVERY-th
 snapshot, beside their true returns (``metrics.csv``), with the rank correlation of the two
-(docs/rewards-that-reoptimise.md, experiment 41): a reward that rises with the true return
+(docs/notebook/rewards-that-reoptimise.md, experiment 41): a reward that rises with the true return
 along the run's own way from random actions to the experts has a slope a fresh agent could
 follow. ``--refit NAME`` scores a refitted reward that ``python -m emgail_jax.refit`` saved,
 ``--reward-form`` reads the discriminator in another form, ``--snapshot ITER`` opens the run

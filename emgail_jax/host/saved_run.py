@@ -365,7 +365,7 @@ class SavedRun:
     def demonstrations_held(self, seed: int = 0) -> np.ndarray:
         """``[K]`` how many demonstrations each learned intention of ``seed`` holds (the one
         with the most responsibility over a demonstration's pairs holds it): an intention
-        holding none is a collapse to fewer intentions (docs/no-empty-intention.md)."""
+        holding none is a collapse to fewer intentions (docs/defaults.md, `reseed`)."""
         pairs = self.demonstration_pairs
         gamma = np.asarray(self.responsibilities(seed).gamma)
         return demonstrations_held(gamma, pairs.episode, pairs.episodes)

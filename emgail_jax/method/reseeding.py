@@ -2,7 +2,7 @@
 
 The E-step can give every demonstration to one intention early; the other intention's
 discriminator then has nothing to learn, its policy drifts, and nothing brings a
-demonstration back (docs/no-empty-intention.md). k-means re-seeds an empty cluster from the
+demonstration back (docs/defaults.md, `reseed`). k-means re-seeds an empty cluster from the
 points the others explain worst. Here: an intention whose share of the demonstrations (the
 sum of their responsibilities over the number of demonstrations) stays below half a
 demonstration's share for ``patience`` E-steps takes over the worse-explained half of the
