@@ -1,5 +1,5 @@
 """Experts for the MJX envs: one TRPO policy per intention, trained on its true reward, and the
-demonstrations they write (format: README, "Demonstrations format").
+demonstrations they write (format: docs/usage.md, "Demonstrations format").
 
     python -m emgail_jax.experts --env ENV               # train, checkpoint, score, write demos
     python -m emgail_jax.experts --env ENV --evaluate    # score the shipped experts only
@@ -229,7 +229,7 @@ def load_expert_policy(env):
 
 
 def write_demos(env, policy, key, episodes: int, path: str):
-    """The experts' deterministic episodes as a labelled demonstrations file (format: README,
+    """The experts' deterministic episodes as a labelled demonstrations file (format: docs/usage.md,
     "Demonstrations format")."""
     from emgail_jax.host import demonstration_files
     from emgail_jax.method import demonstrations

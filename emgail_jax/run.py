@@ -87,7 +87,7 @@ def _parser() -> tuple[argparse.ArgumentParser, tuple[str, ...]]:
         nargs="+",
         metavar="SOURCE",
         help="demonstrations: an .npz file, a Minari dataset (minari:ID or its directory), or "
-        "several of them, one intention each (README, Demonstrations format)",
+        "several of them, one intention each (docs/usage.md, Demonstrations format)",
     )
     run_option("--radius", type=float, help="driver: radius of path 2")
     run_option("--seed", type=int, help="first training seed")

@@ -23,7 +23,7 @@ these cells train with a snapshot every 10 iterations, which the refit learns fr
 seeds run at once, a process per seed on a core of its own, then ``reoptimize --merge`` joins
 them (``--check-processes N``; 1: every seed in one process).
 ``--engine ray`` runs every cell as a Ray task, several at once, on a Ray started here or on the
-cluster at ``--ray-address`` (README, "The sweep on Ray").
+cluster at ``--ray-address`` (docs/reproducing-the-paper.md, "The sweep on Ray").
 
 This file runs the cells (training, reward checks, time estimates, engines, command line); the
 grid of cells is ``sweep_cells.py``, the reward checks' definitions ``sweep_checks.py``, and the

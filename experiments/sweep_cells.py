@@ -23,7 +23,7 @@ ROBOTICS_INTENTIONS = {
 # at its default radius), beside the same cell with K given.
 CHOOSING_K = {"driver": (2, 3, 4), "swimmer": (2,), "hopper": (3,), "reacher": (2, 3, 4)}
 
-# Separability 0.06 to 0.93 (README, "The driver and its separability").
+# Separability 0.06 to 0.93 (docs/environments.md, "The driver and its separability").
 DRIVER_RADII = (4.0, 5.0, 6.0, 7.0, 8.0, 10.0, 15.0, 20.0)
 ALGOS = ("emgail", "infogail", "gail")
 

@@ -41,7 +41,7 @@ REFIT_CHECK = RewardCheck(
 REWARD_CHECKS = (PAPER_CHECK, REFIT_CHECK)
 
 # The refit learns from the run's snapshots: one every 10 iterations (the default 50 gave
-# reacher-2 a worse refit, README "Known limitations").
+# reacher-2 a worse refit, docs/notebook/sweep-cells.md).
 CHECKED_SNAPSHOT_EVERY = 10
 
 

@@ -323,7 +323,7 @@ def write_table2(out: str, results: Results, seeds: int) -> None:
         f"RTX 2080 Ti). The seconds are each cell's training wall time as it ran, with whatever "
         f"else shared the cores (the committed sweep mostly ran two cells at a time, and paused "
         f"for test-suite measurements): an upper bound, not a benchmark; `make bench` measures "
-        f"on a quiet machine (README, Speed).",
+        f"on a quiet machine (docs/speed.md).",
         "",
         "| env | algorithm | parameters | paper | s / iteration (cores) | per seed | paper (GPU) |",
         "|---|---|---:|---:|---:|---:|---:|",

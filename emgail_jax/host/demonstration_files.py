@@ -1,4 +1,4 @@
-"""Demonstration files: the format (README, "Demonstrations format"), loading with
+"""Demonstration files: the format (docs/usage.md, "Demonstrations format"), loading with
 validation, and saving.
 
 A dataset is one ``.npz`` with

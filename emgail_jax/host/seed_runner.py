@@ -61,7 +61,7 @@ def default_seed_batch() -> int | None:
     """Seeds vmapped together on one device: one on CPU, all of a device's on accelerators.
 
     XLA:CPU runs a device's program on one core, so vmapping seeds there batches nothing and
-    is slower (README, "Notes for this machine").
+    is slower (docs/speed.md, "On a CPU").
     """
     return 1 if jax.default_backend() == "cpu" else None
 

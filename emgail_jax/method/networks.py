@@ -1,7 +1,7 @@
 """The four networks of the paper (§5.3): policy, value, discriminator and posterior.
 
 All are 64-64 tanh MLPs. The intention enters the policy, the value and (for EM-GAIL) the
-discriminator in one of two ways (README, `--intention-input`):
+discriminator in one of two ways (docs/defaults.md, `intention_input`):
 
 - one-hot (``heads=False``): a one-hot vector concatenated to the input, as the paper's
   parameter counts (Table 2) imply. The intentions share every hidden unit and differ only by a
