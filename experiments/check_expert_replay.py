@@ -13,7 +13,8 @@ start states):
 
 An expert that exploited an artefact of the fast settings (a solver too weak to stop a foot
 sinking, a contact that is switched off) would lose its behaviour under the reference. The
-check passes if every expert that meets its bar (docs/environments.md, "Experts and shipped demonstrations") in MJX meets it natively.
+check passes if every expert that meets its bar (docs/environments.md, "Experts and shipped
+demonstrations") in MJX meets it natively.
 Exits with status 1 otherwise.
 
     python experiments/check_expert_replay.py [--envs hopper reacher]

@@ -1,4 +1,5 @@
-"""The demonstrations of a run from its ``--demos`` sources (docs/usage.md, "Demonstrations format").
+"""The demonstrations of a run from its ``--demos`` sources (docs/usage.md, "Demonstrations
+format").
 
 A source is a ``.npz`` file (:mod:`~emgail_jax.host.demonstration_files`), a Minari dataset id
 ``minari:ID`` or a Minari dataset directory (:mod:`~emgail_jax.host.minari_datasets`). One

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-# The bars of the shipped experts (docs/environments.md, "Experts and shipped demonstrations"): what each must do over 10 deterministic
-# episodes. `velocity` is the mean x-velocity of an episode, `upright` the share of episodes
+# The bars of the shipped experts (docs/environments.md, "Experts and shipped
+# demonstrations"): what each must do over 10 deterministic episodes. `velocity` is the mean x-velocity of an episode, `upright` the share of episodes
 # that did not end early (hopper's fall), `turn` the largest pitch change from the start
 # (halfcheetah), `reached` the share of episodes ending within 0.02 of the intended ball.
 BARS: dict[tuple[str, str], tuple[str, object]] = {
