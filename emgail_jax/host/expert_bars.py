@@ -7,10 +7,11 @@ from __future__ import annotations
 
 import numpy as np
 
-# The bars of the shipped experts (docs/environments.md, "Experts and shipped
-# demonstrations"): what each must do over 10 deterministic episodes. `velocity` is the mean x-velocity of an episode, `upright` the share of episodes
-# that did not end early (hopper's fall), `turn` the largest pitch change from the start
-# (halfcheetah), `reached` the share of episodes ending within 0.02 of the intended ball.
+# The bars of the shipped experts (docs/environments.md, "Experts and shipped demonstrations"):
+# what each must do over 10 deterministic episodes. `velocity` is the mean x-velocity of an
+# episode, `upright` the share of episodes that did not end early (hopper's fall), `turn` the
+# largest pitch change from the start (halfcheetah), `reached` the share of episodes ending within
+# 0.02 of the intended ball.
 BARS: dict[tuple[str, str], tuple[str, object]] = {
     ("swimmer", "forward"): ("velocity >= 0.25", lambda q: q["velocity"] >= 0.25),
     ("swimmer", "backward"): ("velocity <= -0.25", lambda q: q["velocity"] <= -0.25),
