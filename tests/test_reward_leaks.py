@@ -6,6 +6,7 @@ the draw rules must keep the same draws whatever the true returns say; only the 
 may differ."""
 
 import dataclasses
+import json
 import shutil
 
 import jax
@@ -181,6 +182,28 @@ def test_demonstrations_without_labels_rewards_or_returns_train_and_refit_alike(
     assert_same_refit(runs[0], other)
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("rule", draws.DRAW_RULES)
+def test_the_check_keeps_the_same_draws_of_the_tampered_run(runs, tmp_path, rule):
+    """Two draws of fresh agents on each run's refit, kept by ``rule``: the same agents, paid
+    the same learned reward, for every learned intention."""
+    from emgail_jax import reoptimize
+
+    options = ["--refit", *REFIT, "--draws", "2", "--keep-draw", rule, "--iterations", "10"]
+    options.append("--no-baseline")
+    checks = []
+    for number, run_dir in enumerate(runs):
+        out = tmp_path / f"check-{number}.json"
+        assert reoptimize.main([run_dir, *options, "--out", str(out)]) == 0
+        checks.append(json.loads(out.read_text()))
+    kept = [by_learned_intention(c["per_seed"][0], len(c["per_seed"][0]["draw"])) for c in checks]
+    assert kept[0] == kept[1]
+    paid = [c["per_seed"][0]["learned_reward_per_step"] for c in checks]
+    assert paid[0] == paid[1]
+    every = [[d["per_seed"][0]["learned_reward_per_step"] for d in c["draws"]] for c in checks]
+    assert every[0] == every[1]
+
+
 # ---- the draw rules, on made-up checks ---------------------------------------------------------
 
 DRAWS, SEEDS, K, ITERATIONS = 4, 2, 3, 12
@@ -232,10 +255,10 @@ def learned_side(rng) -> dict:
     }
 
 
-def by_learned_intention(seed_result: dict) -> list[int]:
-    """The draw kept for each learned intention of one seed's chosen result (whose ``draw``
-    is per true intention)."""
-    kept = np.empty(K, int)
+def by_learned_intention(seed_result: dict, k: int = K) -> list[int]:
+    """The draw kept for each of the ``k`` learned intentions of one seed's chosen result
+    (whose ``draw`` is per true intention)."""
+    kept = np.empty(k, int)
     kept[np.asarray(seed_result["matching"])] = seed_result["draw"]
     return kept.tolist()
 
