@@ -70,6 +70,7 @@ def test_the_sweeps_checks_train_at_the_budget_the_env_declares_for_either_rewar
         assert sweep_checks.check_iterations("halfcheetah", 400, check) == 1000
         assert budget("hopper", check) == Budget(400, 0.995, 0.97, False)
         assert budget("swimmer", check) == Budget(1500, 0.9999, 0.995, False)
+        assert budget("reacher", check) == Budget(1000, 0.995, 0.97, False)
 
 
 def test_a_part_is_reused_only_if_it_checked_these_networks_at_this_budget(hopper_cells):
