@@ -53,6 +53,26 @@ def test_every_seed_is_reoptimised_beside_the_true_reward(reoptimized, capsys):
     assert baseline["cache"].startswith(str(cache)) and baseline["cache"].endswith(".json")
 
 
+def test_the_headline_is_every_seed_x_draw_with_the_baseline_and_doing_nothing_beside(
+    reoptimized,
+):
+    """One draw of 2 seeds: the mean and sample sd of their ERDs first; the baseline's one draw
+    is its lowest; the driver has no bars (no success share) and a centred action box (one
+    do-nothing row, zero actions)."""
+    result, _ = reoptimized
+    assert result["erd_draws_n"] == 2
+    assert result["erd_draws_mean"] == pytest.approx(np.mean(result["erd"]))
+    assert result["erd_draws_std"] == pytest.approx(np.std(result["erd"], ddof=1))
+    assert result["success_rate"] is None and result["final_distance"] is None
+    baseline = result["baseline"]
+    assert baseline["draws_erd"] == [baseline["erd"]] and baseline["lowest_erd_draw"] == 0
+    assert [row["actions"] for row in result["do_nothing"]] == ["zero"]
+    assert result["do_nothing"][0]["erd"] > 0
+    lines = reoptimize._headline_lines(result)
+    assert lines[0].startswith("re-optimised ERD, mean of every seed x draw: ")
+    assert "(sample sd, n = 2)" in lines[0] and lines[-1].startswith("doing nothing (zero")
+
+
 def test_one_matching_scores_every_number(reoptimized, saved):
     result, _ = reoptimized
     expert, random = np.asarray(result["expert_returns"]), np.asarray(result["random_returns"])
