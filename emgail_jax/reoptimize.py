@@ -35,8 +35,8 @@ absorbing_reward=random`` what uniformly random actions earn per step under it.
 
 Beside the learned reward, the **true-reward baseline** (:mod:`emgail_jax.reward.baseline`):
 the same TRPO, settings and budget on the env's true rewards, read from ``--cache`` once
-computed. The budget is the run's iterations, gamma and GAE lambda unless
-:data:`~emgail_jax.reward.check.BUDGETS`, ``--iterations`` or ``--set`` say otherwise. Also the
+computed. The budget is the run's iterations, gamma and GAE lambda unless its env declares
+another (:attr:`envs.Env.rl_budget`) or ``--iterations`` or ``--set`` say otherwise. Also the
 learned reward per step that the fresh policies and the demonstrations earn. Writes
 ``RUN_DIR/reoptimize.json`` (a name that says what was checked otherwise, :func:`default_name`).
 
@@ -82,11 +82,8 @@ def print_result(run, result: dict) -> None:
 
     console = Console(width=140)
     console.print(_result_table(run, result))
-    if result["erd_mean"] is not None:
-        console.print(
-            f"re-optimised ERD {result['erd_mean']:.3f} ± {result['erd_std']:.3f} over "
-            f"{len(result['seeds'])} seeds"
-        )
+    for line in _headline_lines(result):
+        console.print(line)
     reference = (result.get("variant") or {}).get("reference_meets_bar")
     if reference and None not in reference and not all(reference):
         # ERD is |reference - return|: past a weak reference it grows, so say it is weak.
@@ -97,6 +94,38 @@ def print_result(run, result: dict) -> None:
         )
     for line in _draws_lines(result):
         console.print(line)
+
+
+def _headline_lines(result: dict) -> list[str]:
+    """The check's headline, the mean over every seed x draw; beside it what a choice among the
+    draws kept, the true-reward baseline's every draw and the do-nothing reference."""
+    three = lambda x: "-" if x is None else f"{x:.3f}"
+    share = lambda x: "-" if x is None else f"{x:.0%}"
+    distance = result.get("final_distance")
+    lines = [
+        f"re-optimised ERD, mean of every seed x draw: {three(result['erd_draws_mean'])} ± "
+        f"{three(result['erd_draws_std'])} (sample sd, n = {result['erd_draws_n']}); episodes "
+        f"meeting the experts' bars {share(result['success_rate'])}"
+        + ("" if distance is None else f", final distance to the ball {distance:.3f}")
+    ]
+    if "draws" in result:
+        lines.append(
+            f"best of {len(result['draws'])} draws kept by the learned reward: "
+            f"{three(result['erd_mean'])} ± {three(result['erd_std'])} over "
+            f"{len(result['seeds'])} seeds; episodes meeting the bars "
+            f"{share(result['kept_success_rate'])}"
+        )
+    baseline = result.get("baseline")
+    if baseline:
+        lines.append(
+            f"true reward: kept {three(baseline['erd'])}; each draw "
+            + " ".join(three(e) for e in baseline["draws_erd"])
+            + f", lowest {three(baseline['erd_lowest'])}; episodes meeting the bars "
+            f"{share(baseline['success_rate'])} (kept {share(baseline['kept_success_rate'])})"
+        )
+    for row in result.get("do_nothing") or []:
+        lines.append(f"doing nothing ({row['actions']} actions): ERD {three(row['erd'])}")
+    return lines
 
 
 def _result_table(run, result: dict):
@@ -112,7 +141,8 @@ def _result_table(run, result: dict):
         f"{', value targets scaled' if budget.get('value_target_scaling') else ''}"
         f" (mean of the last {FINAL_WINDOW})"
     )
-    for column in ("reward", "norm. ERD", "per intention", "true returns (expert)", "bars met"):
+    columns = ("reward", "norm. ERD", "per intention", "true returns (expert)", "bars met")
+    for column in (*columns, "episodes meeting bars"):
         table.add_column(column)
     expert = result["expert_returns"]
     number = lambda x: "-" if x is None else f"{x:.3f}"
@@ -126,7 +156,7 @@ def _result_table(run, result: dict):
         bars = scores["meets_bar"]
         met = "-" if None in bars else f"{sum(bars)}/{len(bars)}"
         per_text = "-" if per is None else " ".join(f"{e:.2f}" for e in per)
-        table.add_row(label, number(scores["erd"]), per_text, returns, met)
+        table.add_row(label, number(scores["erd"]), per_text, returns, met, _shares(scores))
 
     for seed_result in result["per_seed"]:
         seed_result = {**seed_result, "meets_bar": [q["meets_bar"] for q in seed_result["success"]]}
@@ -140,6 +170,19 @@ def _result_table(run, result: dict):
             {**seed_result, "meets_bar": [None], "erd_per_intention": None},
         )
     return table
+
+
+def _shares(scores: dict) -> str:
+    """Per true intention, the share of its agent's episodes that meet the experts' bar, and
+    its final distance to the ball where measured."""
+    texts = []
+    for q in scores.get("success") or []:
+        share = check.episode_share(q)
+        text = "-" if share is None else f"{share:.0%}"
+        if q.get("final_distance") is not None:
+            text += f" ({q['final_distance']:.3f})"
+        texts.append(text)
+    return " ".join(texts) or "-"
 
 
 def _draws_lines(result: dict) -> list[str]:
@@ -214,9 +257,9 @@ def argument_parser() -> argparse.ArgumentParser:
         "emgail_jax.refit, reused if saved): "
         + recipe.spelled(recipe.REFIT)
         + ", read as log D unless the env's episodes end early (without "
-        f"consolidate_absorbing); on hopper also {recipe.refit_extras('hopper')}, on "
-        f"halfcheetah {recipe.refit_extras('halfcheetah')}; a --set or --iterations given "
-        "with it replaces that one",
+        "consolidate_absorbing); "
+        + "; ".join(f"on {env} also {recipe.refit_extras(env)}" for env in recipe.REFIT_BY_ENV)
+        + "; a --set or --iterations given with it replaces that one",
     )
     recipe.add_settings_option(parser, recipe.CHECK_SETTINGS, "a setting of the check or its refit")
     parser.add_argument(
@@ -540,6 +583,10 @@ def _reoptimized(
     path = args.out or os.path.join(args.run_dir, default_name(args))
     every = merged or _trained_draws(args, run, seeds, chosen, path)
     result = every[0] if args.draws == 1 else draws.chosen_by_learned_reward(every, args.keep_draw)
+    result.update(draws.single_draws(every))
+    kept = [q for row in result["per_seed"] for q in row["success"]]
+    result["kept_success_rate"] = check.success_summary(kept)["success_rate"]
+    result["do_nothing"] = check.do_nothing(run.problem)
     # What the fresh agents were paid: an AIRL run's policies trained on f - log pi, its
     # fresh agents on g_i(s).
     airl = run.config.method.m_step.form.airl
@@ -549,19 +596,23 @@ def _reoptimized(
         variant["joint_policies"] = check.joint_policies(run, seeds, result["iteration"])
     result["variant"] = variant
     result["check"] = check_identity(args, run)  # what --merge matches its parts by
-    result["baseline"] = None
-    if args.baseline:
-        # The baseline's own draws: how far the search varies on the true reward.
-        baselines = [
-            baseline.true_reward_baseline(run, budget, cache, not args.quiet, rl_seed=rl_seed)
-            for rl_seed in range(args.rl_seed, args.rl_seed + args.draws)
-        ]
-        result["baseline"] = baselines[0] if args.draws == 1 else draws.best_baseline(baselines)
+    result["baseline"] = _baseline(args, run, budget, cache) if args.baseline else None
     records.write_json(path, result)
     progress.FinishedDraws(path, {}).remove()
     print_result(run, records.to_json_value(result))
     print(f"wrote {path}")
     return 0
+
+
+def _baseline(args: argparse.Namespace, run, budget, cache: str) -> dict:
+    """The true-reward baseline's draws (how far the search varies on the true reward): the
+    one kept by true return, every draw's ERD and its lowest beside it."""
+    baselines = [
+        baseline.true_reward_baseline(run, budget, cache, not args.quiet, rl_seed=rl_seed)
+        for rl_seed in range(args.rl_seed, args.rl_seed + args.draws)
+    ]
+    kept = baselines[0] if args.draws == 1 else draws.best_baseline(baselines)
+    return {**kept, **draws.baseline_draws(baselines, kept)}
 
 
 # The options a check's draws depend on, beside its settings (not how many draws, nor where

@@ -50,6 +50,11 @@ class Env(abc.ABC):
     intention_names: ClassVar[tuple[str, ...]]
     # Whether an episode may end before its time limit (a fall): what an absorbing state is for.
     terminates: ClassVar[bool] = False
+    # The RL budget a policy trained from scratch on a reward of this env needs where an IRL
+    # run's own falls short, as its experts did: ``iterations``, ``gamma``, ``gae_lambda``,
+    # ``value_target_scaling`` in place of the run's (the reward check's fresh agents and its
+    # true-reward baseline train with it). Empty: the run's own.
+    rl_budget: ClassVar[dict[str, Any]] = {}
 
     def __init__(self, intentions: int | None = None):
         max_k = len(self.intention_names)

@@ -11,10 +11,11 @@ import sys
 
 import numpy as np
 
+import envs
 from emgail_jax.reoptimize import given_budget
 from emgail_jax.reoptimize import parse_args as reoptimize_args
 from emgail_jax.reward.baseline import baseline_prefix
-from emgail_jax.reward.check import BUDGETS, Budget, env_budget
+from emgail_jax.reward.check import Budget, env_budget
 from sweep_cells import Cell, summary_or_none
 
 BASELINES_DIR = "true-reward-baselines"  # under OUT, which every node of a Ray sweep sees
@@ -120,7 +121,8 @@ def check_budget(env: str, config: dict, check: RewardCheck = PAPER_CHECK) -> Bu
     """The fresh agents' budget in ``check`` of a run of ``env`` with ``config`` (its
     summary's), as ``reoptimize`` resolves the check's options (``--refit``'s recipe too)."""
     scaling = config.get("value_target_scaling", False)
-    own = env_budget(env, config["iterations"], config["gamma"], config["gae_lambda"], scaling)
+    declared = envs.env_class(env).rl_budget
+    own = env_budget(declared, config["iterations"], config["gamma"], config["gae_lambda"], scaling)
     return given_budget(reoptimize_args(["RUN", *check.options], env), own)
 
 
@@ -131,10 +133,10 @@ def checks_to_do(run_dir: str, seeds: int) -> list[RewardCheck]:
 
 def check_iterations(env: str, iterations: int, check: RewardCheck = PAPER_CHECK) -> int:
     """The fresh policies' TRPO iterations in ``check`` as ``reoptimize`` resolves its options
-    (``--refit``'s recipe for the env included): the run's, unless the env's experts needed
-    more or the options give another."""
+    (``--refit``'s recipe for the env included): the run's, unless the env declares another
+    budget (:attr:`envs.Env.rl_budget`) or the options give another."""
     given = reoptimize_args(["RUN", *check.options], env).iterations
-    return given or BUDGETS.get(env, {}).get("iterations", iterations)
+    return given or envs.env_class(env).rl_budget.get("iterations", iterations)
 
 
 def baseline_cached(out: str, env: str, intentions: int, check_iterations: int) -> bool:

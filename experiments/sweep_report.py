@@ -13,6 +13,7 @@ import numpy as np
 
 from emgail_jax.host.final_results import FinalResults
 from emgail_jax.host.run_spec import read_summary
+from emgail_jax.reward.draws import single_draws
 from sweep_cells import (
     ALGOS,
     CHOOSING_K,
@@ -30,6 +31,9 @@ from sweep_cells import (
     robotics_many,
 )
 from sweep_checks import REFIT_CHECK, REFIT_DRAWS, reward_check
+
+# The keys of a check's headline (draws.single_draws).
+SINGLE_DRAWS = ("erd_draws_mean", "erd_draws_std", "erd_draws_n", "success_rate", "final_distance")
 
 ALGO_LABELS = {
     "emgail": "EM-GAIL",
@@ -149,6 +153,10 @@ class CellResult:
     devices: int = 2  # the XLA devices (cores) training ran on
     refit_erd: np.ndarray | None = None  # [seeds checked], the refit's check (REFIT_CHECK)
     refit_true_reward_erd: float | None = None  # its baseline, the best of its draws
+    # The refit's check over every seed x draw (draws.single_draws): the headline.
+    refit_draws: dict | None = None
+    true_reward_erd_lowest: float | None = None  # the refit's baseline's lowest-ERD draw
+    true_reward_success_rate: float | None = None  # over every draw of the refit's baseline
 
 
 @dataclasses.dataclass(frozen=True)
@@ -204,7 +212,25 @@ def read_cell_result(cell: Cell, run_dir: str) -> CellResult:
         devices=len(summary.get("devices", ())) or 2,
         refit_erd=None if refit is None else reoptimized_erds(refit),
         refit_true_reward_erd=None if refit is None else true_reward_erd(refit),
+        **({} if refit is None else refit_draws_read(refit)),
     )
+
+
+def refit_draws_read(refit: dict) -> dict:
+    """What a refit's check holds of its single draws and its baseline's draws, as
+    :class:`CellResult` fields; a check recorded before it summed them up is summed up from its
+    ``draws`` (its baseline's success over every draw it cannot give: it kept the best's)."""
+    found = {name: refit.get(name) for name in SINGLE_DRAWS}
+    if found["erd_draws_n"] is None:
+        found = single_draws(refit.get("draws", [refit]))
+    baseline = refit.get("baseline") or {}
+    erds = baseline.get("draws_erd") or [baseline.get("erd")]
+    lowest = baseline.get("erd_lowest", None if None in erds else min(erds))
+    return {
+        "refit_draws": found,
+        "true_reward_erd_lowest": lowest,
+        "true_reward_success_rate": baseline.get("success_rate"),
+    }
 
 
 def reoptimized_erds(check: dict) -> np.ndarray:
@@ -347,11 +373,15 @@ def write_table2(out: str, results: Results, seeds: int) -> None:
 
 # fig6.csv: the jointly trained policies' ERD (what the paper's code scored), then the reward
 # check's (the paper's text's ERD, §5.2), after ``seeds`` so that every older column keeps its
-# place, then the refit's check (REFIT_CHECK).
+# place, then the refit's check (REFIT_CHECK): best of its draws, then its headline, the mean of
+# every seed x draw with the sample sd, its baseline's lowest-ERD draw, and the share of
+# episodes meeting the experts' bars of every seed x draw and of every baseline draw.
 FIG6_COLUMNS = (
     "env", "intentions", "algo", "separability", "erd_mean", "erd_std", "reoptimized_erd",
     "seeds", "reoptimized_erd_std", "true_reward_erd", "reoptimized_seeds",
     "refit_erd", "refit_erd_std", "refit_true_reward_erd",
+    "refit_erd_draws_mean", "refit_erd_draws_std", "true_reward_erd_lowest",
+    "refit_success_rate", "true_reward_success_rate",
 )  # fmt: skip
 
 
@@ -379,8 +409,20 @@ def write_erd_csvs(out: str, results: Results, separability: SeparabilityTable) 
                  _decimal(result.true_reward_erd), len(checked) or "",
                  _decimal(refit.mean() if len(refit) else None),
                  _decimal(refit.std() if len(refit) > 1 else None),
-                 _decimal(result.refit_true_reward_erd)]
+                 _decimal(result.refit_true_reward_erd), *_single_draws_columns(result)]
             )  # fmt: skip
+
+
+def _single_draws_columns(result: CellResult) -> list[str]:
+    """fig6.csv's columns of the refit's single draws and its baseline's draws."""
+    found = result.refit_draws or {}
+    return [
+        _decimal(found.get("erd_draws_mean")),
+        _decimal(found.get("erd_draws_std")),
+        _decimal(result.true_reward_erd_lowest),
+        _decimal(found.get("success_rate")),
+        _decimal(result.true_reward_success_rate),
+    ]
 
 
 def _decimal(value: float | None) -> str:
@@ -507,7 +549,8 @@ def draw_erd_against_separability(
 ERD_STYLES = {
     "-": "jointly trained policies",
     "--": "fresh TRPO on the learned reward (§5.2)",
-    "-.": f"the same on the refitted reward, best of {REFIT_DRAWS} (reoptimize --refit)",
+    "-.": f"the same on the refitted reward, mean of {REFIT_DRAWS} draws x seeds "
+    "(reoptimize --refit)",
     ":": "fresh TRPO on the true reward",
 }
 
@@ -515,7 +558,7 @@ ERD_STYLES = {
 def draw_fig6(out: str, results: Results) -> str | None:
     """ERD against K per env; K = 1 is GAIL on one expert, the start of every line. Dashed,
     the reward check of the cells that have one (mean over its seeds); dash-dotted, the refit's
-    check; dotted, the true-reward baseline."""
+    check (mean over every seed x draw); dotted, the true-reward baseline."""
     fig, axes = _pyplot().subplots(1, len(ROBOTICS_INTENTIONS), figsize=(14, 3.5))
     for ax, (env, ks) in zip(axes, ROBOTICS_INTENTIONS.items(), strict=True):
         floor = results.get(env, 1, "gail")
@@ -529,7 +572,8 @@ def draw_fig6(out: str, results: Results) -> str | None:
             if checked:
                 ax.plot(*zip(*checked, strict=True), linestyle="--", marker="s",
                         fillstyle="none", color=COLORS[algo])  # fmt: skip
-            refit = [(k, r.refit_erd.mean()) for k, r in found if r and r.refit_erd is not None]
+            refit = [(k, refit_single_draws(r)) for k, r in found]
+            refit = [(k, erd) for k, erd in refit if erd is not None]
             if refit:
                 ax.plot(*zip(*refit, strict=True), linestyle="-.", marker="^",
                         fillstyle="none", color=COLORS[algo])  # fmt: skip
@@ -540,6 +584,11 @@ def draw_fig6(out: str, results: Results) -> str | None:
         _erd_axis(ax)
     legend = {"handles": _fig6_legend(axes), "loc": "upper left", "bbox_to_anchor": (1.02, 1)}
     return _save_drawn(fig, out, "fig6.png", axes[-1], **legend)
+
+
+def refit_single_draws(result: CellResult | None) -> float | None:
+    """The mean ERD of every seed x draw of the cell's refit check; None without one."""
+    return ((result and result.refit_draws) or {}).get("erd_draws_mean")
 
 
 def _checked(result: CellResult | None) -> bool:

@@ -53,6 +53,26 @@ def test_every_seed_is_reoptimised_beside_the_true_reward(reoptimized, capsys):
     assert baseline["cache"].startswith(str(cache)) and baseline["cache"].endswith(".json")
 
 
+def test_the_headline_is_every_seed_x_draw_with_the_baseline_and_doing_nothing_beside(
+    reoptimized,
+):
+    """One draw of 2 seeds: the mean and sample sd of their ERDs first; the baseline's one draw
+    is its lowest; the driver has no bars (no success share) and a centred action box (one
+    do-nothing row, zero actions)."""
+    result, _ = reoptimized
+    assert result["erd_draws_n"] == 2
+    assert result["erd_draws_mean"] == pytest.approx(np.mean(result["erd"]))
+    assert result["erd_draws_std"] == pytest.approx(np.std(result["erd"], ddof=1))
+    assert result["success_rate"] is None and result["final_distance"] is None
+    baseline = result["baseline"]
+    assert baseline["draws_erd"] == [baseline["erd"]] and baseline["lowest_erd_draw"] == 0
+    assert [row["actions"] for row in result["do_nothing"]] == ["zero"]
+    assert result["do_nothing"][0]["erd"] > 0
+    lines = reoptimize._headline_lines(result)
+    assert lines[0].startswith("re-optimised ERD, mean of every seed x draw: ")
+    assert "(sample sd, n = 2)" in lines[0] and lines[-1].startswith("doing nothing (zero")
+
+
 def test_one_matching_scores_every_number(reoptimized, saved):
     result, _ = reoptimized
     expert, random = np.asarray(result["expert_returns"]), np.asarray(result["random_returns"])
@@ -426,16 +446,13 @@ def test_refit_adds_the_envs_own_recipe_and_any_option_given_replaces_its_part()
     )
     cheetah = reoptimize.parse_args(["RUN", "--refit"], env="halfcheetah")
     assert (cheetah.consolidate_ranking, cheetah.consolidate_absorbing) == (30, False)
-    assert cheetah.reward_form == "logit" and cheetah.iterations == 1000
+    # The budget is the env's declaration, not the recipe's: the refit leaves it unset.
+    assert cheetah.reward_form == "logit" and cheetah.iterations is None
+    assert cheetah.value_target_scaling is None
     shorter = reoptimize.parse_args(["RUN", "--refit", "--iterations", "400"], env="halfcheetah")
     assert shorter.iterations == 400 and shorter.consolidate_ranking == 30
-    assert reoptimize.parse_args(["RUN"], env="halfcheetah").iterations is None
-    # Halfcheetah's recipe scales the value targets, unless told not to; no other env's does.
-    assert cheetah.value_target_scaling is True
     raw = ["RUN", "--refit", "--set", "value_target_scaling=false"]
     assert reoptimize.parse_args(raw, env="halfcheetah").value_target_scaling is False
-    assert reoptimize.parse_args(["RUN", "--refit"], env="hopper").value_target_scaling is None
-    assert reoptimize.parse_args(["RUN"], env="halfcheetah").value_target_scaling is None
     # Each part of the env's recipe can be replaced or turned off alone.
     options = [
         "--set",
@@ -463,9 +480,7 @@ def test_refit_adds_the_envs_own_recipe_and_any_option_given_replaces_its_part()
         "consolidate_ranking=10 consolidate_absorbing=true reward_form=logit "
         "absorbing_reward=random"
     )
-    assert recipe.refit_extras("halfcheetah") == (
-        "consolidate_ranking=30 reward_form=logit iterations=1000 value_target_scaling=true"
-    )
+    assert recipe.refit_extras("halfcheetah") == ("consolidate_ranking=30 reward_form=logit")
     assert recipe.refit_extras("reacher") == ""
 
 

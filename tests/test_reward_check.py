@@ -1,10 +1,14 @@
 """The reward check on a tiny run: the run's matching, the demonstrations' reward, fresh agents
 trained, stopped and resumed, and scored on the schedule."""
 
+import types
+
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import envs
 from emgail_jax.reward import check, progress
 
 pytestmark = pytest.mark.heavy
@@ -100,3 +104,74 @@ def test_fresh_agents_scored_on_the_schedule_train_as_if_scored_every_iteration(
     np.testing.assert_array_equal(scheduled.returns[:, scored], every.returns[:, scored])
     assert np.isnan(scheduled.returns[:, ~scored]).all()
     assert np.isfinite(every.returns).all()
+
+
+class _Pays(envs.Env):
+    """Pays ``[a, 2a]`` per step for action ``a`` over 4 steps, in the action box [low, high]."""
+
+    name = "pays"
+    intention_names = ("a", "b")
+    observation_size = 1
+    action_size = 1
+    episode_length = 4
+
+    def __init__(self, low=-1.0, high=1.0):
+        super().__init__()
+        self.low, self.high = low, high
+
+    action_low = property(lambda self: self.low)
+    action_high = property(lambda self: self.high)
+
+    def reset(self, key):
+        return envs.State({}, jnp.zeros(1), jnp.zeros(2), jnp.zeros(()))
+
+    def step(self, state, action):
+        return state.replace(reward=action[0] * jnp.array([1.0, 2.0]))
+
+
+def _problem(env):
+    demos = types.SimpleNamespace(expert_returns=[8.0, 8.0])
+    return types.SimpleNamespace(
+        env=env, demos=demos, random_returns=[4.0, 0.0], true_intentions=2,
+        random_episodes=3, random_seed=1,
+    )  # fmt: skip
+
+
+def test_doing_nothing_is_scored_against_the_experts_and_random_actions_untrained():
+    """Zero actions earn 0: ERD |8 - 0| / |8 - 4| = 2 and 8 / 8 = 1. In a box [0, 2] the middle,
+    1, earns 4 and 8: ERD 1 and 0; a centred box has the zero row alone."""
+    centred = check.do_nothing(_problem(_Pays()))
+    assert [row["actions"] for row in centred] == ["zero"]
+    np.testing.assert_allclose(centred[0]["erd_per_intention"], [2.0, 1.0])
+    assert centred[0]["erd"] == pytest.approx(1.5)
+    zero, middle = check.do_nothing(_problem(_Pays(low=0.0, high=2.0)))
+    assert middle["actions"] == "mid-range" and zero["erd"] == pytest.approx(1.5)
+    np.testing.assert_allclose(middle["returns"], [4.0, 8.0])
+    assert middle["erd"] == pytest.approx(0.5)
+
+
+def test_the_fresh_agents_budget_is_the_runs_with_what_its_env_declares_in_place(monkeypatch):
+    """The run's own iterations, gamma, lambda and scaling where its env declares nothing;
+    each one the env declares replaces the run's."""
+    b_step = types.SimpleNamespace(gamma=0.99, gae_lambda=0.97, value_target_scaling=False)
+    config = types.SimpleNamespace(
+        schedule=types.SimpleNamespace(iterations=30), method=types.SimpleNamespace(b_step=b_step)
+    )
+    run = types.SimpleNamespace(spec=types.SimpleNamespace(env="driver"), config=config)
+    assert check.default_budget(run) == check.Budget(30, 0.99, 0.97, False)
+    declared = {"iterations": 7, "value_target_scaling": True}
+    monkeypatch.setattr(envs.env_class("driver"), "rl_budget", declared)
+    assert check.default_budget(run) == check.Budget(7, 0.99, 0.97, True)
+    assert check.env_budget({"gamma": 0.5}, 30, 0.99, 0.97) == check.Budget(30, 0.5, 0.97)
+
+
+def test_the_success_measure_is_the_share_of_episodes_meeting_the_bars_beside_the_distance():
+    """A reacher's agents recorded before the per-episode share: their reached share is it."""
+    agents = [
+        {"reached": 0.9, "final_distance": 0.01},
+        {"reached": 0.3, "final_distance": 0.05, "episodes_meeting_bar": 0.3},
+    ]
+    found = check.success_summary(agents)
+    assert found["success_rate"] == pytest.approx(0.6)
+    assert found["final_distance"] == pytest.approx(0.03)
+    assert check.success_summary([{"episodes_meeting_bar": None}])["success_rate"] is None

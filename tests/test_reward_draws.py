@@ -137,3 +137,35 @@ def test_the_hindsight_rule_keeps_per_true_intention_the_draw_of_the_lowest_erd(
     assert draws.kept_per_true_intention(rows, draws.BY_TRUE_ERD) == [1, 0]
     assert draws.kept_per_true_intention(rows, "most") == [1, 0]  # true 0 is learned 1
     assert draws.kept_per_true_intention(rows, "nearest") == [1, 0]
+
+
+def _agents(*shares):
+    return [{"episodes_meeting_bar": share} for share in shares]
+
+
+def test_the_headline_is_the_mean_of_every_seed_and_draw_with_the_sample_std():
+    """2 draws of 2 seeds, ERD 0.1 0.4 and 0.3 0.2: mean 0.25, deviations -0.15 0.15 0.05 -0.05,
+    squares 0.05, sample variance 0.05 / 3; every agent's share of episodes meeting its bar."""
+    every = [
+        {"erd": [0.1, 0.4], "per_seed": [{"success": _agents(1.0)}, {"success": _agents(0.0)}]},
+        {"erd": [0.3, 0.2], "per_seed": [{"success": _agents(0.5)}, {"success": _agents(0.5)}]},
+    ]
+    found = draws.single_draws(every)
+    assert found["erd_draws_mean"] == pytest.approx(0.25) and found["erd_draws_n"] == 4
+    assert found["erd_draws_std"] == pytest.approx(np.sqrt(0.05 / 3))
+    assert found["success_rate"] == pytest.approx(0.5) and found["final_distance"] is None
+    one = draws.single_draws([{"erd": [0.3], "per_seed": [{"success": _agents(None)}]}])
+    assert one["erd_draws_std"] is None and one["success_rate"] is None  # no bar: none
+
+
+def test_the_baselines_lowest_erd_draw_is_reported_beside_the_one_kept():
+    """The draw kept by true return (ERD 0.8, it outruns its expert) and draw 1, the lowest."""
+    baselines = [
+        {"erd": 0.8, "success": _agents(1.0, 1.0)},
+        {"erd": 0.1, "success": _agents(1.0, 0.5)},
+        {"erd": 0.4, "success": _agents(0.0, 0.5)},
+    ]
+    found = draws.baseline_draws(baselines, kept=baselines[0])
+    assert found["draws_erd"] == [0.8, 0.1, 0.4]
+    assert (found["erd_lowest"], found["lowest_erd_draw"]) == (0.1, 1)
+    assert found["success_rate"] == pytest.approx(4 / 6) and found["kept_success_rate"] == 1.0

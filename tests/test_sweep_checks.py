@@ -4,9 +4,11 @@ which budget."""
 import json
 import pathlib
 
+import envs
 import sweep
 import sweep_cells
 import sweep_checks
+from emgail_jax.reward.check import Budget
 
 
 def test_sweep_a_cell_is_checked_until_every_seed_and_the_baseline_are(
@@ -41,15 +43,15 @@ def test_sweep_a_cell_is_checked_until_every_seed_and_the_baseline_are(
     # A check written before lambda was in the budget trained at the run's: done; one at a
     # budget the env no longer has (its lambda changed since): to do again.
     assert sweep_checks.reward_check_done(gail, 2)
-    monkeypatch.setitem(sweep_checks.BUDGETS, "hopper", {"gae_lambda": 0.995})
+    monkeypatch.setattr(envs.env_class("hopper"), "rl_budget", {"gae_lambda": 0.995})
     assert not sweep_checks.reward_check_done(gail, 2)
     check = json.loads((out / "runs" / "hopper-2-gail" / "reoptimize.json").read_text())
     check["budget"]["gae_lambda"] = 0.995
     (out / "runs" / "hopper-2-gail" / "reoptimize.json").write_text(json.dumps(check))
     assert sweep_checks.reward_check_done(gail, 2)
     # Likewise scaling: a check recorded without it trained unscaled, as the run's config.
-    monkeypatch.setitem(
-        sweep_checks.BUDGETS, "hopper", {"gae_lambda": 0.995, "value_target_scaling": True}
+    monkeypatch.setattr(
+        envs.env_class("hopper"), "rl_budget", {"gae_lambda": 0.995, "value_target_scaling": True}
     )
     assert not sweep_checks.reward_check_done(gail, 2)
     check["budget"]["value_target_scaling"] = True
@@ -57,13 +59,18 @@ def test_sweep_a_cell_is_checked_until_every_seed_and_the_baseline_are(
     assert sweep_checks.reward_check_done(gail, 2)
 
 
-def test_sweep_halfcheetahs_refit_check_scales_the_value_targets_and_no_other_check_does():
+def test_the_sweeps_checks_train_at_the_budget_the_env_declares_for_either_reward():
+    """The paper's reward and the refit get the same budget: the env's (halfcheetah declares
+    1000 iterations and scaled value targets), the run's own where it declares none."""
     config = {"iterations": 400, "gamma": 0.995, "gae_lambda": 0.97}
     budget = lambda env, check: sweep_checks.check_budget(env, config, check)
-    refit = budget("halfcheetah", sweep_checks.REFIT_CHECK)
-    assert refit.value_target_scaling and refit.iterations == 1000
-    assert not budget("halfcheetah", sweep_checks.PAPER_CHECK).value_target_scaling
-    assert not budget("hopper", sweep_checks.REFIT_CHECK).value_target_scaling
+    for check in (sweep_checks.REFIT_CHECK, sweep_checks.PAPER_CHECK):
+        cheetah = budget("halfcheetah", check)
+        assert cheetah.value_target_scaling and cheetah.iterations == 1000
+        assert sweep_checks.check_iterations("halfcheetah", 400, check) == 1000
+        assert budget("hopper", check) == Budget(400, 0.995, 0.97, False)
+        assert budget("swimmer", check) == Budget(1500, 0.9999, 0.995, False)
+        assert budget("reacher", check) == Budget(1000, 0.995, 0.97, False)
 
 
 def test_a_part_is_reused_only_if_it_checked_these_networks_at_this_budget(hopper_cells):

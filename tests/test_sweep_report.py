@@ -150,15 +150,20 @@ def test_sweep_fig6_csv_sets_the_reward_check_beside_the_joint_erd(hopper_cells)
     assert lines[0] == (
         "env,intentions,algo,separability,erd_mean,erd_std,reoptimized_erd,seeds,"
         "reoptimized_erd_std,true_reward_erd,reoptimized_seeds,"
-        "refit_erd,refit_erd_std,refit_true_reward_erd"
+        "refit_erd,refit_erd_std,refit_true_reward_erd,"
+        "refit_erd_draws_mean,refit_erd_draws_std,true_reward_erd_lowest,"
+        "refit_success_rate,true_reward_success_rate"
     )
+    # The refit's record holds one draw of 2 seeds, no agents' success and one baseline draw:
+    # its single draws' mean and sample sd, the baseline's one draw as its lowest.
     assert lines[1:] == [
-        "hopper,1,gail,,0.0100,0.0000,,2,,,,,,",
-        "hopper,2,emgail,,0.0100,0.0000,0.6000,2,0.1000,0.0300,2,0.1500,0.0500,0.0200",
-        "hopper,2,infogail,,0.0300,0.0100,,2,,,,,,",
-        "hopper,2,gail,,0.5500,0.0500,1.0000,2,0.1000,0.0300,2,,,",
-        "hopper,3,emgail,,0.0400,0.0100,0.4900,2,,,1,,,",
-        "hopper,3,gail,,0.4000,0.0000,,2,,,,,,",
+        "hopper,1,gail,,0.0100,0.0000,,2,,,,,,,,,,,",
+        "hopper,2,emgail,,0.0100,0.0000,0.6000,2,0.1000,0.0300,2,0.1500,0.0500,0.0200,"
+        "0.1500,0.0707,0.0200,,",
+        "hopper,2,infogail,,0.0300,0.0100,,2,,,,,,,,,,,",
+        "hopper,2,gail,,0.5500,0.0500,1.0000,2,0.1000,0.0300,2,,,,,,,,",
+        "hopper,3,emgail,,0.0400,0.0100,0.4900,2,,,1,,,,,,,,",
+        "hopper,3,gail,,0.4000,0.0000,,2,,,,,,,,,,,",
     ]
     rows = list(csv.DictReader((out / "fig6.csv").open()))  # as readers of the columns see it
     assert [r["reoptimized_erd"] for r in rows if r["algo"] == "emgail"] == ["0.6000", "0.4900"]
@@ -187,14 +192,43 @@ def test_sweep_fig6_draws_the_reward_checks_dashed_and_the_baseline_dotted(
     # The mean over the seeds checked, per algorithm; seed 0 alone where that is all there is.
     assert styled("--") == [("tab:red", [[2, 0.6], [3, 0.49]]), ("tab:green", [[2, 1.0]])]
     assert styled(":") == [("black", [[2, 0.03]])]
-    assert styled("-.") == [("tab:red", [[2, pytest.approx(0.15)]])]  # the refit's check
+    # The refit's check: the mean of its single draws.
+    assert styled("-.") == [("tab:red", [[2, pytest.approx(0.15)]])]
     legend = [text.get_text() for text in axes[-1].get_legend().get_texts()]
     assert legend == [
         "EM-GAIL", "Info/IntentionGAIL", "GAIL", "jointly trained policies",
         "fresh TRPO on the learned reward (§5.2)",
-        "the same on the refitted reward, best of 3 (reoptimize --refit)",
+        "the same on the refitted reward, mean of 3 draws x seeds (reoptimize --refit)",
         "fresh TRPO on the true reward",
     ]  # fmt: skip
+
+
+def _reacher_draw(erds, distances):
+    """One draw of a refit check as committed: per seed its ERD and its agents' success, each
+    ending ``distances`` from its ball in its 10 episodes (reached: within 0.02)."""
+    success = lambda d: {"final_distance": float(np.mean(d)), "reached": float(np.mean(d < 0.02))}
+    pairs = zip(erds, distances, strict=True)
+    per_seed = [{"erd": e, "success": [success(np.asarray(d))]} for e, d in pairs]
+    return {"erd": list(erds), "per_seed": per_seed}
+
+
+def test_sweep_reads_a_refits_single_draws_and_its_baselines_lowest_draw():
+    """From a check recorded before it summed them up: the mean and sample sd over every seed x
+    draw, the share of episodes ending at the ball (the reacher's bar, episode by episode), the
+    baseline's lowest-ERD draw; its success over every draw is not recorded: none."""
+    near, far = [0.01] * 7 + [0.05] * 3, [0.03] * 10
+    draws = [_reacher_draw([0.1, 0.3], [near, far]), _reacher_draw([0.2, 0.6], [near, near])]
+    baseline = {"erd": 0.8, "draws_erd": [0.8, 0.1, 0.4], "success": [{"reached": 1.0}]}
+    read = sweep_report.refit_draws_read({"erd": [0.1, 0.2], "draws": draws, "baseline": baseline})
+    found = read["refit_draws"]
+    assert found["erd_draws_mean"] == pytest.approx(0.3) and found["erd_draws_n"] == 4
+    # sample sd of 0.1 0.3 0.2 0.6: deviations -0.2 0 -0.1 0.3, squares sum 0.14, / 3
+    assert found["erd_draws_std"] == pytest.approx(np.sqrt(0.14 / 3))
+    assert found["success_rate"] == pytest.approx((0.7 + 0 + 0.7 + 0.7) / 4)
+    assert read["true_reward_erd_lowest"] == 0.1 and read["true_reward_success_rate"] is None
+    summed = {**draws[0], **found, "baseline": {**baseline, "erd_lowest": 0.1, "success_rate": 1}}
+    assert sweep_report.refit_draws_read(summed)["refit_draws"] == found  # read, not summed
+    assert sweep_report.refit_draws_read(summed)["true_reward_success_rate"] == 1
 
 
 def test_sweep_separability_of_the_driver_falls_with_the_radius(tmp_path):

@@ -36,13 +36,6 @@ class Budget:
     value_target_scaling: bool = False
 
 
-# What envs whose experts needed more than an IRL run's budget get in place of the run's
-# (emgail_jax.experts.SPECS): the swimmer's gait pays off over many steps, and TRPO on its
-# true reward finds the fast gait on most draws only when GAE's lambda carries the credit that
-# far.
-BUDGETS: dict[str, dict] = {"swimmer": {"iterations": 1500, "gamma": 0.9999, "gae_lambda": 0.995}}
-
-
 SUCCESS_EPISODES = 10  # the experts' bars are defined over 10 deterministic episodes
 
 
@@ -55,18 +48,21 @@ def drawn(key, rl_seed: int):
 
 
 def env_budget(
-    env: str, iterations: int, gamma: float, gae_lambda: float, value_target_scaling: bool = False
+    declared: dict, iterations: int, gamma: float, gae_lambda: float, value_target_scaling=False
 ) -> Budget:
-    """A run's own TRPO iterations, gamma, lambda and value target scaling, with the env's
-    :data:`BUDGETS` in place."""
+    """A run's own TRPO iterations, gamma, lambda and value target scaling, with what its env
+    declares in their place (``declared``: :attr:`envs.Env.rl_budget`)."""
     own = Budget(iterations, gamma, gae_lambda, value_target_scaling)
-    return dataclasses.replace(own, **BUDGETS.get(env, {}))
+    return dataclasses.replace(own, **declared)
 
 
 def default_budget(run) -> Budget:
+    """The fresh agents' budget of ``run``: its own, with its env's declared budget in place."""
+    import envs
+
     b_step = run.config.method.b_step
     return env_budget(
-        run.spec.env,
+        envs.env_class(run.spec.env).rl_budget,
         run.config.schedule.iterations,
         b_step.gamma,
         b_step.gae_lambda,
@@ -167,6 +163,75 @@ def success(env, trainer, states, matching) -> list[dict]:
     key_quality, _ = expert_bars.evaluation_keys()
     k_true = len(matching)
     return expert_bars.quality(env, policy, key_quality, SUCCESS_EPISODES)[:k_true]
+
+
+def episode_share(q: dict) -> float | None:
+    """The share of an agent's episodes that meet its experts' bar each alone, of its
+    :func:`success` entry ``q``; of an entry recorded before that share was, its reached share
+    where it has one (a bar that holds each episode to reaching its ball); None otherwise."""
+    return q.get("episodes_meeting_bar", q.get("reached"))
+
+
+def mean_or_none(values: list) -> float | None:
+    """The mean of ``values``; None where there are none or one is unknown."""
+    return None if not values or None in values else float(np.mean(values))
+
+
+def sample_std(values: list) -> float | None:
+    """The sample standard deviation of ``values`` (ddof 1); None for fewer than 2 or one
+    unknown."""
+    return None if len(values) < 2 or None in values else float(np.std(values, ddof=1))
+
+
+def success_summary(agents: list[dict]) -> dict:
+    """Over ``agents`` (:func:`success` entries): the share of their episodes that meet the
+    experts' bars and, where the env measures one, their mean final distance to their ball."""
+    distances = [q.get("final_distance") for q in agents]
+    return {
+        "success_rate": mean_or_none([episode_share(q) for q in agents]),
+        "final_distance": mean_or_none(distances),
+    }
+
+
+def do_nothing(problem) -> list[dict]:
+    """The reference rows of a policy that does nothing, no training needed: zero actions, and
+    the middle of the action box where it is not centred, scored like the random reference
+    (its episodes and key), acting every true intention alike."""
+    import jax
+    import jax.numpy as jnp
+
+    import envs
+    from emgail_jax.method.metrics import reward_difference
+    from emgail_jax.method.rollout import episode_returns, still_policy
+
+    env = problem.env
+    zero = lambda obs, key: jnp.zeros((*obs.shape[:-1], env.action_size), obs.dtype)
+    policies = {"zero": zero}
+    if np.any(np.asarray(env.action_low) + np.asarray(env.action_high) != 0):
+        policies["mid-range"] = still_policy(env)
+    k_true, rows = problem.true_intentions, []
+    for actions, policy in policies.items():
+        returns = jax.jit(
+            lambda key, policy=policy: episode_returns(
+                envs.EpisodeWrapper(env), policy, key, 1, problem.random_episodes
+            )
+        )(jax.random.PRNGKey(problem.random_seed))
+        matched = np.asarray(returns[0, :k_true], np.float64)[None]  # [1, K true]
+        per_intention = None
+        if problem.demos.expert_returns is not None:
+            expert = np.asarray(problem.demos.expert_returns, np.float64)
+            random = np.asarray(problem.random_returns, np.float64)
+            per_intention = reward_difference(matched, expert, random)
+        summary = erd_summary(per_intention)
+        rows.append(
+            {
+                "actions": actions,
+                "returns": matched[0],
+                "erd": summary["erd"],
+                "erd_per_intention": summary["erd_per_intention"],
+            }
+        )
+    return rows
 
 
 def fresh_trainer(run, budget: Budget, reward_fn=None, absorbing_reward=None):

@@ -1,12 +1,20 @@
-"""The draw rules: several RL draws of fresh agents on one reward made one check, by what a
-user without the true reward can see (the learned reward each agent earns), and the
-true-reward baseline's draws made one floor."""
+"""The draw rules: several RL draws of fresh agents on one reward summed up over every seed x
+draw (the check's headline) and made one check by what a user without the true reward can see
+(the learned reward each agent earns); the true-reward baseline's draws made one floor, with
+its lowest-ERD draw beside it."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from emgail_jax.reward.check import DRAW_SHARED, erd_summary, over_seeds
+from emgail_jax.reward.check import (
+    DRAW_SHARED,
+    erd_summary,
+    mean_or_none,
+    over_seeds,
+    sample_std,
+    success_summary,
+)
 
 
 def picked(draws: list[dict], pick) -> dict:
@@ -100,3 +108,37 @@ def kept_per_true_intention(rows: list[dict], rule: str) -> list[int]:
     if rule == BY_TRUE_ERD:
         return list(np.array([r["erd_per_intention"] for r in rows], float).argmin(0))
     return list(kept_draws(rows, rule)[np.asarray(rows[0]["matching"])])
+
+
+def single_draws(draws: list[dict]) -> dict:
+    """A check's headline over every seed x draw of ``draws`` (:func:`reoptimize` results, one
+    per RL seed): the mean ERD, its sample standard deviation and their number, and the share
+    of every agent's episodes that meet the experts' bars (the final distance to the ball
+    beside it, where measured). Best-of-N's kept agents are a choice among these, shown beside
+    them."""
+    erds = [erd for draw in draws for erd in draw["erd"]]
+    rows = [row for draw in draws for row in draw.get("per_seed", ())]  # none: a bare record
+    agents = [q for row in rows for q in row.get("success", ())]
+    return {
+        "erd_draws_mean": mean_or_none(erds),
+        "erd_draws_std": sample_std(erds),
+        "erd_draws_n": len(erds),
+        **success_summary(agents),
+    }
+
+
+def baseline_draws(baselines: list[dict], kept: dict) -> dict:
+    """The true-reward baseline's draws beside the one ``kept`` (:func:`best_baseline`, or the
+    one draw): every draw's ERD, the lowest-ERD draw (an agent that outruns its expert has the
+    most true return and a worse ERD) and the share of episodes meeting the experts' bars, over
+    every draw's agents and over the kept ones."""
+    erds = [b["erd"] for b in baselines]
+    lowest = None if None in erds else int(np.argmin(erds))
+    every = success_summary([q for b in baselines for q in b["success"]])
+    return {
+        "draws_erd": erds,
+        "erd_lowest": None if lowest is None else erds[lowest],
+        "lowest_erd_draw": lowest,
+        **every,
+        "kept_success_rate": success_summary(kept["success"])["success_rate"],
+    }

@@ -149,9 +149,8 @@ REFIT = {
 # What `--refit` adds on the locomotion envs where the plain refit's agents stay near random
 # actions: the snapshots ranked by iteration, read as the logit, and hopper's falls priced by an
 # absorbing state at what random actions earn, not at its learned reward, whose price for a
-# fall kept agents standing; halfcheetah's agents are still closing on the experts' speed at
-# 400 TRPO iterations, and its logit of about +1 per step makes value targets of hundreds,
-# which the value baseline follows only standardised (docs/reward.md, "The refit").
+# fall kept agents standing (docs/reward.md, "The refit"). The fresh agents' budget is the
+# env's declaration (envs.Env.rl_budget).
 REFIT_BY_ENV: dict[str, dict] = {
     "hopper": {
         "consolidate_ranking": 10.0,
@@ -162,8 +161,6 @@ REFIT_BY_ENV: dict[str, dict] = {
     "halfcheetah": {
         "consolidate_ranking": 30.0,
         "reward_form": "logit",
-        "iterations": 1000,
-        "value_target_scaling": True,
     },
 }
 
@@ -187,7 +184,7 @@ def with_refit_recipe(args: argparse.Namespace, env: str | None = None) -> argpa
     """``args`` with every refit setting it left unset at the :data:`REFIT` recipe's value
     (and ``env``'s :data:`REFIT_BY_ENV`) if ``args.refit``, and at none otherwise. The reward
     form, where neither the recipe nor the command line names one, is
-    :func:`refit_reward_form`'s; the TRPO iterations the env's budget's."""
+    :func:`refit_reward_form`'s."""
     args = argparse.Namespace(**vars(args))
     recipe = {**REFIT, **REFIT_BY_ENV.get(env, {})} if args.refit else {}
     unset = {**{option: type(value)(0) for option, value in REFIT.items()}, **OFF_UNLESS_GIVEN}
@@ -196,7 +193,7 @@ def with_refit_recipe(args: argparse.Namespace, env: str | None = None) -> argpa
             setattr(args, option, recipe.get(option, off))
     if not args.consolidate_absorbing:  # the recipe prices no absorbing state it was told to drop
         recipe.pop("absorbing_reward", None)
-    for option in ("reward_form", "iterations", "absorbing_reward", "value_target_scaling"):
+    for option in ("reward_form", "absorbing_reward"):
         if getattr(args, option, None) is None:
             setattr(args, option, recipe.get(option))
     return args
