@@ -82,7 +82,9 @@ def test_an_iteration_not_evaluating_trains_the_same_and_leaves_its_returns_nan(
     assert np.isnan(seen_some["eval/own_return"][1]).all()
 
 
-@pytest.mark.parametrize("jitted", [pytest.param(False, marks=pytest.mark.slow), True])
+# A compile of its own; the chunk's test above (evaluating or not, per iteration) covers it.
+@pytest.mark.slow
+@pytest.mark.parametrize("jitted", [False, True])
 def test_one_update_scores_the_new_policy_only_when_evaluating(trainer, jitted):
     update = jax.jit(trainer.update) if jitted else trainer.update
     state = trainer.init(jax.random.PRNGKey(0))
