@@ -18,48 +18,58 @@ def trainer():
     return make_rl_train(CONFIG, envs.make("driver"), eval_episodes=1)
 
 
-def test_one_seed_chunk_trains_every_intention_on_its_own_reward(trainer):
+@pytest.fixture(scope="module")
+def init(trainer):
+    """``init(keys [I]) -> states [I]``, jitted once for the module's tests."""
+    return jax.jit(jax.vmap(trainer.init))
+
+
+@pytest.fixture(scope="module")
+def chunk(trainer):
+    """Two intentions' chunk, jitted once for the module's tests."""
+    return intention_chunk(trainer, jnp.arange(2))
+
+
+def test_one_seed_chunk_trains_every_intention_on_its_own_reward(init, chunk):
+    # Chunks of 3, the length the other tests' chunks compile.
     k = 2
-    states = jax.jit(jax.vmap(trainer.init))(jax.random.split(jax.random.PRNGKey(0), k))
-    chunk = intention_chunk(trainer, jnp.arange(k))
+    states = init(jax.random.split(jax.random.PRNGKey(0), k))
     seen = []
     record = lambda first, length, states, metrics: seen.append((first, metrics)) or True
-    states = run_chunks(chunk, states, chunks(0, 4, 2), lambda f, n: np.ones(n, bool), record)
-    assert [first for first, _ in seen] == [0, 2]
-    assert seen[0][1]["eval/returns"].shape == (2, k, k)  # [chunk, learned, true]
+    states = run_chunks(chunk, states, chunks(0, 6, 3), lambda f, n: np.ones(n, bool), record)
+    assert [first for first, _ in seen] == [0, 3]
+    assert seen[0][1]["eval/returns"].shape == (3, k, k)  # [chunk, learned, true]
     # Each policy is scored on its own intention's reward.
     returns, own = seen[1][1]["eval/returns"], seen[1][1]["eval/own_return"]
     np.testing.assert_allclose(own, np.stack([returns[:, i, i] for i in range(k)], -1))
-    assert np.asarray(states.iteration).tolist() == [4, 4]
+    assert np.asarray(states.iteration).tolist() == [6, 6]
 
 
-def test_seeds_chunk_trains_each_row_on_its_own_reward_parameters():
+def test_seeds_chunk_trains_each_row_on_its_own_reward_parameters(init, chunk):
     """Row s trains on reward_data[s]: a scale of 1 is the true reward (what intention_chunk
     trains on, bit for bit), a scale of -1 another reward and so another policy."""
     from emgail_jax.method.rl import seeds_chunk
 
     env = envs.make("driver")
     scaled = lambda obs, action, true, intention, scale: scale * jnp.take(true, intention, -1)
-    trainer = make_rl_train(CONFIG, env, scaled, eval_episodes=1)
-    plain = make_rl_train(CONFIG, env, eval_episodes=1)
+    rescaled = make_rl_train(CONFIG, env, scaled, eval_episodes=1)
     k = 2
     keys = jax.random.split(jax.random.PRNGKey(0), k)
-    one = jax.jit(jax.vmap(plain.init))(keys)
+    one = init(keys)
     both = jax.tree.map(lambda x: np.stack([x, x]), one)
     inputs = np.ones(3, bool)
-    _, metrics = seeds_chunk(trainer, jnp.arange(k))(both, inputs, jnp.array([1.0, -1.0]))
-    _, expected = intention_chunk(plain, jnp.arange(k))(one, inputs)
+    _, metrics = seeds_chunk(rescaled, jnp.arange(k))(both, inputs, jnp.array([1.0, -1.0]))
+    _, expected = chunk(one, inputs)  # the true reward's (the trainer's)
     np.testing.assert_array_equal(metrics["eval/returns"][:, 0], expected["eval/returns"])
     # The first rollout is the same policy's: only the reward differs.
     np.testing.assert_allclose(metrics["train/reward"][0, 1], -expected["train/reward"][0], 1e-6)
     assert not np.array_equal(metrics["eval/returns"][-1, 1], expected["eval/returns"][-1])
 
 
-def test_an_iteration_not_evaluating_trains_the_same_and_leaves_its_returns_nan(trainer):
+def test_an_iteration_not_evaluating_trains_the_same_and_leaves_its_returns_nan(init, chunk):
     """Skipping the evaluation episodes changes nothing but the returns: the keys, the policies
     and the reward earned are those of a chunk that evaluates every iteration."""
-    chunk = intention_chunk(trainer, jnp.arange(2))
-    states = jax.jit(jax.vmap(trainer.init))(jax.random.split(jax.random.PRNGKey(0), 2))
+    states = init(jax.random.split(jax.random.PRNGKey(0), 2))
     every, some = np.ones(3, bool), np.array([True, False, True])
     end_every, seen_every = chunk(states, every)
     end_some, seen_some = chunk(states, some)
@@ -72,7 +82,9 @@ def test_an_iteration_not_evaluating_trains_the_same_and_leaves_its_returns_nan(
     assert np.isnan(seen_some["eval/own_return"][1]).all()
 
 
-@pytest.mark.parametrize("jitted", [pytest.param(False, marks=pytest.mark.slow), True])
+# A compile of its own; the chunk's test above (evaluating or not, per iteration) covers it.
+@pytest.mark.slow
+@pytest.mark.parametrize("jitted", [False, True])
 def test_one_update_scores_the_new_policy_only_when_evaluating(trainer, jitted):
     update = jax.jit(trainer.update) if jitted else trainer.update
     state = trainer.init(jax.random.PRNGKey(0))

@@ -110,26 +110,38 @@ def test_acting_takes_the_mean_unless_exploring(stages, state, jit):
     np.testing.assert_allclose(act(jnp.asarray(True))(obs, key), explored, rtol=1e-6)
 
 
-def test_collect_is_the_same_jitted_and_not(env, stages, state):
+@pytest.fixture(scope="module")
+def collect(env, stages):
+    """``collect(state, key) -> (env_state, transitions)``: a rollout of ``state``'s policy."""
     train_env = envs.wrap_for_training(env)
 
     def collect(state, key):
         policy = stages.acting(state.policy, state.normalizer, explore=True)
         return stages.collect(train_env, policy, state.env_state, key)
 
-    eager = collect(state, jax.random.PRNGKey(3))
-    jitted = jax.jit(collect)(state, jax.random.PRNGKey(3))
-    assert jitted[1].obs.shape == (T, K, B, env.observation_size)
-    assert_trees_close(eager, jitted)
+    return collect
 
 
 @pytest.fixture(scope="module")
-def rollout(env, stages, state):
-    policy = stages.acting(state.policy, state.normalizer, explore=True)
-    train_env = envs.wrap_for_training(env)
-    return jax.jit(lambda s, k: stages.collect(train_env, policy, s, k))(
-        state.env_state, jax.random.PRNGKey(4)
-    )
+def jitted(collect, stages):
+    """The stages jitted once for the module's tests (each jit of them is a compile)."""
+    return {
+        "collect": jax.jit(collect),
+        "improve": jax.jit(stages.improve),
+        "b_step": jax.jit(stages.b_step),
+    }
+
+
+def test_collect_is_the_same_jitted_and_not(env, collect, jitted, state):
+    eager = collect(state, jax.random.PRNGKey(3))
+    got = jitted["collect"](state, jax.random.PRNGKey(3))
+    assert got[1].obs.shape == (T, K, B, env.observation_size)
+    assert_trees_close(eager, got)
+
+
+@pytest.fixture(scope="module")
+def rollout(jitted, state):
+    return jitted["collect"](state, jax.random.PRNGKey(4))
 
 
 def _policy_samples(stages, batch, normalizer) -> PolicySamples:
@@ -144,21 +156,21 @@ def _policy_samples(stages, batch, normalizer) -> PolicySamples:
 
 # Op by op, TRPO and the value fit take about half a minute.
 @pytest.mark.parametrize("jit", [pytest.param(False, marks=pytest.mark.slow), True])
-def test_improve_is_the_b_step_on_the_normalised_rollout(env, stages, state, rollout, jit):
+def test_improve_is_the_b_step_on_the_normalised_rollout(env, stages, jitted, state, rollout, jit):
     end, transitions = rollout
     batch = LearningBatch.of(transitions, end, env.episode_length)
     normalizer = obs_norm.update(state.normalizer, transitions.obs)
     reward = transitions.true_reward[..., 0]
     key = jax.random.PRNGKey(5)
-    improve = jax.jit(stages.improve) if jit else stages.improve
+    improve = jitted["improve"] if jit else stages.improve
     got = improve(state, batch, normalizer, reward, key)
     samples = _policy_samples(stages, batch, normalizer)
-    want = jax.jit(stages.b_step)(state.policy, state.value, samples, reward, key)
+    want = jitted["b_step"](state.policy, state.value, samples, reward, key)
     assert_trees_close((got.policy, got.value), (want.policy, want.value))
 
 
 def test_improve_bootstraps_a_termination_with_the_absorbing_states_value(
-    env, stages, state, rollout
+    env, stages, jitted, state, rollout
 ):
     """Row k's absorbing reward, for every step its episode has left to the time limit."""
     end, transitions = rollout
@@ -167,12 +179,12 @@ def test_improve_bootstraps_a_termination_with_the_absorbing_states_value(
     normalizer = obs_norm.update(state.normalizer, transitions.obs)
     reward, key = transitions.true_reward[..., 0], jax.random.PRNGKey(5)
     absorbing = jnp.array([-2.0, 3.0])
-    got = jax.jit(stages.improve)(state, batch, normalizer, reward, key, absorbing)
+    got = jitted["improve"](state, batch, normalizer, reward, key, absorbing)
     left = steps_left(batch.time, env.episode_length)
     np.testing.assert_array_equal(left[:, 0, 0], env.episode_length - 1 - np.arange(T))
     end_values = absorbing_value(absorbing[:, None], left, CONFIG.b_step.gamma)
     samples = _policy_samples(stages, batch, normalizer)
-    b_step = jax.jit(stages.b_step)
+    b_step = jitted["b_step"]
     want = b_step(state.policy, state.value, samples, reward, key, end_values)
     assert_trees_close((got.policy, got.value), (want.policy, want.value))
     without = b_step(state.policy, state.value, samples, reward, key)
@@ -180,9 +192,10 @@ def test_improve_bootstraps_a_termination_with_the_absorbing_states_value(
     assert any(not np.allclose(a, b) for a, b in pairs)
 
 
-def make_toy_update(env, stages, sign: float):
-    """The skeleton with the true reward of each row's intention times ``sign`` as its reward
-    stage (which also sets ``extra``) and an evaluation that reads the improved state."""
+def make_toy_update(env, stages):
+    """The skeleton with the true reward of each row's intention times its ``scale`` argument
+    as its reward stage (which also sets ``extra``) and an evaluation that reads the improved
+    state."""
     train_env = envs.wrap_for_training(env)
 
     def collect(state, key, scale):
@@ -193,7 +206,7 @@ def make_toy_update(env, stages, sign: float):
         own = jnp.take_along_axis(
             transitions.true_reward, intention_rows((K, B))[None, ..., None], -1
         )
-        rewards = sign * scale * own[..., 0]
+        rewards = scale * own[..., 0]
         return Rewarded(rewards, {"extra": normalizer.count}, {"reward": rewards.mean()})
 
     def evaluate(state, key, scale):
@@ -203,7 +216,7 @@ def make_toy_update(env, stages, sign: float):
 
 
 def test_one_iteration_runs_every_stage_in_order(env, stages, state):
-    update = jax.jit(make_toy_update(env, stages, 1.0))
+    update = jax.jit(make_toy_update(env, stages))
     new, metrics = update(state, jnp.float32(2.0))
     keys = jax.random.split(state.key, 4)
     np.testing.assert_array_equal(new.key, keys[0])
@@ -214,13 +227,13 @@ def test_one_iteration_runs_every_stage_in_order(env, stages, state):
     assert float(metrics["collected"]) == 2.0
     np.testing.assert_array_equal(new.env_state.info["steps"], np.full((K, B), T))
     assert {"reward", "policy/kl", "value/loss"} <= set(metrics)
-    # The reward stage's reward is what the B-step improves on.
-    negated, _ = jax.jit(make_toy_update(env, stages, -1.0))(state, jnp.float32(2.0))
+    # The reward stage's reward is what the B-step improves on (the same program, negated).
+    negated, _ = update(state, jnp.float32(-2.0))
     pairs = zip(jax.tree.leaves(new.policy), jax.tree.leaves(negated.policy), strict=True)
     assert any(not np.allclose(a, b) for a, b in pairs)
 
 
 @pytest.mark.slow  # op-by-op execution of a whole iteration
 def test_one_iteration_is_the_same_jitted_and_not(env, stages, state):
-    update = make_toy_update(env, stages, 1.0)
+    update = make_toy_update(env, stages)
     assert_trees_close(update(state, jnp.float32(1.0)), jax.jit(update)(state, jnp.float32(1.0)))

@@ -265,15 +265,21 @@ def test_cluster_accuracy_is_a_fraction_of_the_expert_pairs(emgail, expert):
         assert accuracy * n == pytest.approx(round(accuracy * n), abs=1e-3)
 
 
-def test_discriminator_and_posterior_see_the_executed_actions(env, expert):
+def _with_log_std(state, log_std):
+    """``state`` as an init with ``init_log_std=log_std`` gives it: the policy's log-std is its
+    one parameter that setting changes, and the update never reads the setting."""
+    fill = lambda path, leaf: jnp.full_like(leaf, log_std) if "log_std" in str(path) else leaf
+    return state.replace(policy=jax.tree_util.tree_map_with_path(fill, state.policy))
+
+
+def test_discriminator_and_posterior_see_the_executed_actions(env, emgail):
     """With a policy std of e^2, nearly every raw sample lies outside the action range [-1, 1];
     the batch the E-step and the M-step learn from (``normalized_batch``) holds them clipped, as
     the env executed them, while TRPO is handed the raw samples."""
-    run_config = CONFIG.with_values(init_log_std=2.0)
-    config = run_config.method.resolved(env)
-    init, _ = make_train(config, env)
-    data = RunData.create(expert, env, run_config.info_weight)
-    state = jax.jit(init)(jax.random.PRNGKey(0), data)
+    first, _, (_, update, data) = emgail
+    config = CONFIG.with_values(init_log_std=2.0).method.resolved(env)
+    # The run's own update, compiled once for the module (see _with_log_std).
+    state = _with_log_std(first, 2.0)
     stages = make_policy_stages(config, env, make_networks(config, env))
 
     def seen(state, key):
@@ -292,7 +298,7 @@ def test_discriminator_and_posterior_see_the_executed_actions(env, expert):
     )
     assert np.abs(batch.expert_actions).max() <= 1.0
     # TRPO saw the raw samples: their entropy is that of the wide Gaussian.
-    _, [(_, metrics)], _ = _train(run_config, env, expert, 1, (False,))
+    _, metrics = jax.jit(update)(state, jnp.bool_(False), data)
     assert metrics["policy/entropy"] > 2.0
 
 
@@ -441,29 +447,32 @@ def test_the_mixture_prior_carries_its_weights_from_one_e_step_to_the_next(env, 
         np.testing.assert_array_equal(state.intention_weights, weights)
 
 
-def test_an_intention_emptied_by_the_posterior_is_re_seeded(env, expert):
+def test_an_intention_emptied_by_the_posterior_is_re_seeded(emgail):
     """A posterior that gives every demonstration to intention 0 (a large bias on its logit,
     which 2 Adam steps per iteration cannot undo) leaves intention 1 empty; after `patience`
-    E-steps it takes the worse-explained half of the demonstrations, for `window` E-steps."""
-    config = CONFIG.with_values(reseed_patience=2, reseed_window=2)
-    init, update = make_train(config.method, env)
-    data = RunData.create(expert, env, config.info_weight)
-    state = jax.jit(init)(jax.random.PRNGKey(0), data)
+    E-steps it takes the worse-explained half of the demonstrations, for `window` E-steps.
+    The run's own update (its settings' patience and window), compiled once for the module."""
+    state, _, (_, update, data) = emgail
+    e_step = CONFIG.method.resolved(envs.make("driver", intentions=K)).e_step
+    patience, window = e_step.reseed_patience, e_step.reseed_window
     layers = state.posterior.params["params"]["MLP_0"]
-    last = f"Dense_{len(config.method.networks.hidden)}"
+    last = f"Dense_{len(CONFIG.method.networks.hidden)}"
     bias = layers[last]["bias"].at[0].add(30.0)
     params = {"params": {"MLP_0": {**layers, last: {**layers[last], "bias": bias}}}}
     state = state.replace(posterior=state.posterior.replace(params=params))
     step = jax.jit(update)
     history = []
-    for _ in range(4):
+    for _ in range(patience + window):
         state, metrics = step(state, jnp.bool_(False), data)
         history.append(jax.device_get(metrics))
     # The posterior's own responsibilities: every one of the 4 demonstrations in intention 0.
     for metrics in history:
         np.testing.assert_allclose(metrics["reseed/demonstrations"], [4.0, 0.0], atol=1e-3)
-    assert [int(m["reseed/target"]) for m in history] == [-1, 1, 1, -1]
-    assert [int(m["reseed/reseedings"]) for m in history] == [0, 1, 1, 1]
+    waiting, reseeding = [-1] * (patience - 1), [1] * window
+    assert [int(m["reseed/target"]) for m in history] == [*waiting, *reseeding, -1]
+    assert [int(m["reseed/reseedings"]) for m in history] == [0] * (patience - 1) + [1] * (
+        window + 1
+    )
     assert int(state.reseeding.taken.sum()) == 2  # half of intention 0's demonstrations
 
 

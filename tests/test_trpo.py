@@ -96,33 +96,42 @@ def analytic_fisher(flat, unravel, obs, cond):
     (the Fisher information of its mean and log-std parameters, chained through the network)."""
     mean_fn = lambda theta: policy.apply(unravel(theta), obs, cond)[0]
     log_std_fn = lambda theta: policy.apply(unravel(theta), obs, cond)[1]
-    j_mean = np.asarray(jax.jacobian(mean_fn)(flat), np.float64)  # [N, A, P]
-    j_log_std = np.asarray(jax.jacobian(log_std_fn)(flat), np.float64)
+    j_mean = np.asarray(jax.jit(jax.jacobian(mean_fn))(flat), np.float64)  # [N, A, P]
+    j_log_std = np.asarray(jax.jit(jax.jacobian(log_std_fn))(flat), np.float64)
     inv_var = np.exp(-2 * np.asarray(log_std_fn(flat), np.float64))  # [N, A]
     fisher = np.einsum("nap,na,naq->pq", j_mean, inv_var, j_mean)
     fisher += 2.0 * np.einsum("nap,naq->pq", j_log_std, j_log_std)
     return fisher / obs.shape[0]
 
 
-def test_fisher_vector_product_matches_dense_fisher(fisher_problem):
-    flat, unravel, obs, cond, mean_kl = fisher_problem
-    fisher = analytic_fisher(flat, unravel, obs, cond)
-    hessian = np.asarray(jax.hessian(mean_kl)(flat), np.float64)
+@pytest.fixture(scope="module")
+def dense_fisher(fisher_problem):
+    flat, unravel, obs, cond, _ = fisher_problem
+    return analytic_fisher(flat, unravel, obs, cond)
+
+
+def test_fisher_vector_product_matches_dense_fisher(fisher_problem, dense_fisher):
+    flat, _, _, _, mean_kl = fisher_problem
+    fisher = dense_fisher
+    # Jitted: op by op, the Hessian compiles every primitive it runs.
+    hessian = np.asarray(jax.jit(jax.hessian(mean_kl))(flat), np.float64)
     # The Hessian of the mean KL at the old parameters is the Fisher matrix.
     np.testing.assert_allclose(hessian, fisher, rtol=1e-3, atol=1e-5)
     rng = np.random.default_rng(0)
+    # One program for every damping: the damping is an argument, not a constant of the program.
+    damped = jax.jit(lambda v, damping: trpo.fisher_vector_product(mean_kl, flat, damping)(v))
     for damping in (0.0, 0.1):
-        product = jax.jit(trpo.fisher_vector_product(mean_kl, flat, damping))
         for _ in range(3):
             v = rng.normal(size=flat.shape).astype(np.float32)
             expected = fisher @ v + damping * v
-            np.testing.assert_allclose(product(jnp.asarray(v)), expected, rtol=1e-3, atol=1e-4)
+            product = damped(jnp.asarray(v), jnp.float32(damping))
+            np.testing.assert_allclose(product, expected, rtol=1e-3, atol=1e-4)
 
 
-def test_cg_on_fisher_vector_product_matches_dense_solve(fisher_problem):
-    flat, unravel, obs, cond, mean_kl = fisher_problem
+def test_cg_on_fisher_vector_product_matches_dense_solve(fisher_problem, dense_fisher):
+    flat, _, _, _, mean_kl = fisher_problem
     damping = 0.1
-    fisher = analytic_fisher(flat, unravel, obs, cond) + damping * np.eye(flat.shape[0])
+    fisher = dense_fisher + damping * np.eye(flat.shape[0])
     b = np.random.default_rng(1).normal(size=flat.shape)
     x = trpo.conjugate_gradient(
         trpo.fisher_vector_product(mean_kl, flat, damping), jnp.asarray(b, jnp.float32), 60
