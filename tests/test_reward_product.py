@@ -143,3 +143,25 @@ def test_a_price_without_an_absorbing_state_is_refused(tiny_run, tmp_path, capsy
     copy = _copy(tiny_run, tmp_path)
     assert refit.main([str(copy), *SMALL, "--set", "absorbing_reward=random"]) == 2
     assert "absorbing_reward prices an absorbing state" in capsys.readouterr().err
+
+
+def test_a_check_reads_the_saved_reward_as_reoptimize_refit_checks_it(refitted_run, monkeypatch):
+    """RUN/reward/ holds the very parameters ``reoptimize --refit`` checks, read by the same
+    reward function: a check can read it in place of the refit kept by name."""
+    from emgail_jax import reoptimize
+
+    captured = {}
+
+    def reoptimized(args, run, seeds, chosen, merged):
+        captured.update(run=run, chosen=chosen)
+        return 0
+
+    monkeypatch.setattr(reoptimize, "_reoptimized", reoptimized)
+    assert reoptimize.main([str(refitted_run), "--refit", *SMALL, "--quiet"]) == 0
+    run, description = product.opened(str(refitted_run))
+    assert run.algorithm.reward_form == captured["run"].algorithm.reward_form
+    for seed, checked in enumerate(captured["chosen"].parameters):
+        saved = product.parameters(run, description, seed)
+        assert product.PRICE not in saved  # the driver: no termination to price
+        for ours, theirs in zip(jax.tree.leaves(saved), jax.tree.leaves(checked), strict=True):
+            np.testing.assert_array_equal(ours, theirs)
