@@ -8,8 +8,10 @@ snapshot of (:mod:`emgail_jax.reward.refit`).
 
 The recipe is ``reoptimize --refit``'s for the run's env (:mod:`emgail_jax.reward.recipe`), any
 ``--set`` given replacing its part. Every seed's refit is saved under ``RUN_DIR/rewards/NAME``,
-where ``reoptimize RUN_DIR --refit`` (with the same ``--set``) finds it and
-``load_reward(RUN_DIR, refit=NAME)`` reads it; a refit saved before is reused, not made again.
+where ``reoptimize RUN_DIR --refit`` (with the same ``--set``) finds it; a refit saved before is
+reused, not made again. The reward to take away is written beside it, ``RUN_DIR/reward/``
+(:mod:`emgail_jax.reward.product`): the parameters and ``reward.json``, how to read them, which
+``load_reward(RUN_DIR)`` returns.
 """
 
 from __future__ import annotations
@@ -24,6 +26,12 @@ from emgail_jax.host import jax_setup
 from emgail_jax.host.command_line import ArgumentParser, add_run_and_seed
 from emgail_jax.reward import recipe
 
+# The refit's settings, and how the reward it writes is read (``RUN_DIR/reward/``).
+SETTINGS = {
+    **recipe.REFIT_SETTINGS,
+    **{key: recipe.CHECK_SETTINGS[key] for key in ("reward_form", "absorbing_reward")},
+}
+
 
 def argument_parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(prog="python -m emgail_jax.refit", description=__doc__.split("\n")[0])
@@ -35,9 +43,7 @@ def argument_parser() -> argparse.ArgumentParser:
         metavar="ITER",
         help="refit from this snapshot's networks (default: the run's final ones)",
     )
-    recipe.add_settings_option(
-        parser, recipe.REFIT_SETTINGS, "a setting of the refit in place of the recipe's"
-    )
+    recipe.add_settings_option(parser, SETTINGS, "a setting of the refit in place of the recipe's")
     parser.add_argument(
         "--overwrite",
         action="store_true",
@@ -51,7 +57,7 @@ def argument_parser() -> argparse.ArgumentParser:
 def parse_args(argv=None, env: str | None = None) -> argparse.Namespace:
     """The command line, its ``--set`` settings typed and checked, on ``--refit``'s recipe for
     ``env``; exits 2 with one line on a setting it does not take."""
-    args = recipe.parsed_command_line(argument_parser(), argv, recipe.REFIT_SETTINGS)
+    args = recipe.parsed_command_line(argument_parser(), argv, SETTINGS)
     return recipe.with_refit_recipe(argparse.Namespace(**vars(args), refit=True), env)
 
 
@@ -74,18 +80,20 @@ def main(argv=None) -> int:
         except (RunError, CheckpointError, envs.EnvError, DemonstrationError) as error:
             print(f"error: {error}", file=sys.stderr)
             return 2
-    for file in sorted(os.listdir(written)):
-        print(os.path.join(written, file))
-    print(f"load_reward({args.run_dir!r}, refit={name!r}) reads it")
+    for directory in written:
+        for file in sorted(os.listdir(directory)):
+            print(os.path.join(directory, file))
+    print(f"load_reward({args.run_dir!r}, seed=S) returns it (the refit kept as refit={name!r})")
     return 0
 
 
-def refitted(args: argparse.Namespace) -> tuple[str, str]:
-    """Every seed asked refitted (or its refit saved before reused) and saved: the refit's
-    name and its directory."""
+def refitted(args: argparse.Namespace) -> tuple[str, list[str]]:
+    """Every seed asked refitted (or its refit saved before reused) and saved, and the reward
+    to take away written from every seed refitted so: the refit's name and the two
+    directories (``RUN/rewards/NAME``, ``RUN/reward``)."""
     from emgail_jax.host.run_spec import RunError
     from emgail_jax.host.saved_run import SavedRun
-    from emgail_jax.reward import saved
+    from emgail_jax.reward import product, saved
 
     if not args.consolidate:
         raise RunError("--set consolidate=0 refits nothing: give it a number of steps")
@@ -99,8 +107,32 @@ def refitted(args: argparse.Namespace) -> tuple[str, str]:
     if args.overwrite:
         shutil.rmtree(directory, ignore_errors=True)
     run = saved.run_to_refit(run, refit)
+    reading = reading_of(args, run)
     saved.saved_or_refitted(run, seeds, refit, name, progress=not args.quiet)
-    return name, directory
+    settings = {key: getattr(args, key) for key in SETTINGS}
+    return name, [directory, product.write(run, name, reading, settings)]
+
+
+def reading_of(args: argparse.Namespace, run):
+    """How the refit is read (:class:`~emgail_jax.reward.product.Reading`): the recipe's
+    reward form (:func:`~emgail_jax.reward.recipe.refit_reward_form`; the run's own if none),
+    and with absorbing states the price of a termination (the recipe's, else learned).
+
+    Raises:
+      RunError: a termination price asked of a refit without absorbing states.
+    """
+    import envs
+    from emgail_jax.host.run_spec import RunError
+    from emgail_jax.reward import product
+
+    terminates = envs.env_class(run.spec.env).terminates
+    form = recipe.refit_reward_form(args, terminates) or run.algorithm.reward_form
+    if args.absorbing_reward and not args.consolidate_absorbing:
+        raise RunError(
+            "absorbing_reward prices an absorbing state: give consolidate_absorbing=true"
+        )
+    price = (args.absorbing_reward or "learned") if args.consolidate_absorbing else None
+    return product.Reading(str(form), price)
 
 
 if __name__ == "__main__":

@@ -97,6 +97,9 @@ def test_a_saved_absorbing_refit_is_read_with_its_absorbing_state(copied_run):
     learned = absorbing_run.absorbing_reward_function()(parameters, jnp.arange(2))
     for paid in (fall, jax.jit(fall)):
         np.testing.assert_allclose(paid(jnp.arange(2)), learned, rtol=1e-6)
+    # The loaded reward pays it itself, no second call.
+    assert reward.source == "refit"
+    np.testing.assert_allclose(reward.termination(jnp.arange(2)), learned, rtol=1e-6)
     random = emgail_jax.load_absorbing_reward(
         str(copied_run), seed=0, refit="falls", price="random"
     )

@@ -16,10 +16,10 @@ from emgail_jax.host import run_lock
 from emgail_jax.host.run_spec import RunError, read_summary
 
 OUTPUTS = ("summary.json", "metrics.csv", "tensorboard", "checkpoints", "snapshots")
-# What `reoptimize` derives from a run's networks in its directory: its checks, their finished
-# draws and parts (a check spread over processes) and the rewards it refitted. They go with the
-# run they were made from.
-DERIVED = ("rewards", "reoptimize*.json", "reoptimize*.draws", "reoptimize*.parts")
+# What `reoptimize` and `refit` derive from a run's networks in its directory: its checks, their
+# finished draws and parts (a check spread over processes), the rewards refitted and the one
+# saved to take away. They go with the run they were made from.
+DERIVED = ("rewards", "reward", "reoptimize*.json", "reoptimize*.draws", "reoptimize*.parts")
 
 
 def default_output(env: str, algo: str, root: str = "runs") -> str:

@@ -456,7 +456,7 @@ class RunSchedule(_Layer):
     chunk_size: int = _setting(COUNT, 10)
     seed_batch: int | None = _setting(_or_default(COUNT), None)
     checkpoint_every: int = _setting(COUNT, 50)
-    snapshot_every: int = _setting(_integers(0), 50)
+    snapshot_every: int = _setting(_integers(0), 10)
 
 
 @dataclass(frozen=True)

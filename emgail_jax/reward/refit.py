@@ -110,6 +110,13 @@ def _training_rollout(run):
     return stages, collect
 
 
+def snapshots_used(run) -> list[int]:
+    """The iterations of the snapshots a refit of ``run`` learns from: every one up to the
+    networks ``run`` holds."""
+    last = run.snapshot or run.iteration
+    return [i for i in checkpoints.snapshot_iterations(run.run_dir) if i <= last]
+
+
 def snapshot_policy_samples(run, seed: int, key: jax.Array, iterations=None):
     """``(obs [K, M, D] raw, executed [K, M, A], terminal [K, M])``: one training rollout
     (with exploration) of the policy of every snapshot of ``seed`` (``iterations``; default
@@ -119,8 +126,7 @@ def snapshot_policy_samples(run, seed: int, key: jax.Array, iterations=None):
         lambda state, key: collect(stages.acting(state.policy, state.normalizer, explore=True), key)
     )
     if iterations is None:
-        last = run.snapshot or run.iteration
-        iterations = [i for i in checkpoints.snapshot_iterations(run.run_dir) if i <= last]
+        iterations = snapshots_used(run)
     if not iterations:
         raise checkpoints.CheckpointError(
             f"'{run.run_dir}' kept no snapshots to consolidate from (run --snapshot-every)"

@@ -173,12 +173,15 @@ def saved_parameters(run, name: str, seed: int) -> dict | None:
     if not os.path.exists(path):
         return None
     check_refitted_from(run, name)
-    # The network's shapes, not the run's own weights: a refit with absorbing states reads
-    # one input more than a run trained without them.
-    shapes = jax.eval_shape(lambda key: new_discriminator_weights(run, key), jax.random.PRNGKey(0))
-    template = jax.tree.map(lambda x: np.zeros(x.shape, x.dtype), shapes)
-    saved = checkpoints.read_tree(path, template, "the reward")
+    saved = checkpoints.read_tree(path, discriminator_shapes(run), "the reward")
     return {**run.reward_parameters(seed), "discriminator": saved}
+
+
+def discriminator_shapes(run) -> dict:
+    """Zeros in the shapes of ``run``'s discriminator network, not of the run's own weights:
+    a refit with absorbing states reads one input more than a run trained without them."""
+    shapes = jax.eval_shape(lambda key: new_discriminator_weights(run, key), jax.random.PRNGKey(0))
+    return jax.tree.map(lambda x: np.zeros(x.shape, x.dtype), shapes)
 
 
 def run_to_refit(run, refit: Refit):
