@@ -4,6 +4,7 @@ compilation cache and a fast compile, all before JAX creates its backend."""
 import json
 import os
 import pathlib
+import shutil
 import warnings
 
 import pytest
@@ -51,6 +52,17 @@ def tiny_run(tmp_path_factory):
     ]
     assert run.main(args) == 0
     return out
+
+
+@pytest.fixture
+def copied_run(tiny_run, tmp_path):
+    """A copy of the tiny run, without what was derived from it (refits, checks), that a test
+    may write rewards and checks into."""
+    copy = tmp_path / "run"
+    shutil.copytree(
+        tiny_run, copy, ignore=shutil.ignore_patterns("rewards", "reward", "reoptimize*")
+    )
+    return copy
 
 
 @pytest.fixture(scope="session")

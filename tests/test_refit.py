@@ -2,7 +2,6 @@
 load_reward find it, reused by a second run, made anew with --overwrite."""
 
 import json
-import shutil
 
 import jax
 import numpy as np
@@ -15,13 +14,6 @@ pytestmark = pytest.mark.heavy
 # A refit small enough for a test; the recipe's other settings as they are.
 SMALL = ["--set", "consolidate=3", "--set", "consolidate_batch=20"]
 NAME = "consolidated-3-penalty-10-fresh-noise-1-batch-20"
-
-
-@pytest.fixture
-def copied_run(tiny_run, tmp_path):
-    copy = tmp_path / "run"
-    shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("rewards", "reoptimize*"))
-    return copy
 
 
 def test_the_refit_is_saved_once_then_reused_or_made_anew(copied_run, capsys):

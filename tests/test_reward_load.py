@@ -1,7 +1,5 @@
 """load_reward and load_absorbing_reward: the run's reward, or a refit it saved."""
 
-import shutil
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -12,14 +10,6 @@ from emgail_jax.host.saved_run import SavedRun
 from emgail_jax.reward import load
 from emgail_jax.reward import refit as refitting
 from emgail_jax.reward import saved as store
-
-
-@pytest.fixture
-def copied_run(tiny_run, tmp_path):
-    """A copy of the tiny run that a test may write rewards into."""
-    copy = tmp_path / "run"
-    shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("rewards"))
-    return copy
 
 
 def test_a_saved_refit_is_the_reward_load_reward_returns(copied_run):

@@ -13,14 +13,6 @@ from emgail_jax.reward import refit as refitting
 from emgail_jax.reward import saved as store
 
 
-@pytest.fixture
-def copied_run(tiny_run, tmp_path):
-    """A copy of the tiny run that a test may write rewards into."""
-    copy = tmp_path / "run"
-    shutil.copytree(tiny_run, copy, ignore=shutil.ignore_patterns("rewards"))
-    return copy
-
-
 def test_a_refit_saved_before_an_option_existed_reads_as_its_default(copied_run):
     run = SavedRun.open(str(copied_run))
     refit = refitting.Refit(steps=5, fresh=True)
