@@ -11,10 +11,11 @@ ITERATIONS ?= 400
 
 .PHONY: run test test-slow lint format bench bench-envs bench-check check-envs separability sweep experts clean
 
+# --no-compile: Python byte-compiles the modules it imports when it first imports them, not every
+# file of every dependency at install.
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[dev]'
+	$(PY) -m pip install --quiet --no-compile -e '.[dev]'
 	touch $(STAMP)
 
 run: $(STAMP)

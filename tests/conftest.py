@@ -9,6 +9,11 @@ import warnings
 
 import pytest
 
+# The two workers compile many of the same small programs (network inits, single operations
+# run eagerly): with every compile cached, however short, the second worker reads them. Set
+# before JAX is imported, which reads it once; child processes inherit it.
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+
 from emgail_jax.host import jax_setup
 
 _REPO = pathlib.Path(__file__).resolve().parents[1]

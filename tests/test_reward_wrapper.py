@@ -5,50 +5,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from falling import FALLS_AT, LENGTH, Falling, toy_reward
 
 import envs
-from emgail_jax.reward import LearnedReward, LearnedRewardEnv
-from envs.core import Env, State
-
-LENGTH = 10
-FALLS_AT = 3
-
-
-class Falling(Env):
-    """Two intentions paid 1 and 2 a step; the episode ends after FALLS_AT steps."""
-
-    name = "falling"
-    intention_names = ("a", "b")
-    terminates = True
-    observation_size = property(lambda self: 2)
-    action_size = property(lambda self: 1)
-    episode_length = property(lambda self: LENGTH)
-
-    def reset(self, key):
-        zero = jnp.zeros(())
-        return State(physics=jnp.zeros((), jnp.int32), obs=jnp.zeros(2), reward=jnp.zeros(2),
-                     done=zero)  # fmt: skip
-
-    def step(self, state, action):
-        count = state.physics + 1
-        return state.replace(
-            physics=count,
-            obs=state.obs + jnp.concatenate([action, action]),
-            reward=jnp.array([1.0, 2.0]),
-            done=(count >= FALLS_AT).astype(jnp.float32),
-        )
-
-
-def _reward(termination=(0.5, -1.0)):
-    return LearnedReward(
-        parameters={"w": jnp.array(2.0)},
-        termination_values=jnp.array(termination),
-        function=lambda p, obs, action, i: p["w"] * obs.sum(-1) + action.sum(-1) + i,
-        run="x",
-        seed=0,
-        source="refit",
-        form="log-d",
-    )
+from emgail_jax.reward import LearnedRewardEnv
 
 
 def _rollout(env, steps, action=0.5):
@@ -67,7 +27,7 @@ def _rollout(env, steps, action=0.5):
 
 @pytest.mark.parametrize("gamma", [1.0, 0.9])
 def test_intention_i_is_paid_its_learned_reward_and_a_fall_every_step_left(gamma):
-    reward = _reward()
+    reward = toy_reward()
     env = LearnedRewardEnv(Falling(), reward, intention=1, gamma=gamma)
     before, after = _rollout(env, FALLS_AT)
     learned = reward(before.obs, jnp.full((FALLS_AT, 1), 0.5), 1)
@@ -79,7 +39,7 @@ def test_intention_i_is_paid_its_learned_reward_and_a_fall_every_step_left(gamma
 
 
 def test_every_intention_is_paid_its_own_and_a_time_limit_pays_no_fall():
-    reward = _reward()
+    reward = toy_reward()
     # The time limit (inside) ends the episode before the env falls: nothing is left to pay.
     env = LearnedRewardEnv(envs.EpisodeWrapper(Falling(), FALLS_AT - 1), reward, gamma=1.0)
     before, after = _rollout(env, FALLS_AT - 1)
@@ -90,7 +50,7 @@ def test_every_intention_is_paid_its_own_and_a_time_limit_pays_no_fall():
 
 
 def test_the_count_of_steps_starts_anew_after_an_auto_reset():
-    env = envs.wrap_for_training(LearnedRewardEnv(Falling(), _reward(), intention=0, gamma=1.0))
+    env = envs.wrap_for_training(LearnedRewardEnv(Falling(), toy_reward(), intention=0, gamma=1.0))
     _, after = _rollout(env, 2 * FALLS_AT)
     paid_falls = after.reward[FALLS_AT - 1 :: FALLS_AT, 0] - after.reward[0, 0]
     assert len(paid_falls) == 2
@@ -99,7 +59,7 @@ def test_the_count_of_steps_starts_anew_after_an_auto_reset():
 
 def test_an_intention_the_env_does_not_have_is_refused():
     with pytest.raises(envs.EnvError, match=r"intention 2: the env has intentions 0\.\.1"):
-        LearnedRewardEnv(Falling(), _reward(), intention=2)
+        LearnedRewardEnv(Falling(), toy_reward(), intention=2)
 
 
 def test_on_the_driver_it_pays_what_the_loaded_reward_pays(tiny_run):
