@@ -21,6 +21,7 @@ import contextlib
 import os
 import shutil
 import sys
+import time
 
 from emgail_jax.host import jax_setup
 from emgail_jax.host.command_line import ArgumentParser, add_run_and_seed
@@ -50,7 +51,9 @@ def argument_parser() -> argparse.ArgumentParser:
         help="delete the refit of that name saved before, every seed's, and refit anew "
         "(default: reuse it)",
     )
-    parser.add_argument("--quiet", action="store_true", help="no progress, only what was written")
+    parser.add_argument(
+        "--quiet", action="store_true", help="no progress, only what was written and its time"
+    )
     return parser
 
 
@@ -72,6 +75,7 @@ def main(argv=None) -> int:
     from emgail_jax.host.run_spec import RunError, read_summary
 
     given = argument_parser().parse_args(argv)
+    started = time.monotonic()
     with contextlib.ExitStack() as held:
         try:
             held.enter_context(run_lock.reading(given.run_dir))  # no live run writes it
@@ -83,7 +87,10 @@ def main(argv=None) -> int:
     for directory in written:
         for file in sorted(os.listdir(directory)):
             print(os.path.join(directory, file))
-    print(f"load_reward({args.run_dir!r}, seed=S) returns it (the refit kept as refit={name!r})")
+    print(
+        f"wrote {written[-1]} in {time.monotonic() - started:.0f} s: load_reward("
+        f"{args.run_dir!r}, seed=S) returns it (the refit kept as refit={name!r})"
+    )
     return 0
 
 
