@@ -28,10 +28,7 @@ from emgail_jax.host.command_line import ArgumentParser, add_run_and_seed
 from emgail_jax.reward import recipe
 
 # The refit's settings, and how the reward it writes is read (``RUN_DIR/reward/``).
-SETTINGS = {
-    **recipe.REFIT_SETTINGS,
-    **{key: recipe.CHECK_SETTINGS[key] for key in ("reward_form", "absorbing_reward")},
-}
+SETTINGS = recipe.SAVED_SETTINGS
 
 
 def argument_parser() -> argparse.ArgumentParser:
