@@ -103,9 +103,7 @@ def _reward_lines(result: dict) -> list[str]:
     paper's (none said by a check recorded before it was told)."""
     reward = result.get("reward") or {}
     source = reward.get("source")
-    given = lambda settings: recipe.spelled(
-        {key: value for key, value in settings.items() if value is not None}
-    )
+    given = lambda settings: recipe.spelled({key: on for key, on in settings.items() if on})
     if source == "saved":
         form, price = reward["form"], reward["termination_price"]
         if form != reward["saved_form"]:

@@ -219,7 +219,8 @@ def test_reoptimize_checks_the_saved_reward_by_default_as_load_reward_returns_it
     assert identity["saved_reward"] == [NAME, "log-d", None]
     lines = reoptimize._reward_lines({"reward": details})
     assert lines[0].startswith(f"reward checked: the saved reward {refitted_run / 'reward'} (")
-    assert "consolidate=3 " in lines[0] and "read as log-d" in lines[0]
+    assert "consolidate=3 " in lines[0] and "consolidate_ranking" not in lines[0]  # off
+    assert lines[0].endswith("consolidate_batch=20), read as log-d")
 
 
 def test_reoptimize_checks_the_papers_reward_or_a_refit_when_asked(refitted_run, monkeypatch):
