@@ -21,16 +21,14 @@ import contextlib
 import os
 import shutil
 import sys
+import time
 
 from emgail_jax.host import jax_setup
 from emgail_jax.host.command_line import ArgumentParser, add_run_and_seed
 from emgail_jax.reward import recipe
 
 # The refit's settings, and how the reward it writes is read (``RUN_DIR/reward/``).
-SETTINGS = {
-    **recipe.REFIT_SETTINGS,
-    **{key: recipe.CHECK_SETTINGS[key] for key in ("reward_form", "absorbing_reward")},
-}
+SETTINGS = recipe.SAVED_SETTINGS
 
 
 def argument_parser() -> argparse.ArgumentParser:
@@ -50,7 +48,9 @@ def argument_parser() -> argparse.ArgumentParser:
         help="delete the refit of that name saved before, every seed's, and refit anew "
         "(default: reuse it)",
     )
-    parser.add_argument("--quiet", action="store_true", help="no progress, only what was written")
+    parser.add_argument(
+        "--quiet", action="store_true", help="no progress, only what was written and its time"
+    )
     return parser
 
 
@@ -72,6 +72,7 @@ def main(argv=None) -> int:
     from emgail_jax.host.run_spec import RunError, read_summary
 
     given = argument_parser().parse_args(argv)
+    started = time.monotonic()
     with contextlib.ExitStack() as held:
         try:
             held.enter_context(run_lock.reading(given.run_dir))  # no live run writes it
@@ -83,7 +84,10 @@ def main(argv=None) -> int:
     for directory in written:
         for file in sorted(os.listdir(directory)):
             print(os.path.join(directory, file))
-    print(f"load_reward({args.run_dir!r}, seed=S) returns it (the refit kept as refit={name!r})")
+    print(
+        f"wrote {written[-1]} in {time.monotonic() - started:.0f} s: load_reward("
+        f"{args.run_dir!r}, seed=S) returns it (the refit kept as refit={name!r})"
+    )
     return 0
 
 

@@ -6,24 +6,26 @@
         [--merge CHECK ...] [--out PATH] [--quiet]
 
 For every run seed (or ``--seed S`` alone) and every learned intention, a new policy is trained
-from scratch with TRPO on the frozen pseudo-reward R_i(s, a) of that seed (the run's final
-networks, or those of the snapshot of ``--snapshot ITER``; with ``--refit``, or ``--set
-consolidate=STEPS``, each seed's discriminator refitted against every snapshot's policy, as
-``python -m emgail_jax.refit`` saves it, and reused if saved before), never seeing the true
-reward; the seeds' and intentions' policies are vmapped in one program (``--rl-seed R``:
-another draw of their initialisation and samples, to tell a reward that fails from a search
-that did; ``--draws N``: N draws, keeping per intention the agent that earns the most learned
-reward, as a user without the true reward would, or with ``--keep-draw nearest`` the one
-nearest what the demonstrations earn; each finished draw, and the training of the one under
-way every few minutes, is kept beside the check's file until it is written, so a check stopped
-part-way goes on from there; ``--merge`` joins checks of one seed each, run with ``--seed S``
-on other cores or machines, into the check of them all, training no agent on the learned
-reward). Their deterministic episodes (as many per iteration as training evaluates,
-``num_envs``) are scored under the true rewards; the ERD matches each true intention to the
-learned one the run itself matched it to (its jointly trained policies' matching at that
-iteration), one matching for every number reported. Each env's success measure (the experts'
-bars: velocity, upright, pitch turn, ball reached) is reported beside it, over the experts' 10
-deterministic episodes.
+from scratch with TRPO on the frozen pseudo-reward R_i(s, a) of that seed: the run's saved
+reward (``RUN_DIR/reward/``, written by ``python -m emgail_jax.refit``) when it has one, read
+as its ``reward.json`` says and as ``load_reward`` returns it; otherwise, or with ``--set
+reward=paper``, the paper's, the run's own discriminators (its final networks, or those of the
+snapshot of ``--snapshot ITER``); with ``--refit``, or ``--set consolidate=STEPS``, each seed's
+discriminator refitted here against every snapshot's policy, as ``python -m emgail_jax.refit``
+saves it, and reused if saved before. The fresh policies never see the true reward; the seeds'
+and intentions' policies are vmapped in one program (``--rl-seed R``: another draw of their
+initialisation and samples, to tell a reward that fails from a search that did; ``--draws N``:
+N draws, keeping per intention the agent that earns the most learned reward, as a user without
+the true reward would, or with ``--keep-draw nearest`` the one nearest what the demonstrations
+earn; each finished draw, and the training of the one under way every few minutes, is kept
+beside the check's file until it is written, so a check stopped part-way goes on from there;
+``--merge`` joins checks of one seed each, run with ``--seed S`` on other cores or machines,
+into the check of them all, training no agent on the learned reward). Their deterministic
+episodes (as many per iteration as training evaluates, ``num_envs``) are scored under the true
+rewards; the ERD matches each true intention to the learned one the run itself matched it to
+(its jointly trained policies' matching at that iteration), one matching for every number
+reported. Each env's success measure (the experts' bars: velocity, upright, pitch turn, ball
+reached) is reported beside it, over the experts' 10 deterministic episodes.
 
 Every algorithm's run is checked on the reward its own policies were trained on
 (:meth:`~emgail_jax.host.saved_run.SavedRun.reward_function`); every fresh policy has the same
@@ -82,7 +84,7 @@ def print_result(run, result: dict) -> None:
 
     console = Console(width=140)
     console.print(_result_table(run, result))
-    for line in _headline_lines(result):
+    for line in [*_reward_lines(result), *_headline_lines(result)]:
         console.print(line)
     reference = (result.get("variant") or {}).get("reference_meets_bar")
     if reference and None not in reference and not all(reference):
@@ -94,6 +96,31 @@ def print_result(run, result: dict) -> None:
         )
     for line in _draws_lines(result):
         console.print(line)
+
+
+def _reward_lines(result: dict) -> list[str]:
+    """Which reward was checked: the saved one with its recipe, a refit made here, or the
+    paper's (none said by a check recorded before it was told)."""
+    reward = result.get("reward") or {}
+    source = reward.get("source")
+    given = lambda settings: recipe.spelled({key: on for key, on in settings.items() if on})
+    if source == "saved":
+        form, price = reward["form"], reward["termination_price"]
+        if form != reward["saved_form"]:
+            form += f" (saved as {reward['saved_form']})"
+        fall = "" if price is None else f", a fall paid per step left at its {price} price"
+        return [
+            f"reward checked: the saved reward {reward['directory']} (python -m "
+            f"emgail_jax.refit: {given(reward['recipe'])}), read as {form}{fall}"
+        ]
+    if source == "refit":
+        return [
+            f"reward checked: the refit '{result['saved_reward']}' made here "
+            f"({given(reward['recipe'])}), read as {result['reward_form']}"
+        ]
+    if source == "paper":
+        return [f"reward checked: the paper's, the run's own ({result['reward_form']})"]
+    return []
 
 
 def _headline_lines(result: dict) -> list[str]:
@@ -340,17 +367,29 @@ class Chosen:
 
 
 def _run_opened(args: argparse.Namespace):
-    """``(args, run)`` of the command line: ``args`` with the reward form resolved for the
-    run's env (:func:`~emgail_jax.reward.recipe.refit_reward_form`), the saved run with that
-    form, in the variant if asked."""
+    """``(args, run)`` of the command line (:func:`_reward_opened`), in the variant if asked."""
+    args, run = _reward_opened(args)
+    if args.env_set:
+        run.problem = check.variant_problem(run, args.env_set)
+    return args, run
+
+
+def _reward_opened(args: argparse.Namespace):
+    """``(args, run)`` of the command line: ``args`` with the reward checked resolved
+    (:func:`reward_source`) and its form for the run's env
+    (:func:`~emgail_jax.reward.recipe.refit_reward_form`), the saved run with that form; a
+    saved reward's run opened as ``load_reward`` opens it."""
     import envs
     from emgail_jax.host.run_spec import RunError
     from emgail_jax.host.saved_run import SavedRun
+    from emgail_jax.reward import product
 
     _check_options(args)
-    run = SavedRun.open(args.run_dir, snapshot=args.snapshot)
-    if args.env_set:
-        run.problem = check.variant_problem(run, args.env_set)
+    args = argparse.Namespace(**{**vars(args), "reward": reward_source(args)})
+    if args.reward == "saved":
+        run, _ = product.opened(args.run_dir, args.reward_form)
+    else:
+        run = SavedRun.open(args.run_dir, snapshot=args.snapshot)
     if run.config.method.m_step.form.airl and (args.reward_form or args.consolidate):
         # Its reward is g_i(s), no reading of a GAIL discriminator's logit, nor refitted as one.
         raise RunError(
@@ -363,23 +402,69 @@ def _run_opened(args: argparse.Namespace):
     return args, run
 
 
+def reward_source(args: argparse.Namespace) -> str:
+    """The reward a check reads: ``refit``, made (or reused) here (``--refit``,
+    ``consolidate``); ``saved``, the run's ``RUN/reward/``; or ``paper``, the run's own
+    discriminators. Unless ``--set reward`` names one, the saved reward where the run has
+    one refitted from the networks checked (``--snapshot``) and no other is asked
+    (``across_seeds``), as ``load_reward`` chooses.
+
+    Raises:
+      RunError: a reward named beside a refit, or a saved one that the run lacks or that does
+        not go with the options given.
+    """
+    from emgail_jax.host.run_spec import RunError
+    from emgail_jax.reward import product
+
+    if args.consolidate:
+        if args.reward is not None:
+            raise RunError(
+                f"--set reward={args.reward} checks a reward made before: not with --refit or "
+                "consolidate"
+            )
+        return "refit"
+    if args.reward == "paper":
+        return "paper"
+    if args.reward is None and (args.across_seeds or not product.exists(args.run_dir)):
+        return "paper"
+    snapshot = product.read(args.run_dir)["networks"]["snapshot"]
+    if args.reward is None and snapshot != args.snapshot:
+        return "paper"  # the snapshot's own reward: the saved one is of other networks
+    if args.across_seeds or args.absorbing_reward:
+        given = "across_seeds" if args.across_seeds else "absorbing_reward"
+        raise RunError(
+            f"{given} goes with the run's own reward, not the saved one (which pays a "
+            "termination as its reward.json says): give --set reward=paper"
+        )
+    if snapshot != args.snapshot:
+        networks = "the final networks" if snapshot is None else f"snapshot {snapshot}"
+        raise RunError(f"the saved reward was refitted from {networks}: drop --snapshot")
+    return "saved"
+
+
 def _opened(args: argparse.Namespace):
-    """``(args, run, seeds, Chosen)`` of the command line (:func:`_run_opened`), with its
-    refitted or across-seeds rewards if asked."""
+    """``(args, run, seeds, Chosen)`` of the command line (:func:`_reward_opened`): the saved
+    reward read as ``load_reward`` reads it, or the refit or across-seeds reward if asked."""
     from emgail_jax.host.run_spec import RunError
     from emgail_jax.host.saved_run import across_seeds_reward
     from emgail_jax.reward import saved
 
-    args, run = _run_opened(args)
+    args, run = _reward_opened(args)
     seeds = list(range(run.spec.seeds)) if args.seed is None else [run.seed_index(args.seed)]
     chosen = Chosen(
         details={
+            "reward": {"source": args.reward},
             "consolidation": None,
             **RETIRED_DETAILS,
             "across_seeds": None,
             "absorbing_price": None,
+            "termination": None,
         }
     )
+    if args.reward == "saved":  # as load_reward reads it, in the env it was saved in
+        saved_reward_chosen(run, seeds, chosen)
+    if args.env_set:
+        run.problem = check.variant_problem(run, args.env_set)
     if args.consolidate:
         name, refit = "-".join(recipe.refit_parts(args)), recipe.refit_of(args)
         run = saved.run_to_refit(run, refit)
@@ -387,6 +472,8 @@ def _opened(args: argparse.Namespace):
             run, seeds, refit, name, progress=not args.quiet
         )
         chosen.details["saved_reward"] = name
+        recipe_given = {key: getattr(args, key) for key in recipe.SAVED_SETTINGS}
+        chosen.details["reward"]["recipe"] = recipe_given
     if args.across_seeds:
         if run.spec.seeds < 2:
             raise RunError("across_seeds needs a run of 2 or more seeds")
@@ -401,8 +488,46 @@ def _opened(args: argparse.Namespace):
     return args, run, seeds, chosen
 
 
+def saved_reward_chosen(run, seeds: list[int], chosen: Chosen) -> None:
+    """``chosen`` as the run's saved reward (``RUN/reward/``) of ``seeds``, each exactly the
+    :class:`~emgail_jax.reward.load.LearnedReward` ``load_reward`` returns: its parameters,
+    its function and its termination (paid per step left; 0 where it has none), and
+    ``reward.json``'s recipe in its details."""
+    import jax.numpy as jnp
+
+    from emgail_jax.reward import load, product
+    from emgail_jax.reward.refit import priced_absorbing_reward
+
+    description = product.read(run.run_dir)
+    rewards = [load.saved_reward(run, description, seed, run.run_dir) for seed in seeds]
+    chosen.function = run.reward_function()
+    chosen.parameters = [reward.parameters for reward in rewards]
+    paid = [reward.termination_values for reward in rewards]
+    if paid[0] is not None or run.absorbing_reward_function() is not None:
+        # The reward's own termination, never the run's absorbing state's in its place.
+        intentions = jnp.arange(run.num_intentions)
+        values = [reward.termination(intentions) for reward in rewards]
+        chosen.parameters = [
+            {**reward.parameters, product.PRICE: price}
+            for reward, price in zip(rewards, values, strict=True)
+        ]
+        chosen.absorbing = priced_absorbing_reward
+        chosen.details["termination"] = values
+    chosen.details["reward"] = {
+        "source": "saved",
+        "directory": product.directory(run.run_dir),
+        "saved_reward": description["saved_reward"],
+        "form": rewards[0].form,
+        "saved_form": description["form"],
+        "termination_price": (description["termination"] or {}).get("price"),
+        "recipe": description["recipe"],
+        "refit": description["refit"],
+        "networks": description["networks"],
+    }
+
+
 # Details of the reward checked with one entry per seed; the others are alike for every seed.
-PER_SEED_DETAILS = ("consolidation", "across_seeds", "absorbing_price")
+PER_SEED_DETAILS = ("consolidation", "across_seeds", "absorbing_price", "termination")
 
 
 def _merge_opened(args: argparse.Namespace):
@@ -446,7 +571,7 @@ def _merge_opened(args: argparse.Namespace):
         ]
     except ValueError as error:
         raise RunError(f"--merge: {error}") from None
-    details = {name: ordered[0].get(name) for name in (*RETIRED_DETAILS, "saved_reward")}
+    details = {name: ordered[0].get(name) for name in ("reward", *RETIRED_DETAILS, "saved_reward")}
     for name in PER_SEED_DETAILS:
         entries = [part.get(name) for part in ordered]
         details[name] = None if None in entries else [e for entry in entries for e in entry]
@@ -628,7 +753,17 @@ def check_identity(args: argparse.Namespace, run) -> dict:
     # Left out when not given, as before the setting existed, so that those checks resume.
     if options["value_target_scaling"] is None:
         del options["value_target_scaling"]
-    return {"options": dict(sorted(options.items())), "iteration": run.snapshot or run.iteration}
+    identity = {"iteration": run.snapshot or run.iteration}
+    # A check of the run's own reward or of a refit made here reads as before the saved one
+    # could be checked; a saved one is told by the refit it was written from and its reading.
+    if options.pop("reward") == "saved":
+        from emgail_jax.reward import product
+
+        description = product.read(args.run_dir)
+        options["reward"] = "saved"
+        price = (description["termination"] or {}).get("price")
+        identity["saved_reward"] = [description["saved_reward"], description["form"], price]
+    return {"options": dict(sorted(options.items())), **identity}
 
 
 def default_name(args) -> str:
@@ -661,8 +796,10 @@ def default_name(args) -> str:
 
 def reward_parts(args) -> list[str]:
     """The parts of :func:`default_name` that say which reward was checked: the snapshot, the
-    refit, the reward form."""
+    refit or the saved reward, the reward form."""
     parts = recipe.refit_parts(args)
+    if args.reward == "saved":
+        parts.append("saved")
     if args.across_seeds:
         parts.append("across-seeds")
     if args.reward_form:

@@ -23,7 +23,14 @@ def test_the_refit_is_saved_once_then_reused_or_made_anew(copied_run, capsys):
     files = ["reward.json", "seed-0.json", "seed-0.msgpack", "seed-1.json", "seed-1.msgpack"]
     assert sorted(p.name for p in directory.iterdir()) == files
     assert all(str(directory / name) in out for name in files)
-    assert f"refit='{NAME}'" in out
+    # Each seed's progress as it goes; last, what was written and the time it took.
+    for seed in (0, 1):
+        assert f"refit seed {seed}: one rollout of each of 2 snapshots, 80 samples per " in out
+        assert f"refit seed {seed} 3/3  loss " in out
+        assert f"refit seed {seed}: done, " in out
+    last = out.strip().split("\n")[-1]
+    assert last.startswith(f"wrote {copied_run / 'reward'} in ") and " s: load_reward(" in last
+    assert f"refit='{NAME}'" in last
     first = (directory / "seed-1.msgpack").read_bytes()
     losses = json.loads((directory / "seed-1.json").read_text())
     assert losses["seconds"] > 0 and losses["after"]["discriminator/loss"] > 0
@@ -31,7 +38,8 @@ def test_the_refit_is_saved_once_then_reused_or_made_anew(copied_run, capsys):
     assert f"seed 1: the refitted reward '{NAME}' saved before, reused" in capsys.readouterr().out
     assert json.loads((directory / "seed-1.json").read_text()) == losses  # not made again
     assert refit.main([str(copied_run), *SMALL, "--overwrite", "--quiet"]) == 0
-    assert "reused" not in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "reused" not in out and "refit seed" not in out and "wrote " in out
     assert (directory / "seed-1.msgpack").read_bytes() == first  # the same refit, made anew
     assert json.loads((directory / "seed-1.json").read_text())["seconds"] != losses["seconds"]
 

@@ -41,6 +41,7 @@ def test_every_seed_is_reoptimised_beside_the_true_reward(reoptimized, capsys):
     }
     assert result["eval_episodes"] == 2  # the tiny run's num_envs, as training evaluates
     assert result["absorbing_state"] is False  # an episode's end is worth 0
+    assert result["reward"] == {"source": "paper"}  # the run saved no reward: its own
     assert np.isclose(result["erd_mean"], np.mean(result["erd"]))
     for seed, per_seed in enumerate(result["per_seed"]):
         assert per_seed["run_seed"] == seed and per_seed["erd"] == result["erd"][seed]
@@ -245,6 +246,8 @@ def test_a_snapshot_is_reoptimised_on_its_own_networks(tiny_run, reoptimized):
         (["--keep-draw", "nearest"], "--keep-draw chooses among draws: give --draws N"),
         (["--merge", "a.json", "--seed", "0"], "--merge joins checks of one seed each: drop"),
         (["--merge", "missing.json"], "--merge: cannot read 'missing.json'"),
+        (["--set", "reward=saved"], "has no refitted reward: python -m emgail_jax.refit"),
+        (["--refit", "--set", "reward=paper"], "--set reward=paper checks a reward made before"),
         (["--set", "absorbing_reward=random"], "absorbing_reward prices an absorbing state, and"),
         (
             ["--set", "absorbing_reward=random", "--set", "across_seeds=true"],
@@ -700,7 +703,7 @@ def test_a_check_records_the_options_it_depends_on_as_before():
         "ensemble",
         "consolidate_agents",
         "consolidate_state_only",
-    } - {"value_target_scaling"}
+    } - {"value_target_scaling", "reward"}  # a refit made here: no saved reward to name
     assert options["consolidate"] == 4000 and options["ensemble"] == 0
 
 
@@ -716,6 +719,7 @@ def test_a_check_records_the_options_it_depends_on_as_before():
         (["--set", "consolidate_fresh=yes"], "consolidate_fresh takes true or false"),
         (["--set", "reward_form=sqrt"], "reward_form takes one of gail, "),
         (["--set", "reference_draws=0"], "reference_draws takes a number >= 1"),
+        (["--set", "reward=mine"], "--set reward=mine: reward takes saved or paper"),
         (["--ensemble", "2"], "unrecognized arguments: --ensemble"),
         (["--consolidate-agents", "1"], "unrecognized arguments: --consolidate-agents"),
         (["--consolidate-state-only"], "unrecognized arguments: --consolidate-state-only"),

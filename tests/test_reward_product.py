@@ -119,7 +119,7 @@ def test_the_reward_is_a_pytree_whose_parameters_a_jitted_program_reads(refitted
     assert not np.allclose(paid(reward), paid(zeroed))
 
 
-def test_an_absorbing_refit_saves_its_termination_price(tiny_run, tmp_path):
+def test_an_absorbing_refit_saves_its_termination_price(tiny_run, tmp_path, monkeypatch):
     from emgail_jax.reward.refit import random_actions_reward
 
     copy = _copy(tiny_run, tmp_path)
@@ -137,6 +137,13 @@ def test_an_absorbing_refit_saves_its_termination_price(tiny_run, tmp_path):
     np.testing.assert_allclose(reward.termination(np.array([0, 1])), price, rtol=1e-6)
     with pytest.raises(RunError, match="has no seed 0"):
         emgail_jax.load_reward(str(copy), seed=0)
+    # reoptimize pays its fresh agents' falls what load_reward's termination pays.
+    chosen = _checked(copy, monkeypatch, "--seed", "1")["chosen"]
+    intentions = np.array([0, 1])
+    paid = chosen.absorbing(chosen.parameters[0], intentions)
+    np.testing.assert_array_equal(paid, reward.termination(intentions))
+    assert chosen.details["reward"]["termination_price"] == "random"
+    np.testing.assert_array_equal(chosen.details["termination"][0], paid)
 
 
 def test_a_price_without_an_absorbing_state_is_refused(tiny_run, tmp_path, capsys):
@@ -165,3 +172,92 @@ def test_a_check_reads_the_saved_reward_as_reoptimize_refit_checks_it(refitted_r
         assert product.PRICE not in saved  # the driver: no termination to price
         for ours, theirs in zip(jax.tree.leaves(saved), jax.tree.leaves(checked), strict=True):
             np.testing.assert_array_equal(ours, theirs)
+
+
+def _checked(run_dir, monkeypatch, *extra):
+    """What ``reoptimize RUN *extra`` would train fresh agents on: its resolved options, the
+    run it opened and the reward it chose (nothing trained)."""
+    from emgail_jax import reoptimize
+
+    captured = {}
+
+    def reoptimized(args, run, seeds, chosen, merged):
+        captured.update(args=args, run=run, seeds=seeds, chosen=chosen)
+        return 0
+
+    monkeypatch.setattr(reoptimize, "_reoptimized", reoptimized)
+    assert reoptimize.main([str(run_dir), *extra, "--quiet"]) == 0
+    return captured
+
+
+def test_reoptimize_checks_the_saved_reward_by_default_as_load_reward_returns_it(
+    refitted_run, monkeypatch
+):
+    from emgail_jax import reoptimize
+
+    checked = _checked(refitted_run, monkeypatch)
+    args, run, chosen = checked["args"], checked["run"], checked["chosen"]
+    assert args.reward == "saved" and reoptimize.default_name(args) == "reoptimize-saved.json"
+    description = product.read(str(refitted_run))
+    details = chosen.details["reward"]
+    assert details["source"] == "saved" and details["saved_reward"] == NAME
+    assert details["recipe"] == description["recipe"] and details["form"] == "log-d"
+    assert details["termination_price"] is None and chosen.absorbing is None
+    assert run.algorithm.reward_form == "log-d"
+    obs, actions = _pairs(refitted_run)
+    for seed, parameters in zip(checked["seeds"], chosen.parameters, strict=True):
+        loaded = emgail_jax.load_reward(str(refitted_run), seed=seed)
+        for ours, theirs in zip(
+            jax.tree.leaves(parameters), jax.tree.leaves(loaded.parameters), strict=True
+        ):
+            np.testing.assert_array_equal(ours, theirs)
+        np.testing.assert_array_equal(
+            chosen.function(parameters, obs, actions, 1), loaded(obs, actions, 1)
+        )
+    identity = reoptimize.check_identity(args, run)
+    assert identity["options"]["reward"] == "saved"
+    assert identity["saved_reward"] == [NAME, "log-d", None]
+    lines = reoptimize._reward_lines({"reward": details})
+    assert lines[0].startswith(f"reward checked: the saved reward {refitted_run / 'reward'} (")
+    assert "consolidate=3 " in lines[0] and "consolidate_ranking" not in lines[0]  # off
+    assert lines[0].endswith("consolidate_batch=20), read as log-d")
+
+
+def test_reoptimize_checks_the_papers_reward_or_a_refit_when_asked(refitted_run, monkeypatch):
+    from emgail_jax import reoptimize
+
+    paper = _checked(refitted_run, monkeypatch, "--set", "reward=paper")
+    assert paper["args"].reward == "paper" and paper["chosen"].parameters is None
+    assert paper["chosen"].details["reward"] == {"source": "paper"}
+    assert reoptimize.default_name(paper["args"]) == "reoptimize.json"
+    assert "reward" not in reoptimize.check_identity(paper["args"], paper["run"])["options"]
+    assert reoptimize._reward_lines({"reward": {"source": "paper"}, "reward_form": "gail"}) == [
+        "reward checked: the paper's, the run's own (gail)"
+    ]
+    refit = _checked(refitted_run, monkeypatch, "--refit", *SMALL)
+    assert refit["args"].reward == "refit" and refit["chosen"].details["saved_reward"] == NAME
+    assert refit["chosen"].details["reward"]["recipe"]["consolidate"] == 3
+    # A snapshot's own reward: the saved one is of the final networks.
+    snapshot = reoptimize.parse_args([str(refitted_run), "--snapshot", "2"])
+    assert reoptimize.reward_source(snapshot) == "paper"
+    shared = reoptimize.parse_args([str(refitted_run), "--set", "across_seeds=true"])
+    assert reoptimize.reward_source(shared) == "paper"
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--set", "reward=saved", "--snapshot", "2"], "refitted from the final networks: drop"),
+        (["--set", "reward=saved", "--set", "across_seeds=true"], "give --set reward=paper"),
+        (["--set", "absorbing_reward=random"], "absorbing_reward goes with the run's own reward"),
+        (["--refit", "--set", "reward=saved"], "checks a reward made before: not with --refit"),
+    ],
+)
+def test_a_saved_reward_with_options_it_does_not_take_is_one_line(
+    refitted_run, capsys, extra, message
+):
+    from emgail_jax import reoptimize
+
+    assert reoptimize.main([str(refitted_run), *extra]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and message in err and err.count("\n") == 1

@@ -209,3 +209,25 @@ def test_an_absorbing_refit_needs_the_network_and_fresh_weights(saved):
         refitting.consolidated_parameters(
             saved.with_absorbing_states(), 0, refitting.Refit(steps=2, absorbing=True), key
         )
+
+
+def test_the_steps_run_in_parts_of_one_length_the_last_shorter():
+    assert refitting.step_parts(4000, 10) == [(i * 400, 400) for i in range(10)]
+    assert refitting.step_parts(3, 10) == [(0, 1), (1, 1), (2, 1)]
+    assert refitting.step_parts(23, 10) == [(i * 3, 3) for i in range(7)] + [(21, 2)]
+    assert refitting.step_parts(7, 1) == [(0, 7)]
+
+
+@pytest.mark.parametrize("batch", [0, 7])
+def test_a_refit_that_shows_its_progress_is_the_refit_that_does_not(saved, batch):
+    """In parts, with the metrics of each part's first step as it goes, to the same bits."""
+    key = jax.random.PRNGKey(0)
+    refit = refitting.Refit(steps=5, fresh=True, support_noise=1.0, batch=batch)
+    shown = []
+    parts, metrics = refitting.consolidated_parameters(
+        saved, 0, refit, key, on_steps=lambda steps, metrics: shown.append((steps, metrics))
+    )
+    whole, whole_metrics = refitting.consolidated_parameters(saved, 0, refit, key)
+    assert [steps for steps, _ in shown] == [1] * 5
+    assert same(parts["discriminator"], whole["discriminator"])
+    assert same(metrics, whole_metrics) and same(shown[0][1], whole_metrics["before"])

@@ -42,6 +42,7 @@ def test_sweep_reward_check_command_is_every_seed_beside_the_cached_baseline(
     assert args.cache == str(out / "true-reward-baselines")
     assert (args.iterations, args.gamma, args.env_set) == (None, None, [])  # the env's budget
     assert not args.refit and args.draws == 1 and args.out is None  # reoptimize.json
+    assert args.reward == "paper"  # the run's own, even where a refit was saved
     refit = reoptimize.parse_args(refit_command[3:], env="hopper")
     assert refit.refit and refit.draws == 3 and refit.consolidate_ranking == 10
     assert refit.out == str(out / "runs" / "hopper-2-infogail" / "reoptimize-refit.json")

@@ -99,10 +99,18 @@ def load_reward(
     if across_seeds:
         raise RunError("across_seeds averages the run's own rewards: give source='paper'")
     run, description = product.opened(run_dir, reward_form)
-    index = run.seed_index(seed)
-    parameters = product.parameters(run, description, index)
+    return saved_reward(run, description, run.seed_index(seed), run_dir)
+
+
+def saved_reward(run: SavedRun, description: dict, seed: int, run_dir: str) -> LearnedReward:
+    """The :class:`LearnedReward` of ``seed`` (an index of the run's seeds) of the reward saved
+    in ``RUN/reward/``, ``run`` and ``description`` as :func:`~emgail_jax.reward.product.opened`
+    gives them; ``run_dir`` as the user named the run. A form other than the saved one prices
+    the termination anew in it, at the saved price."""
+    parameters = product.parameters(run, description, seed)
     values = parameters.pop(product.PRICE, None)
-    if values is not None and reward_form not in (None, description["form"]):
+    form = str(run.algorithm.reward_form)
+    if values is not None and form != description["form"]:
         # The price was what the reward of the saved form pays: priced anew in this one.
         values = product.termination_values(run, parameters, description["termination"]["price"])
     return LearnedReward(
@@ -110,9 +118,9 @@ def load_reward(
         termination_values=values,
         function=run.reward_function(),
         run=run_dir,
-        seed=run.seed_number(index),
+        seed=run.seed_number(seed),
         source="refit",
-        form=str(run.algorithm.reward_form),
+        form=form,
     )
 
 

@@ -14,6 +14,9 @@ from emgail_jax.method.config import REWARD_FORMS
 from emgail_jax.reward.refit import Refit
 
 ABSORBING_REWARDS = ("learned", "random")
+# The rewards a check reads, made before it: the run's saved one (RUN/reward/, written by
+# python -m emgail_jax.refit) or the paper's, the run's own discriminators.
+REWARD_SOURCES = ("saved", "paper")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -70,12 +73,23 @@ CHECK_SETTINGS = {
                                 "what a fall is paid per step left: the absorbing state's "
                                 "learned reward, or what random actions earn",
                                 _one_of(ABSORBING_REWARDS)),
+    "reward": Setting(str, None, "saved or paper",
+                      "the reward checked: the run's saved one (RUN/reward/, python -m "
+                      "emgail_jax.refit), the default where there is one, or the paper's, the "
+                      "run's own discriminators", _one_of(REWARD_SOURCES)),
     "across_seeds": Setting(bool, False, "true or false",
                             "train on the mean of every run seed's reward"),
     "reference_draws": Setting(int, 3, "a number >= 1",
                                "with --env-set, ERD's 0 is the best of N true-reward draws",
                                _at_least(1)),
 }  # fmt: skip
+
+
+# What RUN/reward/ records as its recipe: the refit's settings and how the refit is read.
+SAVED_SETTINGS = {
+    **REFIT_SETTINGS,
+    **{key: CHECK_SETTINGS[key] for key in ("reward_form", "absorbing_reward")},
+}
 
 
 def add_settings_option(parser: argparse.ArgumentParser, table: dict[str, Setting], what: str):

@@ -15,6 +15,7 @@ generalise the reward can cost the clustering; docs/reward.md, "The refit").
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import jax
@@ -181,14 +182,16 @@ def still_action_samples(run, key: jax.Array):
 
 
 def consolidated_parameters(
-    run, seed: int, refit: Refit, key: jax.Array, samples=None
+    run, seed: int, refit: Refit, key: jax.Array, samples=None, *, on_steps=None
 ) -> tuple[dict, dict]:
     """``(reward parameters, metrics)``: :meth:`SavedRun.reward_parameters` of ``seed`` with
     its discriminator refitted as ``refit`` says on the expert pairs weighted by the final
     responsibilities against the policy samples of every snapshot; ``samples`` are the
     snapshots' (default :func:`snapshot_policy_samples` of ``seed`` and ``key``, collected
     here). The metrics are those of the M-step's loss before (on the first step's batch) and
-    after (on every sample). A refit with absorbing states needs ``run`` opened
+    after (on every sample). ``on_steps(steps, metrics)``, if given, is called as the refit
+    goes, after every part of its steps (:data:`PROGRESS_PARTS`), with the metrics of that
+    part's first step. A refit with absorbing states needs ``run`` opened
     :meth:`~emgail_jax.host.saved_run.SavedRun.with_absorbing_states`.
 
     Raises:
@@ -214,7 +217,7 @@ def consolidated_parameters(
     start = state.discriminator
     if refit.fresh:
         start = Learner.create(new_discriminator_weights(run, key_init), optimizer)
-    trained, before, after = refitted(start, pool, floor)
+    trained, before, after = refitted(start, pool, floor, on_steps)
     metrics = {"before": jax.device_get(before), "after": jax.device_get(after)}
     return {**parameters, "discriminator": trained.params}, metrics
 
@@ -267,10 +270,10 @@ def _responsibilities(run, seed: int) -> np.ndarray:
 
 
 def _refit_program(run, refit: Refit, gamma: np.ndarray, optimizer, keys):
-    """The jitted refit ``(learner, pool, floor) -> (learner, metrics before, metrics
+    """The refit ``(learner, pool, floor, on_steps) -> (learner, metrics before, metrics
     after)`` of the M-step's loss (and the ranking's, if asked) over the ``pool`` of samples,
-    the demonstrations weighted by ``gamma [N, K]``; ``keys``: the noisy copies' and the
-    draws'."""
+    the demonstrations weighted by ``gamma [N, K]``, its steps in one jitted program or, with
+    ``on_steps``, in parts (:func:`step_parts`); ``keys``: the noisy copies' and the draws'."""
     algorithm, k = run.algorithm, run.num_intentions
     key_noise, key_draws = keys
     rollout = run.config.method.rollout
@@ -331,24 +334,50 @@ def _refit_program(run, refit: Refit, gamma: np.ndarray, optimizer, keys):
     )
 
     # The pool is an argument, not a constant the compiler would fold into the program; the
-    # loss after the refit is measured in the same program, compiled once.
-    @jax.jit
-    def refitted(learner: Learner, pool: NormalizedBatch, floor) -> tuple[Learner, dict, dict]:
+    # loss after the refit is measured in the program of the last steps. With progress to
+    # show, the steps run in parts (two programs), to the numbers of one program of them all.
+    @functools.partial(jax.jit, static_argnums=4)
+    def part(learner: Learner, pool: NormalizedBatch, floor, keys, last: bool):
+        """``(learner, metrics, after)``: ``len(keys)`` steps (``keys [n]`` their draws), the
+        metrics of the first, and if ``last`` those after them on every sample."""
         whole = with_noise(pool, key_noise)
         levels = ranked_levels(pool, floor) if refit.ranking else None
         if refit.batch or refit.ranking:
             # Every step draws anew: its batch, its ranked pairs, or both.
             seen = lambda key: drawn(pool, key) if refit.batch else whole
             step = lambda learner, key: fit(learner, 1, seen(key), levels, key)
-            keys = jax.random.split(key_draws, refit.steps)
             learner, metrics = jax.lax.scan(step, learner, keys)
-            before = jax.tree.map(lambda m: m[0], metrics)
+            first = jax.tree.map(lambda m: m[0], metrics)
         else:
-            learner, before = fit(learner, refit.steps, whole, levels, key_draws)
-        _, after = fit(learner, 1, whole, levels, key_draws)
+            learner, first = fit(learner, keys.shape[0], whole, levels, key_draws)
+        after = fit(learner, 1, whole, levels, key_draws)[1] if last else None
+        return learner, first, after
+
+    def refitted(learner: Learner, pool: NormalizedBatch, floor, on_steps=None):
+        keys = jax.random.split(key_draws, refit.steps)
+        parts = step_parts(refit.steps, 1 if on_steps is None else PROGRESS_PARTS)
+        before = None
+        for first, length in parts:
+            last = first + length == refit.steps
+            learner, metrics, after = part(learner, pool, floor, keys[first : first + length], last)
+            before = metrics if before is None else before
+            if on_steps is not None:
+                on_steps(length, metrics)
         return learner, before, after
 
     return refitted
+
+
+# The parts a refit's steps run in when it shows its progress: enough to show it, few enough
+# that the host's calls between them cost nothing beside the steps.
+PROGRESS_PARTS = 10
+
+
+def step_parts(steps: int, parts: int) -> list[tuple[int, int]]:
+    """``(first, length)`` of each part of ``steps`` steps: ``parts`` parts of one length,
+    the last shorter where they do not divide ``steps``."""
+    length = -(-steps // parts)
+    return [(first, min(length, steps - first)) for first in range(0, steps, length)]
 
 
 def new_discriminator_weights(run, key: jax.Array) -> dict:

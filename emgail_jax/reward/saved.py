@@ -22,6 +22,7 @@ from emgail_jax.reward.refit import (
     consolidated_parameters,
     new_discriminator_weights,
     snapshot_policy_samples,
+    snapshots_used,
 )
 
 # Refit options deleted since refits were first saved, at the one value a refit still has: a
@@ -56,16 +57,43 @@ def saved_or_refitted(run, seeds: list[int], refit: Refit, name: str, progress: 
             if progress:
                 print(f"seed {number}: the refitted reward '{name}' saved before, reused")
         else:
-            started = time.monotonic()
-            key = jax.random.PRNGKey(number + 2000)
-            samples = snapshot_policy_samples(run, seed, key)
-            found, losses = consolidated_parameters(run, seed, refit, key, samples=samples)
-            # What this seed's refit cost, compiles included: the sweep's estimate reads it.
-            losses = {**losses, "seconds": time.monotonic() - started}
+            found, losses = _refitted(run, seed, refit, progress)
             save_refitted(run.run_dir, name, number, found["discriminator"], description, losses)
         parameters.append(found)
         metrics.append({"run_seed": number, **asdict(refit), **RETIRED_OPTIONS, **losses})
     return parameters, metrics
+
+
+def _refitted(run, seed: int, refit: Refit, progress: bool) -> tuple[dict, dict]:
+    """``seed``'s refit (:func:`consolidated_parameters`, its key the seed's number's) and its
+    losses with the seconds it took; with ``progress``, a bar of its steps and a line when
+    its samples are drawn and when it is done."""
+    from emgail_jax.host.progress import ProgressBar
+
+    started = time.monotonic()
+    number = run.seed_number(seed)
+    key = jax.random.PRNGKey(number + 2000)
+    samples = snapshot_policy_samples(run, seed, key)
+    if progress:
+        print(
+            f"refit seed {number}: one rollout of each of {len(snapshots_used(run))} "
+            f"snapshots, {samples[0].shape[1]} samples per intention, "
+            f"{time.monotonic() - started:.0f} s; {refit.steps} steps to go",
+            flush=True,
+        )
+    label = f"refit seed {number}"
+    with ProgressBar(label, refit.steps, {"loss": "-"}, enabled=progress) as bar:
+        shown = lambda steps, metrics: bar.update(
+            steps, loss=f"{float(metrics['discriminator/loss']):.3f}"
+        )
+        found, losses = consolidated_parameters(
+            run, seed, refit, key, samples=samples, on_steps=shown if progress else None
+        )
+    # What this seed's refit cost, compiles included: the sweep's estimate reads it.
+    seconds = time.monotonic() - started
+    if progress:
+        print(f"refit seed {number}: done, {seconds:.0f} s", flush=True)
+    return found, {**losses, "seconds": seconds}
 
 
 def rewards_directory(run_dir: str) -> str:
