@@ -13,8 +13,8 @@ from emgail_jax.reward import check
 
 pytestmark = pytest.mark.heavy
 
-# The sizes of test_reward_check's fresh agents: one run seed, chunks of 10 iterations.
-BUDGET = check.Budget(iterations=10, gamma=0.99, gae_lambda=0.97)
+# One run seed's fresh agents for 2 iterations: one chunk, which the tests call five times.
+BUDGET = check.Budget(iterations=2, gamma=0.99, gae_lambda=0.97)
 
 
 @pytest.fixture(scope="module")
