@@ -48,7 +48,7 @@ TINY_RUN = [
 
 
 @pytest.fixture(scope="session")
-def tiny_run(tmp_path_factory, worker_id):
+def tiny_run(tmp_path_factory):
     """A finished tiny EM-GAIL driver run (2 seeds, 4 iterations) with its checkpoint and
     snapshots of iterations 2 and 4. Its sizes
     and chunk are those of the other tiny driver runs (test_run, test_resume, test_distributed),
@@ -59,7 +59,7 @@ def tiny_run(tmp_path_factory, worker_id):
     from emgail_jax import run
 
     out = tmp_path_factory.mktemp("tiny") / "emgail"
-    if worker_id == "master":
+    if "PYTEST_XDIST_WORKER" not in os.environ:  # one process
         assert run.main([*TINY_RUN, "--out", str(out)]) == 0
         return out
     session = tmp_path_factory.getbasetemp().parent  # shared by this session's workers
