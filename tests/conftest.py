@@ -41,21 +41,36 @@ def pytest_collection_modifyitems(items):
     items.sort(key=lambda item: item.get_closest_marker("heavy") is None)
 
 
+TINY_RUN = [
+    *("--env", "driver", "--seeds", "2", "--iterations", "4", "--num-envs", "2"),
+    *("--rollout-length", "20", "--chunk-size", "2", "--snapshot-every", "2", "--quiet"),
+]
+
+
 @pytest.fixture(scope="session")
 def tiny_run(tmp_path_factory):
     """A finished tiny EM-GAIL driver run (2 seeds, 4 iterations) with its checkpoint and
     snapshots of iterations 2 and 4. Its sizes
     and chunk are those of the other tiny driver runs (test_run, test_resume, test_distributed),
-    so that they all share one compiled program through the persistent compilation cache."""
+    so that they all share one compiled program through the persistent compilation cache.
+    Under xdist the first worker to ask trains it and every worker gets a copy of its own."""
+    import fcntl
+
     from emgail_jax import run
 
     out = tmp_path_factory.mktemp("tiny") / "emgail"
-    args = [
-        *("--env", "driver", "--seeds", "2", "--iterations", "4", "--num-envs", "2"),
-        *("--rollout-length", "20", "--chunk-size", "2", "--snapshot-every", "2", "--quiet"),
-        *("--out", str(out)),
-    ]
-    assert run.main(args) == 0
+    if "PYTEST_XDIST_WORKER" not in os.environ:  # one process
+        assert run.main([*TINY_RUN, "--out", str(out)]) == 0
+        return out
+    session = tmp_path_factory.getbasetemp().parent  # shared by this session's workers
+    trained = session / "tiny-run" / "emgail"
+    with open(session / "tiny-run.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # the others wait for the first to train it
+        summary = trained / "summary.json"
+        if not summary.exists() or json.loads(summary.read_text())["status"] != "completed":
+            shutil.rmtree(trained, ignore_errors=True)
+            assert run.main([*TINY_RUN, "--out", str(trained)]) == 0
+    shutil.copytree(trained, out)
     return out
 
 

@@ -13,8 +13,10 @@ from emgail_jax.reward import check
 
 pytestmark = pytest.mark.heavy
 
-# The sizes of test_reward_check's fresh agents: one run seed, chunks of 10 iterations.
-BUDGET = check.Budget(iterations=10, gamma=0.99, gae_lambda=0.97)
+# The budget of test_reoptimize's check of tiny_run (both seeds, 2 iterations, the run's discount):
+# the same compiled programs, read from the compilation cache when that check made them first.
+BUDGET = check.Budget(iterations=2, gamma=0.995, gae_lambda=0.97)
+SEEDS = [0, 1]
 
 
 @pytest.fixture(scope="module")
@@ -30,12 +32,12 @@ def other_parameters(parameters: dict) -> dict:
 
 @pytest.fixture(scope="module")
 def fresh(saved):
-    """``(trainer, initial states [1, K], the run's reward data [1, ...], another's)`` of run
-    seed 1's fresh agents."""
+    """``(trainer, initial states [S, K], the run's reward data [S, ...], another's)`` of the
+    run seeds' fresh agents."""
     trainer = check.learned_reward_trainer(saved, BUDGET, saved.reward_function())
-    states = jax.jit(jax.vmap(jax.vmap(trainer.init)))(check.fresh_keys(saved, [1]))
-    own = saved.reward_parameters(1)
-    return trainer, states, stacked([own]), stacked([other_parameters(own)])
+    states = jax.jit(jax.vmap(jax.vmap(trainer.init)))(check.fresh_keys(saved, SEEDS))
+    own = [saved.reward_parameters(seed) for seed in SEEDS]
+    return trainer, states, stacked(own), stacked([other_parameters(p) for p in own])
 
 
 def test_one_compiled_program_trains_on_the_reward_parameters_it_is_given(saved, fresh):
@@ -46,7 +48,7 @@ def test_one_compiled_program_trains_on_the_reward_parameters_it_is_given(saved,
     ends, metrics = {}, {}
     for name, data in (("own", own), ("other", other), ("own again", own)):
         ends[name], metrics[name] = program(states, scored, data)
-    earned = {name: np.asarray(m["train/reward"]) for name, m in metrics.items()}  # [L, 1, K]
+    earned = {name: np.asarray(m["train/reward"]) for name, m in metrics.items()}  # [L, S, K]
     np.testing.assert_array_equal(earned["own again"], earned["own"])
     # The first rollout is the same policies' on the same keys: only the reward pays otherwise.
     assert np.all(earned["other"][0] != earned["own"][0])
@@ -61,7 +63,7 @@ def test_one_compiled_program_trains_on_the_reward_parameters_it_is_given(saved,
 
 def test_train_fresh_pays_the_reward_parameters_it_is_given(saved, fresh):
     trainer, _, own, other = fresh
-    keys = check.fresh_keys(saved, [1])
+    keys = check.fresh_keys(saved, SEEDS)
     train = lambda data: check.train_fresh(
         trainer, keys, data, BUDGET.iterations, label="", progress=False
     )

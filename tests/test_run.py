@@ -28,20 +28,31 @@ def _run(tmp_path, name, *extra):
     return code, out
 
 
+class _Runs(dict):
+    """``runs[name]``: the tiny run of the algorithm ``name`` ("emgail-again": a second
+    EM-GAIL run with the same seed), made when a test first asks for it."""
+
+    def __init__(self, tmp):
+        super().__init__()
+        self.tmp = tmp
+
+    def __missing__(self, name):
+        code, self[name] = _run(self.tmp, name, "--algo", name.removesuffix("-again"))
+        assert code == 0
+        return self[name]
+
+
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    """One tiny run per algorithm, plus a second EM-GAIL run with the same seed."""
-    tmp = tmp_path_factory.mktemp("runs")
-    outs = {}
-    for algo in ("emgail", "infogail", "gail"):
-        code, outs[algo] = _run(tmp, algo, "--algo", algo)
-        assert code == 0
-    code, outs["emgail-again"] = _run(tmp, "emgail-again", "--algo", "emgail")
-    assert code == 0
-    return outs
+    return _Runs(tmp_path_factory.mktemp("runs"))
 
 
-@pytest.mark.parametrize("algo", ["emgail", "infogail", "gail"])
+# Info/IntentionGAIL's run is a whole program of its own (make test-slow): EM-GAIL's and GAIL's
+# runs cover the run, test_algorithms and test_discriminator its reward and discriminator.
+ALGOS = ["emgail", pytest.param("infogail", marks=pytest.mark.slow), "gail"]
+
+
+@pytest.mark.parametrize("algo", ALGOS)
 def test_summary_follows_the_run_contract(runs, algo):
     summary = json.loads((runs[algo] / "summary.json").read_text())
     assert summary["status"] == "completed"
@@ -89,6 +100,7 @@ def test_runs_differing_only_in_data_share_one_program(runs, tmp_path):
     compiled programs (no program is added) and gives what a run compiling afresh gives."""
     from emgail_jax.host.program_cache import SHARED
 
+    assert runs["emgail"].exists()  # its programs compiled before this run's
     programs = SHARED.keys()
     code, shared = _run(tmp_path, "shared", "--radius", "10", "--info-weight", "0.5")
     assert code == 0 and set(SHARED.keys()) == set(programs)
@@ -121,7 +133,7 @@ def test_parameter_counts_hand_computed(runs):
     }
 
 
-@pytest.mark.parametrize("algo", ["emgail", "infogail", "gail"])
+@pytest.mark.parametrize("algo", ALGOS)
 def test_metrics_csv_has_a_row_per_iteration_and_seed(runs, algo):
     with open(runs[algo] / "metrics.csv") as f:
         rows = list(csv.DictReader(f))

@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 from jax.sharding import PartitionSpec
 
-import envs
 from emgail_jax.host import program_cache, seed_runner
 from emgail_jax.host.history import concat_history
 from emgail_jax.host.seed_runner import (
@@ -18,8 +17,7 @@ from emgail_jax.host.seed_runner import (
     intention_runner,
     seed_sharding,
 )
-from emgail_jax.method.config import RunConfig
-from emgail_jax.method.rl import make_rl_train
+from emgail_jax.method.rl import RLTrainer
 
 CHUNK = 3
 INPUTS = np.array([True, False, True])
@@ -298,16 +296,27 @@ def test_vmapped_seed_batches_give_the_sequential_results(four_seeds, seed_batch
 
 
 def test_intention_runner_gives_each_seed_its_own_policies():
-    config = RunConfig().with_values(hidden=(8,), num_envs=2, rollout_length=10, value_epochs=1)
-    trainer = make_rl_train(config.method, envs.make("driver"), eval_episodes=1)
-    runner = intention_runner(trainer, jnp.arange(2), seeds=2)
+    """Seed s's policies start from the keys its own key splits into, and policy i trains on
+    ``intentions[i]`` (a toy trainer; test_experts' experts train through the runner)."""
+
+    def init(key):
+        return {"w": jax.random.normal(key, (3,)), "iteration": jnp.zeros((), jnp.int32),
+                "intention": jnp.full((), -1)}  # fmt: skip
+
+    def update(state, intention):
+        state = {"w": state["w"] + 1.0, "iteration": state["iteration"] + 1,
+                 "intention": intention}  # fmt: skip
+        return state, {"w": state["w"].sum()}
+
+    trainer = RLTrainer(init=init, update=update, policy=None)
+    runner = intention_runner(trainer, jnp.array([1, 0]), seeds=2)
     stop_after_first = lambda first, length, states, metrics: False
-    states = runner.run(
-        runner.init(jax.random.PRNGKey(1)),
-        chunks(0, 4, 2),
-        lambda f, n: np.zeros(n, bool),
-        stop_after_first,
-    )
-    assert np.asarray(states.iteration).tolist() == [[2, 2], [2, 2]]  # stopped after one chunk
-    kernel = lambda s: jax.tree.leaves(s.policy)[0]
-    assert not np.allclose(kernel(states)[0], kernel(states)[1])
+    first = runner.init(jax.random.PRNGKey(1))
+    states = runner.run(first, chunks(0, 4, 2), lambda f, n: np.zeros(n, bool), stop_after_first)
+    assert np.asarray(states["iteration"]).tolist() == [[2, 2], [2, 2]]  # stopped after one chunk
+    assert np.asarray(states["intention"]).tolist() == [[1, 0], [1, 0]]
+    w = np.asarray(first["w"])  # [seeds, intentions, 3]
+    for seed, key in enumerate(jax.random.split(jax.random.PRNGKey(1), 2)):
+        np.testing.assert_array_equal(w[seed], jax.vmap(init)(jax.random.split(key, 2))["w"])
+    assert not np.allclose(w[0], w[1]) and not np.allclose(w[0, 0], w[0, 1])
+    np.testing.assert_allclose(np.asarray(states["w"]), w + 2.0, rtol=1e-6)

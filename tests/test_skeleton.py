@@ -50,7 +50,12 @@ def env():
     return envs.make("driver", intentions=K)
 
 
-@pytest.fixture(scope="module", params=["one-hot", "unconditioned"])
+# Unconditioned stages' own compiles go to make test-slow: test_rl's chunks run them compiled
+# (the RL trainer's policy is unconditioned), and one-hot stages check the same semantics here.
+UNCONDITIONED = pytest.param("unconditioned", marks=pytest.mark.slow)
+
+
+@pytest.fixture(scope="module", params=["one-hot", UNCONDITIONED])
 def stages(request, env):
     config = CONFIG.resolved(env)
     if request.param == "unconditioned":

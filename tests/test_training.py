@@ -108,6 +108,13 @@ def _first_kernel(params):
     return (layers["heads"] if "heads" in layers else layers["MLP_0"])["Dense_0"]["kernel"]
 
 
+def _initial_shapes(config, env, expert):
+    """The shapes and dtypes of ``config``'s initial train state, traced, not compiled."""
+    init, _ = make_train(config.method, env)
+    data = RunData.create(expert, env, config.info_weight)
+    return jax.eval_shape(init, jax.random.PRNGKey(0), data)
+
+
 @pytest.fixture(scope="module")
 def emgail_onehot(env, expert):
     return _train(CONFIG.with_values(intention_input="onehot"), env, expert, 1)
@@ -170,8 +177,10 @@ def test_init_gives_a_finite_state_with_k_by_b_envs(emgail):
     assert state.posterior is not None and state.posterior.opt_state is not None
 
 
-def test_init_network_inputs_follow_the_algorithm(emgail, emgail_onehot, gail):
-    heads, onehot, gail_state = emgail[0], emgail_onehot[0], gail[0]
+def test_init_network_inputs_follow_the_algorithm(env, expert, emgail):
+    heads = emgail[0]
+    onehot = _initial_shapes(CONFIG.with_values(intention_input="onehot"), env, expert)
+    gail_state = _initial_shapes(CONFIG.with_values(algo="gail"), env, expert)
     obs, act = 10, 1
     # EM-GAIL: pi(a | s, i), V(s, i, t) and D(s, a, i), with one head per intention (default)
     # or a K one-hot input; V sees the time too.
@@ -188,6 +197,7 @@ def test_init_network_inputs_follow_the_algorithm(emgail, emgail_onehot, gail):
     assert gail_state.posterior is None
 
 
+@pytest.mark.slow  # a whole update; test_skeleton's and test_networks' one-hot cases cover it
 def test_one_hot_intention_input_trains_too(emgail_onehot):
     _, steps, _ = emgail_onehot
     state, metrics = steps[0]
@@ -322,6 +332,7 @@ def test_update_advances_the_state(emgail):
     assert all(np.all(np.isfinite(leaf)) for leaf in _leaves(state2))
 
 
+@pytest.mark.slow  # a whole update; test_run's GAIL run checks the same in its summary and csv
 def test_gail_has_no_posterior_and_no_accuracy(gail):
     _, [(state, metrics)], _ = gail
     assert state.posterior is None
@@ -484,7 +495,7 @@ def test_an_intention_emptied_by_the_posterior_is_re_seeded(emgail):
         pytest.param("gail", marks=pytest.mark.slow),
     ],
 )
-def test_a_replay_changes_only_the_m_steps_negatives(env, expert, emgail, gail, algo):
+def test_a_replay_changes_only_the_m_steps_negatives(env, expert, request, algo):
     """With ``discriminator_replay`` the state carries the rollouts of the last R iterations
     (raw, intention-major) and the M-step sees more negatives; the E-step and every key are
     the run's without it. Off, the state holds no replay."""
@@ -495,9 +506,9 @@ def test_a_replay_changes_only_the_m_steps_negatives(env, expert, emgail, gail, 
     assert int(replay.pushed) == 1 and not np.any(replay.obs[1:])
     # Slot 0 is the first rollout, time-major per intention: the envs' starts lead it.
     np.testing.assert_array_equal(replay.obs[0][:, :B], state0.env_state.obs)
-    without = {"emgail": emgail, "gail": gail}.get(algo)
-    if without is None:  # Info/IntentionGAIL's run without a replay is not trained here
+    if algo == "infogail":  # Info/IntentionGAIL's run without a replay is not trained here
         return
+    without = request.getfixturevalue(algo)  # GAIL's only when its slow case runs
     _, [(plain, plain_metrics), *_], _ = without
     assert plain.negatives is None
     np.testing.assert_array_equal(state1.key, plain.key)
