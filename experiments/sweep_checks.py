@@ -16,6 +16,7 @@ from emgail_jax.reoptimize import given_budget
 from emgail_jax.reoptimize import parse_args as reoptimize_args
 from emgail_jax.reward.baseline import baseline_prefix
 from emgail_jax.reward.check import Budget, env_budget
+from emgail_jax.reward.recipe import refit_parts
 from sweep_cells import Cell, summary_or_none
 
 BASELINES_DIR = "true-reward-baselines"  # under OUT, which every node of a Ray sweep sees
@@ -32,10 +33,13 @@ class RewardCheck:
 
 
 # The paper's check (§5.2) of the run's own reward, even where the run saved a refit; then the
-# reward refitted after the run with the recipe measured best per env, each intention's best of
-# 3 draws kept by the learned reward (docs/reward.md, "The refit").
-PAPER_CHECK = RewardCheck("reoptimize.json", ("--set", "reward=paper"))
+# reward refitted after the run with the refit's recipe (docs/reward.md, "The refit"). Both get
+# the same budget (the env's) and the same draws, each draw a single agent per seed and
+# intention.
 REFIT_DRAWS = 3
+PAPER_CHECK = RewardCheck(
+    "reoptimize.json", ("--set", "reward=paper", "--draws", str(REFIT_DRAWS)), REFIT_DRAWS
+)
 REFIT_CHECK = RewardCheck(
     "reoptimize-refit.json", ("--refit", "--draws", str(REFIT_DRAWS)), REFIT_DRAWS
 )
@@ -55,9 +59,7 @@ def reward_check_command(
     cache = os.path.join(out, BASELINES_DIR)
     command = [sys.executable, "-m", "emgail_jax.reoptimize", run_dir, *check.options]
     command += ["--cache", cache, "--quiet"]
-    if path is not None or check != PAPER_CHECK:
-        command += ["--out", path or os.path.join(run_dir, check.file)]
-    return command
+    return [*command, "--out", path or os.path.join(run_dir, check.file)]
 
 
 def seed_numbers(summary: dict | None) -> list[int]:
@@ -102,8 +104,9 @@ def checked_seeds(check: dict) -> list[int]:
 
 def reward_check_done(run_dir: str, seeds: int, check: RewardCheck = PAPER_CHECK) -> bool:
     """The cell's ``check`` covers its ``seeds``, took their final networks (a run resumed to
-    more iterations is checked again), trained at the env's budget as it is now, and has the
-    true-reward baseline beside them."""
+    more iterations is checked again), trained at the env's budget as it is now, as many draws
+    as the check has, of the reward it asks for now, and has the true-reward baseline beside
+    them."""
     found, summary = reward_check(run_dir, check), summary_or_none(run_dir)
     if found is None or summary is None:
         return False
@@ -114,7 +117,18 @@ def reward_check_done(run_dir: str, seeds: int, check: RewardCheck = PAPER_CHECK
     before = {"gae_lambda": config.get("gae_lambda"), "value_target_scaling": False}
     recorded = {**before, **(found.get("budget") or {})}
     at_budget = recorded == dataclasses.asdict(check_budget(summary["env"], config, check))
-    return every_seed and final and at_budget and bool(found.get("baseline"))
+    drawn = len(found.get("draws") or [found]) >= check.draws
+    current = at_budget and drawn and checked_reward(found, summary, check)
+    return every_seed and final and current and bool(found.get("baseline"))
+
+
+def checked_reward(found: dict, summary: dict, check: RewardCheck) -> bool:
+    """The check ``found`` read the reward ``check`` asks for today: the refit of today's
+    recipe for the run's env (its saved name), in the form the recipe reads it."""
+    args = reoptimize_args(["RUN", *check.options], summary["env"])
+    refit = "-".join(refit_parts(args)) or None
+    form = args.reward_form or found.get("reward_form")
+    return (found.get("saved_reward"), found.get("reward_form")) == (refit, form)
 
 
 def check_budget(env: str, config: dict, check: RewardCheck = PAPER_CHECK) -> Budget:

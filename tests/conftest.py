@@ -201,7 +201,15 @@ _REFIT_OF_EVERY_SEED = {
     "erd": [0.1, 0.2],
     "baseline": {"erd": 0.02},
     "consolidation": [{"run_seed": 0, "seconds": 30.0}, {"run_seed": 1, "seconds": 50.0}],
+    # The refit of today's recipe for hopper, read as it reads it.
+    "saved_reward": "consolidated-4000-penalty-10-fresh-noise-1-batch-5000-ranking-10-absorbing",
+    "reward_form": "logit",
 }
+# The sweep's checks draw 3 agents per seed and intention; these three draws are alike.
+_CHECK_OF_EVERY_SEED["draws"] = [dict(_CHECK_OF_EVERY_SEED) for _ in range(3)]
+_REFIT_OF_EVERY_SEED["draws"] = [
+    {key: value for key, value in _REFIT_OF_EVERY_SEED.items() if key != "draws"}
+] * 3
 
 
 def _finished_cell(out, cell, erd, check=None, refit=None):

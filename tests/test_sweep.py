@@ -41,7 +41,8 @@ def test_sweep_reward_check_command_is_every_seed_beside_the_cached_baseline(
     assert args.seed is None and args.baseline and args.snapshot is None
     assert args.cache == str(out / "true-reward-baselines")
     assert (args.iterations, args.gamma, args.env_set) == (None, None, [])  # the env's budget
-    assert not args.refit and args.draws == 1 and args.out is None  # reoptimize.json
+    assert not args.refit and args.draws == 3  # the same draws as the refit's check
+    assert args.out == str(out / "runs" / "hopper-2-infogail" / "reoptimize.json")
     assert args.reward == "paper"  # the run's own, even where a refit was saved
     refit = reoptimize.parse_args(refit_command[3:], env="hopper")
     assert refit.refit and refit.draws == 3 and refit.consolidate_ranking == 10
@@ -189,8 +190,8 @@ def test_sweep_estimates_every_seeds_check_and_each_baseline_once(hopper_cells):
     refit_s = timings.of_refit("hopper")
     assert timings.of_refit("halfcheetah") == sweep.REFIT_SECONDS_PER_SEED
     infogail, swimmer = Cell("hopper", 2, "infogail"), Cell("swimmer", 2, "emgail")
-    # (2 seeds + the baseline) x 4 iterations x 2 intentions at 1 s, and two compiles; the
-    # refit's check 3 draws of the same after 2 seeds' refits.
+    # A draw: (2 seeds + the baseline) x 4 iterations x 2 intentions at 1 s, and two compiles;
+    # the paper's check 3 draws of it, the refit's check the same after 2 seeds' refits.
     check = 2 * 5.0 + 3 * 4 * 2
     refit = 2 * refit_s + 3 * check
     paper_only = (sweep_checks.PAPER_CHECK,)
@@ -199,20 +200,22 @@ def test_sweep_estimates_every_seeds_check_and_each_baseline_once(hopper_cells):
         sweep.estimate_seconds(
             infogail, Status.CHECK, 2, 4, timings, computing_baselines=both, checks=paper_only
         )
-        == check
+        == 3 * check
     )
-    assert sweep.estimate_seconds(infogail, Status.CHECK, 2, 4, timings) == check + refit
+    assert sweep.estimate_seconds(infogail, Status.CHECK, 2, 4, timings) == 3 * check + refit
     without_baseline = sweep.estimate_seconds(
         infogail, Status.CHECK, 2, 4, timings, computing_baselines=()
     )
-    assert without_baseline == 5.0 + 2 * 4 * 2 + 2 * refit_s + 3 * (5.0 + 2 * 4 * 2)
+    assert without_baseline == 3 * (5.0 + 2 * 4 * 2) + 2 * refit_s + 3 * (5.0 + 2 * 4 * 2)
     trained = 10.0 + 1.0 * 2 * 4 * 2
-    assert sweep.estimate_seconds(infogail, Status.NEW, 2, 4, timings) == trained + check + refit
+    assert sweep.estimate_seconds(infogail, Status.NEW, 2, 4, timings) == (
+        trained + 3 * check + refit
+    )
     # Over two processes a seed each, the baseline's beside the last: a seed and the baseline.
     check_2 = 2 * 5.0 + 2 * 4 * 2
     refit_2 = refit_s + 3 * check_2
     over_two = sweep.estimate_seconds(infogail, Status.CHECK, 2, 4, timings, check_processes=2)
-    assert over_two == check_2 + refit_2
+    assert over_two == 3 * check_2 + refit_2
     # A check stopped part-way costs what it has left: its finished draw and half the next.
     run_dir = out / "runs" / infogail.name
     finished = FinishedDraws(str(run_dir / sweep_checks.REFIT_CHECK.file), {})
@@ -234,9 +237,9 @@ def test_sweep_estimates_every_seeds_check_and_each_baseline_once(hopper_cells):
     shutil.rmtree(os.path.dirname(parts[0]))  # gone: the whole check's draws count again
     assert sweep.estimate_seconds(
         infogail, Status.CHECK, 2, 4, timings, draws_done=done
-    ) == pytest.approx(check + refit / 2)
+    ) == pytest.approx(3 * check + refit / 2)
     per_unit, compile_s = sweep.MEASURED_SECONDS["swimmer"]  # no swimmer cell finished
-    check = 2 * compile_s + per_unit * 3 * 1500 * 2  # the swimmer's experts' budget
+    check = 3 * (2 * compile_s + per_unit * 3 * 1500 * 2)  # the swimmer's experts' budget
     estimate = sweep.estimate_seconds(
         swimmer, Status.CHECK, 2, 4, timings, computing_baselines=both, checks=paper_only
     )

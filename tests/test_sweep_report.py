@@ -154,12 +154,13 @@ def test_sweep_fig6_csv_sets_the_reward_check_beside_the_joint_erd(hopper_cells)
         "refit_erd_draws_mean,refit_erd_draws_std,true_reward_erd_lowest,"
         "refit_success_rate,true_reward_success_rate"
     )
-    # The refit's record holds one draw of 2 seeds, no agents' success and one baseline draw:
-    # its single draws' mean and sample sd, the baseline's one draw as its lowest.
+    # The refit's record holds three alike draws of 2 seeds (0.1, 0.2), no agents' success and
+    # one baseline draw: its 6 single draws' mean and sample sd, the baseline's one draw as its
+    # lowest.
     assert lines[1:] == [
         "hopper,1,gail,,0.0100,0.0000,,2,,,,,,,,,,,",
         "hopper,2,emgail,,0.0100,0.0000,0.6000,2,0.1000,0.0300,2,0.1500,0.0500,0.0200,"
-        "0.1500,0.0707,0.0200,,",
+        "0.1500,0.0548,0.0200,,",
         "hopper,2,infogail,,0.0300,0.0100,,2,,,,,,,,,,,",
         "hopper,2,gail,,0.5500,0.0500,1.0000,2,0.1000,0.0300,2,,,,,,,,",
         "hopper,3,emgail,,0.0400,0.0100,0.4900,2,,,1,,,,,,,,",
