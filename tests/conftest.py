@@ -88,9 +88,6 @@ def copied_run(tiny_run, tmp_path):
 @pytest.fixture(scope="session")
 def renumbered_run(tiny_run, tmp_path_factory):
     """``tiny_run`` as if started with ``run --seed 4``: its seeds are numbered 4 and 5."""
-    import json
-    import shutil
-
     copy = tmp_path_factory.mktemp("renumbered") / "emgail"
     shutil.copytree(tiny_run, copy)
     summary = json.loads((copy / "summary.json").read_text())
